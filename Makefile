@@ -1,0 +1,34 @@
+# Two entry points for a fresh machine: `make run` (the default graph) and `make test`.
+PY := .venv/bin/python
+VENV_STAMP := .venv/.installed
+
+.PHONY: run test lint format check venv clean
+
+$(VENV_STAMP): pyproject.toml
+	python3 -m venv .venv
+	# torch first, pinned: a bare `torch` requirement would pull the CUDA build.
+	$(PY) -m pip install --quiet torch==2.13.0
+	$(PY) -m pip install --quiet -e '.[dev]'
+	touch $(VENV_STAMP)
+
+venv: $(VENV_STAMP)
+
+run: $(VENV_STAMP)
+	$(PY) launch.py graph.yaml
+
+check: $(VENV_STAMP)
+	$(PY) launch.py graph.yaml --check
+
+lint: $(VENV_STAMP)
+	$(PY) -m ruff check .
+	$(PY) -m ruff format --check .
+
+format: $(VENV_STAMP)
+	$(PY) -m ruff format .
+	$(PY) -m ruff check --fix .
+
+test: $(VENV_STAMP) lint
+	$(PY) -m pytest
+
+clean:
+	rm -rf .venv

@@ -1,0 +1,50 @@
+"""The graph's vocabulary: typed messages, the frame codec, schema fingerprints."""
+
+from __future__ import annotations
+
+from messages.base import Array, Header, Message, describe, message_type
+from messages.codec import decode, decode_header, encode
+from messages.errors import FingerprintMismatchError, FrameDecodeError
+from messages.types import (
+    ClassProbabilities,
+    ContactPatch,
+    GraspState,
+    GripperCommand,
+    GripperState,
+    GroundTruth,
+    MaskImage,
+    OverlayImage,
+    PoseEstimate,
+    Pressure,
+    ShearEstimate,
+    TaskEvent,
+    Tick,
+    ToFImage,
+)
+
+__all__ = [
+    "Array",
+    "ClassProbabilities",
+    "ContactPatch",
+    "FingerprintMismatchError",
+    "FrameDecodeError",
+    "GraspState",
+    "GripperCommand",
+    "GripperState",
+    "GroundTruth",
+    "Header",
+    "MaskImage",
+    "Message",
+    "OverlayImage",
+    "PoseEstimate",
+    "Pressure",
+    "ShearEstimate",
+    "TaskEvent",
+    "Tick",
+    "ToFImage",
+    "decode",
+    "decode_header",
+    "describe",
+    "encode",
+    "message_type",
+]

@@ -1,0 +1,151 @@
+"""Typed message classes, their array fields, fingerprints and schema descriptions.
+
+A message is a ``msgspec.Struct`` (keyword-only) whose fields are scalars, strings,
+lists of those, nested structs (the :class:`Header`), or numpy arrays declared with
+:func:`array_field`-style annotations::
+
+    class ToFImage(Message):
+        header: Header
+        depth_m: Annotated[np.ndarray, Array("float32", (None, None))]
+
+Arrays travel as raw buffers next to the MessagePack header (see ``codec``); the rest
+is validated by msgspec on decode. The fingerprint is a hash of the type name and
+every field's name and type, so adding, removing, renaming or retyping a field
+changes it.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import typing
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import msgspec
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Array:
+    """Declares an ndarray field: its dtype and shape (``None`` = any length on that axis)."""
+
+    dtype: str
+    shape: tuple[int | None, ...]
+
+    def check(self, type_name: str, field: str, value: np.ndarray) -> None:
+        """Raise ``ValueError`` naming the field if ``value`` does not fit this declaration."""
+        if not isinstance(value, np.ndarray):
+            raise ValueError(f"{type_name}.{field}: expected ndarray, got {type(value).__name__}")
+        if value.dtype.newbyteorder("=") != np.dtype(self.dtype).newbyteorder("="):
+            raise ValueError(f"{type_name}.{field}: dtype must be {self.dtype}, got {value.dtype}")
+        if value.ndim != len(self.shape):
+            raise ValueError(
+                f"{type_name}.{field}: expected {len(self.shape)} dimensions, got shape {value.shape}"
+            )
+        for axis, (want, got) in enumerate(zip(self.shape, value.shape, strict=True)):
+            if want is not None and want != got:
+                raise ValueError(
+                    f"{type_name}.{field}: axis {axis} must have length {want}, got shape {value.shape}"
+                )
+
+
+class Header(msgspec.Struct, kw_only=True):
+    """Stamp (nanoseconds since the epoch, or scene time), per-output sequence, frame id."""
+
+    stamp_nanos: int = 0
+    seq: int = 0
+    frame_id: str = ""
+
+
+@dataclass(frozen=True)
+class Schema:
+    """What the codec needs to know of a message type, computed once per class."""
+
+    array_fields: dict[str, Array]
+    fingerprint: str
+    description: dict[str, Any]
+
+
+class Message(msgspec.Struct, kw_only=True):
+    """Base of every message type. Subclasses register themselves by class name."""
+
+    registry: ClassVar[dict[str, type[Message]]] = {}
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        name = cls.__name__
+        if name in Message.registry:
+            raise TypeError(f"message type {name} is declared twice")
+        Message.registry[name] = cls
+
+    @classmethod
+    def schema(cls) -> Schema:
+        """The type's array declarations, fingerprint and description (cached)."""
+        return _schema(cls)
+
+    def validate(self) -> None:
+        """Check every array field against its declaration (raises ``ValueError``)."""
+        for name, spec in self.schema().array_fields.items():
+            spec.check(type(self).__name__, name, getattr(self, name))
+
+
+@functools.cache
+def _schema(cls: type[Message]) -> Schema:
+    hints = typing.get_type_hints(cls, include_extras=True)
+    arrays = {}
+    for field in msgspec.structs.fields(cls):
+        spec = _array_spec(hints[field.name])
+        if spec is not None:
+            arrays[field.name] = spec
+    description = describe(cls)
+    digest = hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()
+    return Schema(array_fields=arrays, fingerprint=digest[:16], description=description)
+
+
+def _array_spec(hint: Any) -> Array | None:
+    if typing.get_origin(hint) is typing.Annotated:
+        for meta in hint.__metadata__:
+            if isinstance(meta, Array):
+                return meta
+    return None
+
+
+def _type_description(hint: Any) -> Any:
+    spec = _array_spec(hint)
+    if spec is not None:
+        return {"array": {"dtype": np.dtype(spec.dtype).str, "shape": list(spec.shape)}}
+    if isinstance(hint, type) and issubclass(hint, msgspec.Struct):
+        hints = typing.get_type_hints(hint)
+        return {
+            "struct": hint.__name__,
+            "fields": [[f.name, _type_description(hints[f.name])] for f in msgspec.structs.fields(hint)],
+        }
+    origin = typing.get_origin(hint)
+    if origin is not None:
+        return {"generic": getattr(origin, "__name__", str(origin)),
+                "args": [_type_description(a) for a in typing.get_args(hint)]}
+    return getattr(hint, "__name__", repr(hint))
+
+
+def describe(cls: type[msgspec.Struct]) -> dict[str, Any]:
+    """A JSON-able description of a message type: its name and every field's type.
+
+    Bags store this next to each channel so a reader can decode old files without the
+    project's classes of that day.
+    """
+    hints = typing.get_type_hints(cls, include_extras=True)
+    return {
+        "type": cls.__name__,
+        "fields": [[f.name, _type_description(hints[f.name])] for f in msgspec.structs.fields(cls)],
+    }
+
+
+def message_type(name: str) -> type[Message]:
+    """Look up a message class by name (``KeyError`` lists the known ones)."""
+    try:
+        return Message.registry[name]
+    except KeyError:
+        known = ", ".join(sorted(Message.registry))
+        raise KeyError(f"unknown message type {name!r}; known: {known}") from None

@@ -1,0 +1,167 @@
+"""Message <-> multipart ZeroMQ frames.
+
+Wire format (one message = one multipart ZeroMQ message)::
+
+    frame 0   topic, UTF-8 ("node/output")
+    frame 1   MessagePack map:
+                {"type": "ToFImage", "fp": "<16 hex>",
+                 "fields": {<every non-array field, nested structs as maps>},
+                 "arrays": [[name, dtype.str, [shape...]], ...]}
+    frame 2+  one raw, C-contiguous little-endian buffer per array, in "arrays" order
+
+Frame 1 decodes with the plain ``msgpack`` package, so peers in other languages can
+join. Arrays are sent from their own memory (no copy when already contiguous and
+little-endian) and received as read-only views on the ZeroMQ frames' buffers.
+Every way a frame can be wrong raises :class:`FrameDecodeError` (or its subclass
+:class:`FingerprintMismatchError`); nothing else escapes :func:`decode`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import msgspec
+import numpy as np
+
+from messages.base import Message
+from messages.errors import FingerprintMismatchError, FrameDecodeError
+
+_encoder = msgspec.msgpack.Encoder()
+_header_decoder = msgspec.msgpack.Decoder()
+
+
+class WireHeader(msgspec.Struct, forbid_unknown_fields=True):
+    """The envelope of frame 1, validated on decode."""
+
+    type: str
+    fp: str
+    fields: dict[str, Any]
+    arrays: list[tuple[str, str, list[int]]]
+
+
+_wire_decoder = msgspec.msgpack.Decoder(WireHeader)
+
+
+def _wire_array(msg: Message, name: str) -> np.ndarray:
+    value = getattr(msg, name)
+    spec = msg.schema().array_fields[name]
+    array = np.asarray(value)
+    want = np.dtype(spec.dtype).newbyteorder("<")
+    if array.dtype != want:
+        if array.dtype.newbyteorder("=") != want.newbyteorder("="):
+            raise ValueError(
+                f"{type(msg).__name__}.{name}: dtype must be {spec.dtype}, got {array.dtype}"
+            )
+        array = array.astype(want)
+    return np.ascontiguousarray(array)
+
+
+def encode(topic: str, msg: Message) -> list[Any]:
+    """Encode ``msg`` as multipart frames ``[topic, header, *buffers]``.
+
+    Raises:
+        ValueError: an array field does not match its declaration (names the field).
+    """
+    schema = msg.schema()
+    msg.validate()
+    arrays = [(name, _wire_array(msg, name)) for name in schema.array_fields]
+    fields = {
+        name: value
+        for name, value in msgspec.structs.asdict(msg).items()
+        if name not in schema.array_fields
+    }
+    header = {
+        "type": type(msg).__name__,
+        "fp": schema.fingerprint,
+        "fields": msgspec.to_builtins(fields),
+        "arrays": [[name, a.dtype.str, list(a.shape)] for name, a in arrays],
+    }
+    return [topic.encode(), _encoder.encode(header), *(memoryview(a).cast("B") for _, a in arrays)]
+
+
+def decode_header(raw: bytes | memoryview) -> WireHeader:
+    """Decode and validate frame 1 alone (cheap: no array is touched)."""
+    try:
+        return _wire_decoder.decode(raw)
+    except (msgspec.DecodeError, msgspec.ValidationError) as err:
+        raise FrameDecodeError(f"bad frame header: {err}") from err
+
+
+def _buffer(frame: Any) -> memoryview:
+    buf = getattr(frame, "buffer", frame)
+    return memoryview(buf)
+
+
+def _passthrough(kind: type, obj: Any) -> Any:
+    if kind is np.ndarray and isinstance(obj, np.ndarray):
+        return obj
+    raise NotImplementedError(f"cannot convert {type(obj).__name__} to {kind}")
+
+
+def decode(frames: Sequence[Any], expect: type[Message] | None = None) -> tuple[str, Message]:
+    """Decode ``[topic, header, *buffers]`` (bytes or ``zmq.Frame``) into ``(topic, message)``.
+
+    Args:
+        frames: the multipart message as received.
+        expect: if given, the frame must carry this type (and its fingerprint).
+
+    Raises:
+        FrameDecodeError: truncated, wrong buffer size, unknown type, bad dtype or fields.
+        FingerprintMismatchError: same type name, different schema.
+    """
+    if len(frames) < 2:
+        raise FrameDecodeError(f"truncated message: {len(frames)} frame(s), need at least 2")
+    try:
+        topic = bytes(_buffer(frames[0])).decode()
+    except UnicodeDecodeError as err:
+        raise FrameDecodeError("topic frame is not UTF-8") from err
+    wire = decode_header(_buffer(frames[1]))
+    cls = Message.registry.get(wire.type)
+    if cls is None:
+        raise FrameDecodeError(f"{topic}: unknown message type {wire.type!r}")
+    if expect is not None and cls is not expect:
+        raise FrameDecodeError(f"{topic}: expected {expect.__name__}, got {wire.type}")
+    schema = cls.schema()
+    if wire.fp != schema.fingerprint:
+        raise FingerprintMismatchError(
+            f"{topic}: {wire.type} fingerprint {wire.fp} from the sender, "
+            f"{schema.fingerprint} here: the two sides declare different fields"
+        )
+    if len(frames) != 2 + len(wire.arrays):
+        raise FrameDecodeError(
+            f"{topic}: {wire.type} header lists {len(wire.arrays)} arrays, got {len(frames) - 2} buffers"
+        )
+    fields = dict(wire.fields)
+    for (name, dtype_str, shape), frame in zip(wire.arrays, frames[2:], strict=True):
+        spec = schema.array_fields.get(name)
+        if spec is None:
+            raise FrameDecodeError(f"{topic}: {wire.type} has no array field {name!r}")
+        try:
+            dtype = np.dtype(dtype_str)
+        except TypeError as err:
+            raise FrameDecodeError(f"{topic}: {wire.type}.{name}: bad dtype {dtype_str!r}") from err
+        if dtype.hasobject or dtype.newbyteorder("=") != np.dtype(spec.dtype).newbyteorder("="):
+            raise FrameDecodeError(
+                f"{topic}: {wire.type}.{name}: dtype {dtype_str!r}, declared {spec.dtype}"
+            )
+        if any((not isinstance(n, int)) or n < 0 for n in shape):
+            raise FrameDecodeError(f"{topic}: {wire.type}.{name}: bad shape {shape}")
+        buf = _buffer(frame)
+        want = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+        if buf.nbytes != want:
+            raise FrameDecodeError(
+                f"{topic}: {wire.type}.{name}: buffer of {buf.nbytes} bytes, "
+                f"shape {shape} of {dtype_str} needs {want}"
+            )
+        array = np.frombuffer(buf, dtype=dtype).reshape(shape)
+        try:
+            spec.check(wire.type, name, array)
+        except ValueError as err:
+            raise FrameDecodeError(f"{topic}: {err}") from err
+        fields[name] = array
+    try:
+        msg = msgspec.convert(fields, cls, dec_hook=_passthrough)
+    except (msgspec.ValidationError, NotImplementedError, TypeError) as err:
+        raise FrameDecodeError(f"{topic}: {wire.type}: {err}") from err
+    return topic, msg
