@@ -48,3 +48,11 @@ __all__ = [
     "encode",
     "message_type",
 ]
+
+# Message types declared in other modules of this package (one per area) register on
+# import; import them all so every process knows every type.
+import importlib as _importlib  # noqa: E402
+import pkgutil as _pkgutil  # noqa: E402
+
+for _module in _pkgutil.iter_modules(__path__):
+    _importlib.import_module(f"{__name__}.{_module.name}")

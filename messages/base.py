@@ -120,12 +120,16 @@ def _type_description(hint: Any) -> Any:
         hints = typing.get_type_hints(hint)
         return {
             "struct": hint.__name__,
-            "fields": [[f.name, _type_description(hints[f.name])] for f in msgspec.structs.fields(hint)],
+            "fields": [
+                [f.name, _type_description(hints[f.name])] for f in msgspec.structs.fields(hint)
+            ],
         }
     origin = typing.get_origin(hint)
     if origin is not None:
-        return {"generic": getattr(origin, "__name__", str(origin)),
-                "args": [_type_description(a) for a in typing.get_args(hint)]}
+        return {
+            "generic": getattr(origin, "__name__", str(origin)),
+            "args": [_type_description(a) for a in typing.get_args(hint)],
+        }
     return getattr(hint, "__name__", repr(hint))
 
 

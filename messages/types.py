@@ -15,7 +15,6 @@ import numpy as np
 
 from messages.base import Array, Header, Message
 
-
 F32Image = Annotated[np.ndarray, Array("float32", (None, None))]
 U16Image = Annotated[np.ndarray, Array("uint16", (None, None))]
 U8Image = Annotated[np.ndarray, Array("uint8", (None, None))]

@@ -1,0 +1,95 @@
+"""The Node base class: declared ports, typed parameters, handlers, timers.
+
+A node's logic never builds its own transport: it receives an :class:`IO` object.
+In a graph that is the ZeroMQ process runner (``runtime.process``); in tests it is
+:class:`runtime.testing.FakeIO`, which feeds messages and records outputs.
+
+A node class declares::
+
+    @register("shear_tracker.farneback")
+    class FarnebackShearTracker(Node):
+        Params = ShearParams                 # frozen, kw-only dataclass; checks itself
+        inputs = {"image": ToFImage, "grasp": GraspState}
+        outputs = {"shear": ShearEstimate}
+        optional_inputs = frozenset({"grasp"})   # others are required in a graph
+
+        def setup(self) -> None: ...          # after construction, before messages
+        def on_image(self, msg: ToFImage) -> None: ...   # one handler per input
+        def teardown(self) -> None: ...       # on a clean stop
+
+Sources (nodes without inputs) drive themselves with ``self.io.add_timer`` and end
+the graph with ``self.io.request_stop(reason)`` when they are done.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, ClassVar, Protocol
+
+from messages.base import Message
+from messages.errors import NodeError
+
+
+@dataclass(frozen=True, kw_only=True)
+class NoParams:
+    """Parameters of a node that takes none."""
+
+
+class IO(Protocol):
+    """What a node may do to the outside world."""
+
+    log: logging.Logger
+
+    def publish(self, output: str, msg: Message) -> None:
+        """Send ``msg`` on one of the node's declared outputs (the IO sets ``header.seq``)."""
+
+    def add_timer(self, period_secs: float, callback: Callable[[], None]) -> None:
+        """Call ``callback`` every ``period_secs`` (on the node's own thread)."""
+
+    def now_nanos(self) -> int:
+        """The current time in nanoseconds (wall clock in a live graph)."""
+
+    def request_stop(self, reason: str) -> None:
+        """Ask the whole graph to stop (a source that has finished, a task that ended)."""
+
+
+class Node:
+    """Base of every node implementation. See the module docstring for the shape."""
+
+    Params: ClassVar[type[Any]] = NoParams
+    inputs: ClassVar[dict[str, type[Message]]] = {}
+    outputs: ClassVar[dict[str, type[Message]]] = {}
+    optional_inputs: ClassVar[frozenset[str]] = frozenset()
+
+    def __init__(self, name: str, params: Any, io: IO) -> None:
+        if not isinstance(params, self.Params):
+            raise NodeError(
+                f"{name}: params must be {self.Params.__name__}, got {type(params).__name__}"
+            )
+        self.name = name
+        self.params = params
+        self.io = io
+
+    def setup(self) -> None:
+        """Build the node's state; called once before the first message or timer."""
+
+    def teardown(self) -> None:
+        """Release resources; called once on a clean stop."""
+
+    def handle(self, port: str, msg: Message) -> None:
+        """Dispatch a received message to ``on_<port>``."""
+        getattr(self, f"on_{port}")(msg)
+
+    @classmethod
+    def check_declaration(cls) -> None:
+        """Raise ``TypeError`` if a declared input has no handler (called at registration)."""
+        for port in cls.inputs:
+            if not callable(getattr(cls, f"on_{port}", None)):
+                raise TypeError(f"{cls.__name__}: input {port!r} has no on_{port} handler")
+        unknown = cls.optional_inputs - set(cls.inputs)
+        if unknown:
+            raise TypeError(
+                f"{cls.__name__}: optional_inputs names unknown ports {sorted(unknown)}"
+            )
