@@ -54,6 +54,16 @@ class IO(Protocol):
     def request_stop(self, reason: str) -> None:
         """Ask the whole graph to stop (a source that has finished, a task that ended)."""
 
+    def publish_raw(self, topic: str, frames: list[Any]) -> None:
+        """Publish already-encoded frames verbatim on one of the node's output topics."""
+
+    def wait_idle(self, timeout_secs: float) -> bool:
+        """Block until every message published so far has been handled downstream
+        (lockstep replay); True when idle, False on timeout."""
+
+    def drops(self) -> dict[str, int]:
+        """Messages lost per input topic so far (sequence gaps and superseded ones)."""
+
 
 class Node:
     """Base of every node implementation. See the module docstring for the shape."""
@@ -62,6 +72,9 @@ class Node:
     inputs: ClassVar[dict[str, type[Message]]] = {}
     outputs: ClassVar[dict[str, type[Message]]] = {}
     optional_inputs: ClassVar[frozenset[str]] = frozenset()
+    # A raw-input node (the recorder) receives every message undecoded through
+    # ``on_raw(topic, frames)``, and its graph inputs may name any port and type.
+    raw_input: ClassVar[bool] = False
 
     def __init__(self, name: str, params: Any, io: IO) -> None:
         if not isinstance(params, self.Params):
@@ -77,6 +90,19 @@ class Node:
 
     def teardown(self) -> None:
         """Release resources; called once on a clean stop."""
+
+    @classmethod
+    def ports(cls, params: Any) -> tuple[dict[str, type[Message]], dict[str, type[Message]]]:
+        """``(inputs, outputs)`` for these parameters; the class attributes by default.
+
+        Override when the ports depend on the parameters (a replay node's outputs are
+        the topics of its bag). An output name containing '/' is a full topic.
+        """
+        return cls.inputs, cls.outputs
+
+    def on_raw(self, topic: str, frames: list[Any]) -> None:
+        """Receive an undecoded multipart message (only for ``raw_input`` nodes)."""
+        raise NotImplementedError(f"{type(self).__name__} is not a raw-input node")
 
     def handle(self, port: str, msg: Message) -> None:
         """Dispatch a received message to ``on_<port>``."""

@@ -36,6 +36,7 @@ class FakeIO:
         self._timers: list[_Timer] = []
         self._seq: dict[str, int] = defaultdict(int)
         self.outputs: Mapping[str, type[Message]] = {}
+        self.dropped: dict[str, int] = {}
 
     def publish(self, output: str, msg: Message) -> None:
         if output not in self.outputs:
@@ -50,6 +51,17 @@ class FakeIO:
         self._seq[output] += 1
         _, copy = decode(encode(output, msg))
         self.published[output].append(copy)
+
+    def publish_raw(self, topic: str, frames: list[Any]) -> None:
+        """Record raw frames (decoded, so tests see messages) under their topic."""
+        _, msg = decode([topic.encode(), *frames[1:]])
+        self.published[topic].append(msg)
+
+    def wait_idle(self, timeout_secs: float) -> bool:
+        return True
+
+    def drops(self) -> dict[str, int]:
+        return dict(self.dropped)
 
     def add_timer(self, period_secs: float, callback: Callable[[], None]) -> None:
         period = int(period_secs * 1e9)
@@ -83,8 +95,9 @@ def make_node(
 ) -> tuple[Any, FakeIO]:
     """Construct and set up ``cls`` with a :class:`FakeIO`; returns ``(node, io)``."""
     io = FakeIO(name, now_nanos)
-    io.outputs = cls.outputs
-    node = cls(name, build_params(cls.Params, params), io)
+    built = build_params(cls.Params, params)
+    io.outputs = cls.ports(built)[1]
+    node = cls(name, built, io)
     node.setup()
     return node, io
 

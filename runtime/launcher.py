@@ -1,0 +1,579 @@
+"""Start a checked graph as OS processes, supervise them, stop them, report.
+
+One process per node (``python -m runtime.process``), a control ROUTER socket for
+the handshake, heartbeats, lockstep counters and stop requests (see
+``runtime.protocol``). Supervision: a node that exits with an error, or whose
+heartbeat stops, or that stays busy in one handler longer than its
+``hang_timeout_secs``, is handled by its restart policy (``never``, or
+``on-failure`` with exponential back-off and a cap); when a node marked
+``required`` fails for good, the graph stops with a non-zero exit and that node's
+last log lines. Stopping (Ctrl-C, SIGTERM, ``--duration``, a node's request):
+every node is asked to stop, then terminated after a grace period, then killed;
+children die with the launcher even on SIGKILL (``PR_SET_PDEATHSIG``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections import defaultdict, deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import yaml
+import zmq
+
+from messages.errors import GraphError
+from runtime import protocol
+from runtime.graph import Graph, NodeSpec, check
+from runtime.registry import class_path
+
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
+STARTUP_TIMEOUT_SECS = 300.0
+HEARTBEAT_TIMEOUT_SECS = 5.0
+DRAIN_SECS = 3.0
+STOP_GRACE_SECS = 5.0
+TERM_GRACE_SECS = 2.0
+LOG_TAIL_LINES = 20
+
+
+@dataclass
+class _Proc:
+    spec: NodeSpec
+    popen: subprocess.Popen[bytes] | None = None
+    endpoint: str | None = None
+    state: str = "new"  # new | hello | ready | running | exited | waiting_restart | failed
+    restarts: int = 0
+    restart_at: float = 0.0
+    last_heartbeat: float = 0.0
+    busy_secs: float = 0.0
+    cpu_secs: float = 0.0
+    exit_codes: list[int] = field(default_factory=list)
+    tail: deque[str] = field(default_factory=lambda: deque(maxlen=LOG_TAIL_LINES))
+    stats: dict[str, Any] = field(default_factory=dict)
+    stats_at: float = 0.0
+    stats_base: dict[str, Any] = field(default_factory=dict)
+    counts_published: dict[str, int] = field(default_factory=dict)
+    counts_received: dict[str, int] = field(default_factory=dict)
+
+
+class Launcher:
+    """Runs one graph to the end; :meth:`run` returns the exit code."""
+
+    def __init__(
+        self,
+        graph: Graph,
+        *,
+        lockstep: bool = False,
+        duration_secs: float | None = None,
+        log_level: str = "INFO",
+        out: IO[str] | None = None,
+    ) -> None:
+        self.graph = graph
+        self.lockstep = lockstep
+        self.duration_secs = duration_secs
+        self.log_level = log_level
+        self.out = out or sys.stdout
+        self.procs = {name: _Proc(spec) for name, spec in graph.nodes.items()}
+        self.providers = {topic: node for topic, (node, _) in graph.providers().items()}
+        self.expected: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
+        for topic, _, _ in graph.edges():
+            self.expected[self.providers[topic]][topic] += 1
+        self.stop_reason: str | None = None
+        self.exit_code = 0
+        self.idle_waiters: list[bytes] = []
+        self.started_at = 0.0
+        self.stopped_at = 0.0
+        self._print_lock = threading.Lock()
+        self._signals = 0
+        self.rundir = Path(tempfile.mkdtemp(prefix="sbg-"))
+        self.ctx: zmq.Context[Any] = zmq.Context()
+        self.control = self.ctx.socket(zmq.ROUTER)
+        self.control.setsockopt(zmq.LINGER, 0)
+        self.control.setsockopt(zmq.ROUTER_MANDATORY, 1)
+        self.control_endpoint = f"ipc://{self.rundir}/control"
+        self.control.bind(self.control_endpoint)
+
+    # -- output ----------------------------------------------------------------
+    def say(self, text: str, node: str = "launch") -> None:
+        with self._print_lock:
+            for line in text.splitlines() or [""]:
+                print(f"[{node}] {line}", file=self.out, flush=True)
+
+    def _pump(self, proc: _Proc, stream: IO[bytes]) -> None:
+        for raw in iter(stream.readline, b""):
+            line = raw.decode(errors="replace").rstrip("\n")
+            proc.tail.append(line)
+            self.say(line, proc.spec.name)
+        stream.close()
+
+    # -- processes ---------------------------------------------------------------
+    def _bind_endpoint(self, proc: _Proc) -> str:
+        if proc.endpoint:  # a restart binds where the subscribers already connect
+            return proc.endpoint
+        if proc.spec.host:
+            return f"tcp://{proc.spec.host}:*"
+        return f"ipc://{self.rundir}/{proc.spec.name}.pub"
+
+    def _spawn(self, proc: _Proc) -> None:
+        spec = proc.spec
+        child_spec = {
+            "name": spec.name,
+            "class_path": class_path(spec.cls),
+            "params": spec.raw_params,
+            "outputs": spec.topics,
+            "inputs": [
+                {
+                    "port": i.port,
+                    "topic": i.topic,
+                    "provider": self.providers[i.topic],
+                    "policy": i.policy,
+                    "queue_size": i.queue_size,
+                }
+                for i in spec.inputs.values()
+            ],
+            "expected_subscribers": dict(self.expected[spec.name]),
+            "bind": self._bind_endpoint(proc),
+            "control": self.control_endpoint,
+            "parent_pid": os.getpid(),
+            "lockstep": self.lockstep,
+            "log_level": self.log_level,
+        }
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join(
+            filter(None, [str(PROJECT_ROOT), env.get("PYTHONPATH")])
+        )
+        env["PYTHONUNBUFFERED"] = "1"
+        popen = subprocess.Popen(
+            [sys.executable, "-m", "runtime.process"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            cwd=os.getcwd(),
+            env=env,
+        )
+        assert popen.stdin is not None and popen.stdout is not None
+        popen.stdin.write(json.dumps(child_spec).encode())
+        popen.stdin.close()
+        threading.Thread(target=self._pump, args=(proc, popen.stdout), daemon=True).start()
+        proc.popen = popen
+        proc.state = "new"
+        proc.last_heartbeat = time.monotonic()
+        proc.busy_secs = 0.0
+        proc.stats_base = _add_stats(proc.stats_base, proc.stats)
+        proc.stats = {}
+
+    def _reap(self) -> None:
+        for proc in self.procs.values():
+            if proc.popen is None or proc.state in ("exited", "failed", "waiting_restart"):
+                continue
+            try:
+                pid, status, usage = os.wait4(proc.popen.pid, os.WNOHANG)
+            except ChildProcessError:
+                pid, status, usage = proc.popen.pid, 0, None
+            if pid == 0:
+                continue
+            if usage is not None:
+                proc.cpu_secs += usage.ru_utime + usage.ru_stime
+            code = os.waitstatus_to_exitcode(status)
+            proc.popen.returncode = code
+            proc.exit_codes.append(code)
+            self._on_exit(proc, code)
+
+    def _on_exit(self, proc: _Proc, code: int) -> None:
+        if code == 0 or self.stop_reason is not None:
+            proc.state = "exited"
+            return
+        reason = f"signal {-code}" if code < 0 else f"exit code {code}"
+        self._failed(proc, reason)
+
+    def _failed(self, proc: _Proc, reason: str) -> None:
+        name = proc.spec.name
+        policy = proc.spec.restart
+        if policy.policy == "on-failure" and proc.restarts < policy.max_restarts:
+            delay = min(policy.backoff_secs * 2**proc.restarts, policy.backoff_max_secs)
+            proc.restarts += 1
+            proc.state = "waiting_restart"
+            proc.restart_at = time.monotonic() + delay
+            self.say(
+                f"node {name!r} failed ({reason}); restart {proc.restarts}/{policy.max_restarts} in {delay:.2f} s"
+            )
+            return
+        proc.state = "failed"
+        if proc.spec.required:
+            tail = "\n".join(f"    {line}" for line in proc.tail) or "    (no output)"
+            self.say(
+                f"required node {name!r} failed ({reason}); stopping the graph. Its last lines:\n{tail}"
+            )
+            self.exit_code = 1
+            self._request_stop(f"required node {name!r} failed")
+        else:
+            self.say(f"node {name!r} failed ({reason}); not required, the graph goes on")
+
+    def _kill_hung(self, proc: _Proc, why: str) -> None:
+        if proc.popen is not None:
+            try:
+                proc.popen.kill()
+            except ProcessLookupError:
+                pass
+        self.say(f"node {proc.spec.name!r} {why}; killed")
+
+    # -- control messages --------------------------------------------------------
+    def _send(self, name: str, kind: str, **body: Any) -> None:
+        try:
+            self.control.send_multipart([name.encode(), protocol.pack(kind, **body)])
+        except zmq.ZMQError:
+            pass  # the node is gone; its exit is handled by _reap
+
+    def _on_message(self, ident: bytes, raw: bytes) -> None:
+        name, _, suffix = ident.decode().partition("#")
+        proc = self.procs.get(name)
+        if proc is None:
+            return
+        msg = protocol.unpack(raw)
+        kind = msg["kind"]
+        proc.last_heartbeat = time.monotonic()
+        if kind == "hello":
+            proc.endpoint = msg["endpoint"]
+            proc.state = "hello"
+            if self.started_at:  # a restart: peers' endpoints are known
+                self._send(name, "connect", endpoints=self._endpoints())
+        elif kind == "ready":
+            proc.state = "ready"
+            if self.started_at:
+                self._send(name, "start")
+                proc.state = "running"
+                if proc.restarts:
+                    self.say(f"node {name!r} is back")
+        elif kind == "heartbeat":
+            proc.busy_secs = msg["busy_secs"]
+            proc.stats = msg["stats"]
+            proc.stats_at = time.monotonic()
+        elif kind == "final":
+            proc.stats = msg["stats"]
+        elif kind == "counts":
+            proc.counts_published = msg["published"]
+            proc.counts_received = msg["received"]
+        elif kind == "wait_idle":
+            self.idle_waiters.append(ident)
+        elif kind == "stop_request":
+            self.say(f"node {name!r} asks to stop: {msg.get('reason', '')}")
+            self._request_stop(f"{name}: {msg.get('reason', '')}")
+
+    def _endpoints(self) -> dict[str, str]:
+        return {name: p.endpoint for name, p in self.procs.items() if p.endpoint}
+
+    def _graph_idle(self) -> bool:
+        published: dict[str, int] = {}
+        for proc in self.procs.values():
+            published.update(proc.counts_published)
+        for topic, node, port in self.graph.edges():
+            if self.procs[node].counts_received.get(port, 0) < published.get(topic, 0):
+                return False
+        return True
+
+    def _serve(self, timeout_ms: int) -> None:
+        if self.control.poll(timeout_ms):
+            while True:
+                try:
+                    ident, raw = self.control.recv_multipart(zmq.NOBLOCK)
+                except zmq.Again:
+                    break
+                self._on_message(ident, raw)
+        if self.idle_waiters and self._graph_idle():
+            for ident in self.idle_waiters:
+                try:
+                    self.control.send_multipart([ident, protocol.pack("idle")])
+                except zmq.ZMQError:
+                    pass
+            self.idle_waiters.clear()
+
+    # -- run ---------------------------------------------------------------------
+    def _request_stop(self, reason: str) -> None:
+        if self.stop_reason is None:
+            self.stop_reason = reason
+
+    def _on_signal(self, signum: int, frame: Any) -> None:
+        self._signals += 1
+        self._request_stop(f"signal {signal.Signals(signum).name}")
+        if self._signals >= 3:  # an impatient user: no more grace
+            for proc in self.procs.values():
+                if proc.popen is not None and proc.popen.returncode is None:
+                    proc.popen.kill()
+
+    def _startup(self) -> bool:
+        for proc in self.procs.values():
+            self._spawn(proc)
+        deadline = time.monotonic() + STARTUP_TIMEOUT_SECS
+        connected = False
+        while self.stop_reason is None:
+            self._serve(100)
+            self._reap()
+            if any(p.state in ("failed", "waiting_restart", "exited") for p in self.procs.values()):
+                bad = [
+                    n
+                    for n, p in self.procs.items()
+                    if p.state in ("failed", "waiting_restart", "exited")
+                ]
+                self.say(f"node(s) {bad} died during start-up")
+                for name in bad:
+                    tail = "\n".join(f"    {line}" for line in self.procs[name].tail)
+                    self.say(f"last lines of {name!r}:\n{tail}")
+                self.exit_code = 1
+                return False
+            if not connected and all(p.state in ("hello", "ready") for p in self.procs.values()):
+                endpoints = self._endpoints()
+                for name in self.procs:
+                    self._send(name, "connect", endpoints=endpoints)
+                connected = True
+            if connected and all(p.state == "ready" for p in self.procs.values()):
+                for name, proc in self.procs.items():
+                    self._send(name, "start")
+                    proc.state = "running"
+                return True
+            if time.monotonic() > deadline:
+                waiting = [n for n, p in self.procs.items() if p.state != "ready"]
+                self.say(
+                    f"start-up timed out after {STARTUP_TIMEOUT_SECS:.0f} s waiting for {waiting}"
+                )
+                self.exit_code = 1
+                return False
+        return False
+
+    def _supervise(self) -> None:
+        deadline = None if self.duration_secs is None else time.monotonic() + self.duration_secs
+        while self.stop_reason is None:
+            self._serve(100)
+            self._reap()
+            now = time.monotonic()
+            for proc in self.procs.values():
+                if proc.state == "waiting_restart" and now >= proc.restart_at:
+                    self._spawn(proc)
+                elif proc.state in ("running", "new", "hello", "ready"):
+                    if now - proc.last_heartbeat > HEARTBEAT_TIMEOUT_SECS:
+                        self._kill_hung(
+                            proc, f"sent no heartbeat for {HEARTBEAT_TIMEOUT_SECS:.0f} s"
+                        )
+                        proc.last_heartbeat = now
+                    elif proc.busy_secs > proc.spec.hang_timeout_secs:
+                        self._kill_hung(proc, f"busy in one handler for {proc.busy_secs:.1f} s")
+                        proc.busy_secs = 0.0
+            if all(p.state in ("exited", "failed") for p in self.procs.values()):
+                self._request_stop("every node has exited")
+            if deadline is not None and now >= deadline:
+                self._request_stop(f"duration of {self.duration_secs:g} s reached")
+
+    def _drain(self) -> None:
+        """Before a requested stop, let messages in flight reach their subscribers.
+
+        Waits (at most ``DRAIN_SECS``) for a heartbeat of every running node taken after
+        the request that shows each edge received everything published on it.
+        """
+        asked = time.monotonic()
+        end = asked + DRAIN_SECS
+        while time.monotonic() < end and self._signals == 0:
+            self._serve(50)
+            self._reap()
+            running = [p for p in self.procs.values() if p.state == "running"]
+            if all(p.stats_at > asked for p in running) and self._stats_balanced():
+                return
+
+    def _stats_balanced(self) -> bool:
+        published: dict[str, int] = {}
+        for proc in self.procs.values():
+            if proc.state == "running":
+                published.update(proc.stats.get("published", {}))
+        for topic, node, port in self.graph.edges():
+            proc = self.procs[node]
+            if proc.state != "running":
+                continue
+            received = proc.stats.get("inputs", {}).get(port, {}).get("received", 0)
+            if received < published.get(topic, 0):
+                return False
+        return True
+
+    def _shutdown(self) -> None:
+        live = [
+            p for p in self.procs.values() if p.popen is not None and p.popen.returncode is None
+        ]
+        for proc in live:
+            self._send(proc.spec.name, "stop")
+        for signum, grace in (
+            (None, STOP_GRACE_SECS),
+            (signal.SIGTERM, TERM_GRACE_SECS),
+            (signal.SIGKILL, 5.0),
+        ):
+            live = [
+                p for p in self.procs.values() if p.popen is not None and p.popen.returncode is None
+            ]
+            if not live:
+                break
+            if signum is not None:
+                self.say(f"{len(live)} node(s) still running: sending {signum.name}")
+                for proc in live:
+                    try:
+                        os.kill(proc.popen.pid, signum)  # type: ignore[union-attr]
+                    except ProcessLookupError:
+                        pass
+            end = time.monotonic() + grace
+            while time.monotonic() < end and any(p.popen.returncode is None for p in live):  # type: ignore[union-attr]
+                self._serve(50)
+                self._reap()
+        self._serve(0)
+
+    def run(self) -> int:
+        """Start, supervise until something stops the graph, shut down, print the report."""
+        old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            self.say(f"starting {len(self.procs)} node(s) from {self.graph.source}")
+            if self._startup():
+                self.started_at = time.monotonic()
+                self.say("all nodes ready; running")
+                self._supervise()
+            self.say(f"stopping: {self.stop_reason or 'start-up failed'}")
+            if self.started_at and self.exit_code == 0:
+                self._drain()
+            self.stopped_at = time.monotonic()
+            self._shutdown()
+            self.say(self.report())
+        finally:
+            for s, handler in old.items():
+                signal.signal(s, handler)
+            self.control.close(linger=0)
+            self.ctx.term()
+            shutil.rmtree(self.rundir, ignore_errors=True)
+        return self.exit_code
+
+    # -- the end-of-run table ----------------------------------------------------
+    def totals(self) -> tuple[dict[str, dict[str, float]], dict[str, dict[str, Any]]]:
+        """Per topic (messages, rate, dropped, superseded, bad frames) and per node figures."""
+        elapsed = max(
+            (self.stopped_at or time.monotonic()) - (self.started_at or time.monotonic()), 1e-9
+        )
+        topics: dict[str, dict[str, float]] = {}
+        for proc in self.procs.values():
+            stats = _add_stats(proc.stats_base, proc.stats)
+            for topic, count in stats.get("published", {}).items():
+                row = topics.setdefault(
+                    topic, {"messages": 0, "dropped": 0, "superseded": 0, "bad_frames": 0}
+                )
+                row["messages"] += count
+        for proc in self.procs.values():
+            stats = _add_stats(proc.stats_base, proc.stats)
+            for inp in stats.get("inputs", {}).values():
+                row = topics.setdefault(
+                    inp["topic"], {"messages": 0, "dropped": 0, "superseded": 0, "bad_frames": 0}
+                )
+                for key in ("dropped", "superseded", "bad_frames"):
+                    row[key] += inp[key]
+        for row in topics.values():
+            row["rate_hz"] = row["messages"] / elapsed
+        nodes = {
+            name: {
+                "restarts": p.restarts,
+                "cpu_secs": p.cpu_secs,
+                "exit": p.exit_codes[-1] if p.exit_codes else None,
+            }
+            for name, p in self.procs.items()
+        }
+        return topics, nodes
+
+    def report(self) -> str:
+        topics, nodes = self.totals()
+        lines = [
+            f"{'topic':40} {'messages':>9} {'rate_hz':>9} {'dropped':>8} {'superseded':>10} {'bad':>5}"
+        ]
+        for topic in sorted(topics):
+            r = topics[topic]
+            lines.append(
+                f"{topic:40} {int(r['messages']):9d} {r['rate_hz']:9.1f} {int(r['dropped']):8d} "
+                f"{int(r['superseded']):10d} {int(r['bad_frames']):5d}"
+            )
+        lines.append("")
+        lines.append(f"{'node':28} {'restarts':>8} {'cpu_secs':>9} {'exit':>5}")
+        for name in sorted(nodes):
+            n = nodes[name]
+            lines.append(f"{name:28} {n['restarts']:8d} {n['cpu_secs']:9.2f} {str(n['exit']):>5}")
+        return "\n".join(lines)
+
+
+def _add_stats(base: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
+    """Sum two stats snapshots (of two incarnations of one node)."""
+    if not base:
+        return dict(more)
+    if not more:
+        return dict(base)
+    published = dict(base.get("published", {}))
+    for topic, count in more.get("published", {}).items():
+        published[topic] = published.get(topic, 0) + count
+    inputs = {port: dict(v) for port, v in base.get("inputs", {}).items()}
+    for port, v in more.get("inputs", {}).items():
+        if port in inputs:
+            for key in ("received", "dropped", "superseded", "bad_frames"):
+                inputs[port][key] += v[key]
+        else:
+            inputs[port] = dict(v)
+    return {"published": published, "inputs": inputs}
+
+
+def add_recorder(
+    doc: dict[str, Any], path: Path, topics: str | None, command_line: str
+) -> dict[str, Any]:
+    """Return ``doc`` with a ``recorder`` node subscribed to every topic matching ``topics``."""
+    graph = check(doc)
+    pattern = re.compile(topics or ".*")
+    chosen = sorted(t for t in graph.providers() if pattern.search(t))
+    if not chosen:
+        raise GraphError(f"--topics {topics!r} matches no topic of the graph")
+    doc = yaml.safe_load(yaml.safe_dump(doc))
+    name = "recorder"
+    while name in doc["nodes"]:
+        name += "_"
+    doc["nodes"][name] = {
+        "impl": "recorder",
+        "params": {
+            "path": str(path),
+            "graph_yaml": yaml.safe_dump(graph.document, sort_keys=False),
+            "command_line": command_line,
+        },
+        "inputs": {
+            f"t{i}": {"from": t, "policy": "queue", "queue_size": 10000}
+            for i, t in enumerate(chosen)
+        },
+        "required": True,
+    }
+    return doc
+
+
+def launch(
+    graph: dict[str, Any],
+    *,
+    source: str,
+    record: Path | None = None,
+    topics: str | None = None,
+    lockstep: bool = False,
+    duration_secs: float | None = None,
+    log_level: str = "INFO",
+    command_line: str = "",
+) -> int:
+    """Check and run a graph document; returns the exit code (2 when the check fails)."""
+    try:
+        if record is not None:
+            graph = add_recorder(graph, record, topics, command_line or " ".join(sys.argv))
+        checked = check(graph, source=source)
+    except GraphError as err:
+        print(f"graph check failed:\n{err}", file=sys.stderr)
+        return 2
+    launcher = Launcher(
+        checked, lockstep=lockstep, duration_secs=duration_secs, log_level=log_level
+    )
+    return launcher.run()

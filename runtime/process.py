@@ -1,0 +1,438 @@
+"""One node, one OS process: ZeroMQ transport, handshake, heartbeats, clean stop.
+
+Started by the launcher as ``python -m runtime.process`` with a JSON spec on stdin.
+
+Transport. The node binds one XPUB (verbose, so it sees every subscription) and
+connects one SUB per input to the publisher of that input's topic. Frames are the
+codec's multipart messages, sent and received without copying the arrays.
+
+Input policies. ``queue``: messages are handled in order, one per poll round per
+input (fair between inputs), bounded by the socket high-water mark. ``latest``: the
+input is drained on every round and only the newest message is handled, so a slow
+consumer never works through a backlog (ZeroMQ's CONFLATE cannot do multipart).
+
+Drops. Every output stamps ``header.seq``; a receiver counts sequence gaps as
+``dropped`` (lost at a high-water mark) and, on ``latest`` inputs, skipped messages
+as ``superseded``. Frames that fail to decode are counted as ``bad_frames`` and
+logged, and never stop the node.
+
+Handshake. hello (endpoint) -> connect (peers' endpoints) -> wait until every
+expected subscription has arrived on the XPUB -> setup done -> ready -> start. No
+node publishes before start, so no subscriber misses the first message.
+
+Parent death. ``PR_SET_PDEATHSIG`` delivers SIGTERM when the launcher dies, and the
+heartbeat thread checks the parent pid as a fallback.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import json
+import logging
+import os
+import signal
+import sys
+import threading
+import time
+import traceback
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import zmq
+
+from messages.base import Message
+from messages.codec import decode, encode
+from messages.errors import FrameDecodeError
+from runtime import protocol
+from runtime.node import Node
+from runtime.params import build_params
+from runtime.registry import resolve
+
+PR_SET_PDEATHSIG = 1
+_BAD_FRAME_LOG_EVERY = 100
+
+
+@dataclass
+class InputCounters:
+    received: int = 0  # every message taken off the socket, superseded ones included
+    dropped: int = 0
+    superseded: int = 0
+    bad_frames: int = 0
+    last_seq: int | None = None
+
+
+@dataclass
+class _Input:
+    port: str
+    topic: str
+    policy: str
+    socket: zmq.Socket[Any]
+    kind: type[Message] | None
+    counters: InputCounters = field(default_factory=InputCounters)
+
+
+@dataclass
+class _Timer:
+    period_nanos: int
+    callback: Callable[[], None]
+    due_nanos: int
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    except OSError:
+        pass  # not Linux: the heartbeat thread's parent check still covers it
+    if os.getppid() != parent_pid:  # the parent died before prctl took effect
+        os._exit(0)
+
+
+class ZmqIO:
+    """The node's IO in a live graph (see :class:`runtime.node.IO`)."""
+
+    def __init__(self, spec: dict[str, Any], ctx: zmq.Context[Any]) -> None:
+        self.spec = spec
+        self.name: str = spec["name"]
+        self.log = logging.getLogger(self.name)
+        self.ctx = ctx
+        self.topics: dict[str, str] = spec["outputs"]
+        self.output_types: dict[str, type[Message] | None] = {}
+        self.pub = ctx.socket(zmq.XPUB)
+        self.pub.setsockopt(zmq.XPUB_VERBOSE, 1)
+        self.pub.setsockopt(zmq.SNDHWM, spec.get("sndhwm", 1000))
+        self.pub.setsockopt(zmq.LINGER, 1000)
+        self.endpoint = self._bind(spec["bind"])
+        self.control = ctx.socket(zmq.DEALER)
+        self.control.setsockopt(zmq.IDENTITY, self.name.encode())
+        self.control.setsockopt(zmq.LINGER, 1000)
+        self.control.connect(spec["control"])
+        self.inputs: list[_Input] = []
+        self.published: dict[str, int] = defaultdict(int)
+        self.timers: list[_Timer] = []
+        self.stop_requested = False
+        self.lockstep: bool = spec.get("lockstep", False)
+        self.subscriptions: dict[bytes, int] = defaultdict(int)
+
+    def _bind(self, endpoint: str) -> str:
+        self.pub.bind(endpoint)
+        return self.pub.getsockopt(zmq.LAST_ENDPOINT).decode()
+
+    # -- the IO protocol -------------------------------------------------------
+    def publish(self, output: str, msg: Message) -> None:
+        kind = self.output_types.get(output)
+        if output not in self.topics:
+            raise KeyError(
+                f"{self.name}: {output!r} is not a declared output: {sorted(self.topics)}"
+            )
+        if kind is not None and not isinstance(msg, kind):
+            raise TypeError(
+                f"{self.name}.{output}: expected {kind.__name__}, got {type(msg).__name__}"
+            )
+        topic = self.topics[output]
+        header = getattr(msg, "header", None)
+        if header is not None:
+            header.seq = self.published[topic]
+        self.pub.send_multipart(encode(topic, msg), copy=False)
+        self.published[topic] += 1
+
+    def publish_raw(self, topic: str, frames: list[Any]) -> None:
+        if topic not in self.topics.values():
+            raise KeyError(f"{self.name}: {topic!r} is not one of its output topics")
+        self.pub.send_multipart([topic.encode(), *frames[1:]], copy=False)
+        self.published[topic] += 1
+
+    def add_timer(self, period_secs: float, callback: Callable[[], None]) -> None:
+        if period_secs <= 0:
+            raise ValueError(f"{self.name}: timer period_secs must be > 0, got {period_secs}")
+        period = int(period_secs * 1e9)
+        self.timers.append(_Timer(period, callback, time.monotonic_ns() + period))
+
+    def now_nanos(self) -> int:
+        return time.time_ns()
+
+    def request_stop(self, reason: str) -> None:
+        self.control.send(protocol.pack("stop_request", reason=reason))
+
+    def wait_idle(self, timeout_secs: float) -> bool:
+        if not self.lockstep:
+            return True
+        self.send_counts()
+        self.control.send(protocol.pack("wait_idle"))
+        deadline = time.monotonic() + timeout_secs
+        while (left := deadline - time.monotonic()) > 0:
+            if not self.control.poll(int(left * 1000) + 1):
+                break
+            msg = protocol.unpack(self.control.recv())
+            if msg["kind"] == "idle":
+                return True
+            if msg["kind"] == "stop":
+                self.stop_requested = True
+                return False
+        return False
+
+    def drops(self) -> dict[str, int]:
+        return {i.topic: i.counters.dropped + i.counters.superseded for i in self.inputs}
+
+    # -- used by the runner ----------------------------------------------------
+    def stats(self) -> dict[str, Any]:
+        return {
+            "published": dict(self.published),
+            "inputs": {
+                i.port: {
+                    "topic": i.topic,
+                    "received": i.counters.received,
+                    "dropped": i.counters.dropped,
+                    "superseded": i.counters.superseded,
+                    "bad_frames": i.counters.bad_frames,
+                }
+                for i in self.inputs
+            },
+            "cpu_secs": time.process_time(),
+        }
+
+    def send_counts(self) -> None:
+        self.control.send(
+            protocol.pack(
+                "counts",
+                published=dict(self.published),
+                received={i.port: i.counters.received for i in self.inputs},
+            )
+        )
+
+
+class Runner:
+    """Runs one node: handshake, the poll loop, timers, heartbeats, clean stop."""
+
+    def __init__(self, spec: dict[str, Any]) -> None:
+        self.spec = spec
+        self.name: str = spec["name"]
+        self.ctx: zmq.Context[Any] = zmq.Context()
+        self.io = ZmqIO(spec, self.ctx)
+        cls = resolve(spec["class_path"])
+        params = build_params(cls.Params, spec["params"])
+        inputs_decl, outputs_decl = cls.ports(params)
+        self.io.output_types = dict(outputs_decl)
+        self.node: Node = cls(self.name, params, self.io)
+        self.raw = cls.raw_input
+        self.inputs_decl = inputs_decl
+        self.busy_since = 0.0
+        self.stopping = threading.Event()
+        self._hb_thread = threading.Thread(target=self._heartbeat, daemon=True)
+
+    # -- lifecycle -------------------------------------------------------------
+    def run(self) -> int:
+        io = self.io
+        io.control.send(protocol.pack("hello", endpoint=io.endpoint))
+        self._hb_thread.start()
+        connect = self._wait_control("connect")
+        if connect is None:
+            return self._finish(0)
+        for inp in self.spec["inputs"]:
+            sock = self.ctx.socket(zmq.SUB)
+            sock.setsockopt(zmq.RCVHWM, inp["queue_size"])
+            sock.setsockopt(zmq.LINGER, 0)
+            sock.connect(connect["endpoints"][inp["provider"]])
+            sock.setsockopt(zmq.SUBSCRIBE, inp["topic"].encode())
+            kind = None if self.raw else self.inputs_decl[inp["port"]]
+            io.inputs.append(_Input(inp["port"], inp["topic"], inp["policy"], sock, kind))
+        self._await_subscribers()
+        self.busy_since = time.monotonic()
+        self.node.setup()
+        self.busy_since = 0.0
+        io.control.send(protocol.pack("ready"))
+        if self._wait_control("start") is None:
+            return self._finish(0)
+        self._loop()
+        return self._finish(0)
+
+    def _finish(self, code: int) -> int:
+        self.stopping.set()
+        try:
+            self.node.teardown()
+        finally:
+            self.io.control.send(protocol.pack("final", stats=self.io.stats()))
+            for inp in self.io.inputs:
+                inp.socket.close(linger=0)
+            self.io.pub.close(linger=1000)
+            self.io.control.close(linger=1000)
+            self._hb_thread.join(timeout=2)
+            self.ctx.term()
+        return code
+
+    def _wait_control(self, kind: str) -> dict[str, Any] | None:
+        """Wait for one control message, serving subscriptions meanwhile; None on stop."""
+        poller = zmq.Poller()
+        poller.register(self.io.control, zmq.POLLIN)
+        poller.register(self.io.pub, zmq.POLLIN)
+        while not self.io.stop_requested:
+            events = dict(poller.poll(200))
+            if self.io.pub in events:
+                self._drain_subscriptions()
+            if self.io.control in events:
+                msg = protocol.unpack(self.io.control.recv())
+                if msg["kind"] == "stop":
+                    return None
+                if msg["kind"] == kind:
+                    return msg
+        return None
+
+    def _drain_subscriptions(self) -> None:
+        while True:
+            try:
+                event = self.io.pub.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            if event[:1] == b"\x01":
+                self.io.subscriptions[event[1:]] += 1
+
+    def _await_subscribers(self) -> None:
+        """Block until every expected subscriber of each output topic has subscribed."""
+        expected: dict[str, int] = self.spec["expected_subscribers"]
+        poller = zmq.Poller()
+        poller.register(self.io.pub, zmq.POLLIN)
+        poller.register(self.io.control, zmq.POLLIN)
+        while any(self.io.subscriptions[t.encode()] < n for t, n in expected.items()):
+            events = dict(poller.poll(200))
+            if self.io.pub in events:
+                self._drain_subscriptions()
+            if self.io.control in events:
+                msg = protocol.unpack(self.io.control.recv())
+                if msg["kind"] == "stop":
+                    self.io.stop_requested = True
+                    return
+
+    # -- the loop --------------------------------------------------------------
+    def _loop(self) -> None:
+        io = self.io
+        poller = zmq.Poller()
+        for inp in io.inputs:
+            poller.register(inp.socket, zmq.POLLIN)
+        poller.register(io.control, zmq.POLLIN)
+        poller.register(io.pub, zmq.POLLIN)
+        by_socket = {inp.socket: inp for inp in io.inputs}
+        while not io.stop_requested:
+            timeout_ms = 200.0
+            if io.timers:
+                due = min(t.due_nanos for t in io.timers)
+                timeout_ms = max(0.0, min(timeout_ms, (due - time.monotonic_ns()) / 1e6))
+            events = dict(poller.poll(timeout_ms))
+            if io.control in events:
+                self._on_control()
+            if io.pub in events:
+                self._drain_subscriptions()
+            handled = False
+            for sock, inp in by_socket.items():
+                if sock in events and not io.stop_requested:
+                    handled |= self._service(inp)
+            self._run_timers()
+            if handled and io.lockstep:
+                io.send_counts()
+
+    def _on_control(self) -> None:
+        while True:
+            try:
+                msg = protocol.unpack(self.io.control.recv(zmq.NOBLOCK))
+            except zmq.Again:
+                return
+            if msg["kind"] == "stop":
+                self.io.stop_requested = True
+
+    def _run_timers(self) -> None:
+        now = time.monotonic_ns()
+        for timer in self.io.timers:
+            if timer.due_nanos <= now and not self.io.stop_requested:
+                # Skip missed periods rather than bursting to catch up.
+                timer.due_nanos = max(timer.due_nanos + timer.period_nanos, now)
+                self._call(timer.callback)
+
+    def _service(self, inp: _Input) -> bool:
+        frames = self._recv(inp)
+        if frames is None:
+            return False
+        if inp.policy == "latest":
+            while (newer := self._recv(inp)) is not None:
+                inp.counters.superseded += 1
+                inp.counters.received += 1
+                frames = newer
+        self._deliver(inp, frames)
+        return True
+
+    def _recv(self, inp: _Input) -> list[Any] | None:
+        try:
+            return inp.socket.recv_multipart(zmq.NOBLOCK, copy=False)
+        except zmq.Again:
+            return None
+
+    def _deliver(self, inp: _Input, frames: list[Any]) -> None:
+        counters = inp.counters
+        counters.received += 1
+        if self.raw:
+            self._call(lambda: self.node.on_raw(inp.topic, frames))
+            return
+        try:
+            _, msg = decode(frames, expect=inp.kind)
+        except FrameDecodeError as err:
+            counters.bad_frames += 1
+            if counters.bad_frames % _BAD_FRAME_LOG_EVERY == 1:
+                self.io.log.warning("%s: bad frame #%d: %s", inp.port, counters.bad_frames, err)
+            return
+        seq = msg.header.seq if hasattr(msg, "header") else None
+        if seq is not None:
+            if counters.last_seq is not None and seq > counters.last_seq + 1:
+                counters.dropped += seq - counters.last_seq - 1
+            counters.last_seq = seq  # a restarted publisher starts again at 0
+        self._call(lambda: self.node.handle(inp.port, msg))
+
+    def _call(self, fn: Callable[[], None]) -> None:
+        self.busy_since = time.monotonic()
+        try:
+            fn()
+        finally:
+            self.busy_since = 0.0
+
+    # -- heartbeat thread ------------------------------------------------------
+    def _heartbeat(self) -> None:
+        sock = self.ctx.socket(zmq.DEALER)
+        sock.setsockopt(zmq.IDENTITY, f"{self.name}#hb".encode())
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.connect(self.spec["control"])
+        parent = self.spec["parent_pid"]
+        try:
+            while not self.stopping.wait(protocol.HEARTBEAT_SECS):
+                if os.getppid() != parent:
+                    os.kill(os.getpid(), signal.SIGTERM)
+                    return
+                busy = time.monotonic() - self.busy_since if self.busy_since else 0.0
+                sock.send(protocol.pack("heartbeat", busy_secs=busy, stats=self.io.stats()))
+        finally:
+            sock.close()
+
+
+def main() -> int:
+    spec = json.loads(sys.stdin.read())
+    _die_with_parent(spec["parent_pid"])
+    logging.basicConfig(
+        level=spec.get("log_level", "INFO"),
+        format="%(levelname)s %(message)s",
+        stream=sys.stdout,
+    )
+    runner = Runner(spec)
+
+    def on_signal(signum: int, frame: Any) -> None:
+        runner.io.stop_requested = True
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    try:
+        return runner.run()
+    except Exception:
+        traceback.print_exc()
+        sys.stdout.flush()
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
