@@ -45,6 +45,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from geometry.camera import PinholeCamera
+
 DIS_PRESETS = {
     "ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
     "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
@@ -174,23 +176,21 @@ class ShearParams:
         )
 
 
-@dataclass(frozen=True)
-class Intrinsics:
-    """Pinhole intrinsics of a full-resolution image, in pixels."""
+def scaled_camera(camera: PinholeCamera, scale: float, shape: tuple[int, int]) -> PinholeCamera:
+    """The camera of an image resized by ``scale`` to ``shape`` (rows, cols).
 
-    fx_px: float
-    fy_px: float
-    cx_px: float
-    cy_px: float
-
-    def scaled(self, scale: float) -> Intrinsics:
-        """Intrinsics of the image resized by ``scale`` (pixel centres at ``(i + 0.5) * s - 0.5``)."""
-        return Intrinsics(
-            self.fx_px * scale,
-            self.fy_px * scale,
-            (self.cx_px + 0.5) * scale - 0.5,
-            (self.cy_px + 0.5) * scale - 0.5,
-        )
+    Area resizing puts working pixel ``i`` over full-resolution ``(i + 0.5) / s - 0.5``.
+    """
+    if scale == 1.0:
+        return camera
+    return PinholeCamera(
+        width_px=int(shape[1]),
+        height_px=int(shape[0]),
+        fx_px=camera.fx_px * scale,
+        fy_px=camera.fy_px * scale,
+        cx_px=(camera.cx_px + 0.5) * scale - 0.5,
+        cy_px=(camera.cy_px + 0.5) * scale - 0.5,
+    )
 
 
 @dataclass
@@ -430,11 +430,11 @@ def flow_curl(flow: np.ndarray, mask: np.ndarray) -> np.ndarray:
 
 
 def backproject(
-    x_px: np.ndarray, y_px: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics
+    x_px: np.ndarray, y_px: np.ndarray, depth_m: np.ndarray, camera: PinholeCamera
 ) -> np.ndarray:
     """Pixels with z-depth to points ``(..., 3)`` in the sensor frame (metres)."""
-    x = (x_px - intrinsics.cx_px) / intrinsics.fx_px * depth_m
-    y = (y_px - intrinsics.cy_px) / intrinsics.fy_px * depth_m
+    x = (x_px - camera.cx_px) / camera.fx_px * depth_m
+    y = (y_px - camera.cy_px) / camera.fy_px * depth_m
     return np.stack([x, y, depth_m], axis=-1)
 
 
@@ -472,7 +472,7 @@ def membrane_displacement_mm(
     mask: np.ndarray,
     depth_ref_m: np.ndarray,
     depth_cur_m: np.ndarray,
-    intrinsics: Intrinsics,
+    camera: PinholeCamera,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Tangential membrane displacement of every tracked dot, in millimetres.
 
@@ -485,7 +485,7 @@ def membrane_displacement_mm(
         mask: bool ``(h, w)``.
         depth_ref_m: reference z-depth (NaN invalid).
         depth_cur_m: current z-depth (NaN invalid).
-        intrinsics: intrinsics of these images.
+        camera: the camera of these images (their resolution).
 
     Returns:
         ``(positions_mm (n, 2), displacements_mm (n, 2), basis (3, 3))``: tangent-plane
@@ -507,9 +507,9 @@ def membrane_displacement_mm(
         borderValue=float("nan"),
     ).ravel()
     d_ref = depth_ref_m[ys, xs].astype(np.float64)
-    p_ref = backproject(xs.astype(np.float64), ys.astype(np.float64), d_ref, intrinsics)
+    p_ref = backproject(xs.astype(np.float64), ys.astype(np.float64), d_ref, camera)
     p_cur = backproject(
-        map_x.ravel().astype(np.float64), map_y.ravel().astype(np.float64), d_cur, intrinsics
+        map_x.ravel().astype(np.float64), map_y.ravel().astype(np.float64), d_cur, camera
     )
     good = np.isfinite(p_ref).all(axis=1) & np.isfinite(p_cur).all(axis=1)
     p_ref, p_cur = p_ref[good], p_cur[good]
@@ -526,7 +526,7 @@ class _Reference:
     u8: np.ndarray
     mask: np.ndarray
     depth_m: np.ndarray | None
-    intrinsics: Intrinsics | None
+    camera: PinholeCamera | None
     full_shape: tuple[int, int]
 
 
@@ -571,14 +571,14 @@ class ShearTracker:
         self,
         ir: np.ndarray,
         depth_m: np.ndarray | None = None,
-        intrinsics: Intrinsics | None = None,
+        camera: PinholeCamera | None = None,
     ) -> None:
         """Take this frame as the reference.
 
         Args:
             ir: ``(h, w)`` IR amplitude.
             depth_m: optional ``(h, w)`` z-depth (NaN invalid), for the mask and the mm output.
-            intrinsics: full-resolution intrinsics; needed for ``shear_mm``.
+            camera: the full-resolution camera; needed for ``shear_mm``.
         """
         work_ir, work_depth, mask = self._prepare(ir, depth_m)
         self._ref = _Reference(
@@ -586,7 +586,7 @@ class ShearTracker:
             u8=stretch_ir(work_ir, mask),
             mask=mask,
             depth_m=work_depth,
-            intrinsics=intrinsics,
+            camera=camera,
             full_shape=(int(ir.shape[0]), int(ir.shape[1])),
         )
         self._last_flow = None
@@ -595,7 +595,7 @@ class ShearTracker:
         self,
         ir: np.ndarray,
         depth_m: np.ndarray | None = None,
-        intrinsics: Intrinsics | None = None,
+        camera: PinholeCamera | None = None,
         *,
         keep_fields: bool = False,
     ) -> ShearResult:
@@ -604,7 +604,7 @@ class ShearTracker:
         Args:
             ir: ``(h, w)`` IR amplitude, same shape as the reference.
             depth_m: optional z-depth (NaN invalid).
-            intrinsics: full-resolution intrinsics (the reference's are used if None).
+            camera: the full-resolution camera (the reference's when None).
             keep_fields: also return the flow and mask (for overlays).
 
         Returns:
@@ -647,10 +647,14 @@ class ShearTracker:
             torsion_rad=0.0,
             valid_fraction=fraction,
         )
-        intr = intrinsics or ref.intrinsics
-        if work_depth is not None and ref.depth_m is not None and intr is not None:
+        cam = camera or ref.camera
+        if work_depth is not None and ref.depth_m is not None and cam is not None:
             positions, disp, _ = membrane_displacement_mm(
-                flow, mask, ref.depth_m, work_depth, intr.scaled(self.params.scale)
+                flow,
+                mask,
+                ref.depth_m,
+                work_depth,
+                scaled_camera(cam, self.params.scale, mask.shape),
             )
             if positions.shape[0] >= 3:
                 result.shear_mm = disp.mean(axis=0)

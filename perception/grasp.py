@@ -1,0 +1,222 @@
+"""Stable-grasp detection from the bubbles' pressure rise and the finger speed.
+
+The paper calls a grasp stable from "thresholds on the bubble pressure differential as
+well as the finger velocity"; the shear reference, the classifier's frames and the
+tasks all key off that moment. This module is the detector, with no sockets:
+
+- each bubble's pressure is low-pass filtered (first order, ``filter_secs``) so that
+  sensor noise does not cross thresholds;
+- each bubble has a *free baseline*: the filtered pressure while that bubble is out of
+  contact, tracked slowly (``baseline_secs``) so that drift (temperature, a slow leak)
+  does not read as contact; it freezes during contact;
+- a bubble is in contact when its rise over the baseline exceeds ``contact_rise_pa`` and
+  stays in contact until the rise falls under ``release_rise_pa`` (hysteresis);
+- the grasp is *stable* once both bubbles are in contact and the finger speed has stayed
+  under ``still_speed_m_per_s`` for ``dwell_secs``;
+- a stable grasp is *released* when either bubble leaves contact or the fingers move
+  faster than ``moving_speed_m_per_s`` (opening, or a regrasp); becoming stable again
+  takes a full dwell.
+
+Times are the messages' stamps (nanoseconds), so replayed bags give the same events.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+SENSORS = ("left", "right")
+
+
+@dataclass(frozen=True, kw_only=True)
+class GraspParams:
+    """Thresholds of the stable-grasp detector.
+
+    The paper gives no values. Defaults assume the simulated bubble (about 1 kPa of
+    inflation, FACTS.md), where a firm grasp raises the pressure by a few percent.
+
+    Attributes:
+        contact_rise_pa: rise over the free baseline that starts contact.
+        release_rise_pa: rise under which contact ends (< ``contact_rise_pa``).
+        still_speed_m_per_s: finger speed under which the fingers count as still.
+        moving_speed_m_per_s: finger speed over which a stable grasp is lost
+            (>= ``still_speed_m_per_s``).
+        dwell_secs: how long contact and stillness must last before the grasp is stable.
+        filter_secs: time constant of the pressure low-pass filter (0: none).
+        baseline_secs: time constant of the free-baseline tracker.
+        baseline_pa: a fixed free baseline for both bubbles instead of tracking one
+            (None: track; the first sample starts the baseline).
+    """
+
+    contact_rise_pa: float = 30.0
+    release_rise_pa: float = 15.0
+    still_speed_m_per_s: float = 0.002
+    moving_speed_m_per_s: float = 0.005
+    dwell_secs: float = 0.3
+    filter_secs: float = 0.05
+    baseline_secs: float = 2.0
+    baseline_pa: float | None = None
+
+    def __post_init__(self) -> None:
+        def check(ok: bool, name: str, what: str) -> None:
+            if not ok:
+                raise ValueError(f"`{name}` must be {what}, got {getattr(self, name)!r}")
+
+        check(
+            math.isfinite(self.contact_rise_pa) and self.contact_rise_pa > 0,
+            "contact_rise_pa",
+            "> 0",
+        )
+        check(
+            math.isfinite(self.release_rise_pa)
+            and 0 <= self.release_rise_pa < self.contact_rise_pa,
+            "release_rise_pa",
+            f">= 0 and < contact_rise_pa ({self.contact_rise_pa})",
+        )
+        check(self.still_speed_m_per_s > 0, "still_speed_m_per_s", "> 0")
+        check(
+            self.moving_speed_m_per_s >= self.still_speed_m_per_s,
+            "moving_speed_m_per_s",
+            f">= still_speed_m_per_s ({self.still_speed_m_per_s})",
+        )
+        check(math.isfinite(self.dwell_secs) and self.dwell_secs >= 0, "dwell_secs", ">= 0")
+        check(math.isfinite(self.filter_secs) and self.filter_secs >= 0, "filter_secs", ">= 0")
+        check(math.isfinite(self.baseline_secs) and self.baseline_secs > 0, "baseline_secs", "> 0")
+        check(
+            self.baseline_pa is None or math.isfinite(self.baseline_pa),
+            "baseline_pa",
+            "None or finite",
+        )
+
+
+@dataclass(frozen=True)
+class GraspStatus:
+    """What the detector says after one sample.
+
+    Attributes:
+        stable: the grasp is stable now.
+        event: ``"stable"`` at the sample where it became stable, ``"released"`` where a
+            stable grasp ended, ``""`` otherwise.
+        contact_left, contact_right: each bubble's contact state (with hysteresis).
+        pressure_rise_left_pa, pressure_rise_right_pa: filtered rise over each baseline.
+        finger_speed_m_per_s: the last finger speed (absolute).
+        stamp_nanos: the stamp of the sample.
+    """
+
+    stable: bool
+    event: str
+    contact_left: bool
+    contact_right: bool
+    pressure_rise_left_pa: float
+    pressure_rise_right_pa: float
+    finger_speed_m_per_s: float
+    stamp_nanos: int
+
+
+class _Bubble:
+    """One bubble's filtered pressure, free baseline and contact state."""
+
+    def __init__(self, params: GraspParams) -> None:
+        self.params = params
+        self.filtered: float | None = None
+        self.baseline: float | None = params.baseline_pa
+        self.contact = False
+        self.stamp: int | None = None
+
+    @property
+    def rise_pa(self) -> float:
+        if self.filtered is None or self.baseline is None:
+            return 0.0
+        return self.filtered - self.baseline
+
+    def update(self, pressure_pa: float, stamp_nanos: int) -> None:
+        if not math.isfinite(pressure_pa):
+            return  # a dropped reading changes nothing
+        p = self.params
+        dt = 0.0 if self.stamp is None else max(0.0, (stamp_nanos - self.stamp) * 1e-9)
+        self.stamp = stamp_nanos if self.stamp is None else max(self.stamp, stamp_nanos)
+        if self.filtered is None or p.filter_secs == 0.0:
+            self.filtered = pressure_pa
+        else:
+            alpha = 1.0 - math.exp(-dt / p.filter_secs)
+            self.filtered += alpha * (pressure_pa - self.filtered)
+        if self.baseline is None:
+            self.baseline = self.filtered
+        rise = self.rise_pa
+        if self.contact:
+            self.contact = rise >= p.release_rise_pa
+        else:
+            self.contact = rise > p.contact_rise_pa
+        # The baseline follows only a free bubble whose rise is under the release
+        # threshold, so a slow squeeze is not absorbed into it.
+        if p.baseline_pa is None and not self.contact and rise < p.release_rise_pa:
+            beta = 1.0 - math.exp(-dt / p.baseline_secs)
+            self.baseline += beta * (self.filtered - self.baseline)
+
+
+class GraspMonitor:
+    """The stable-grasp state machine; feed it pressure and gripper samples in any order."""
+
+    def __init__(self, params: GraspParams | None = None) -> None:
+        self.params = params or GraspParams()
+        self._bubbles = {sensor: _Bubble(self.params) for sensor in SENSORS}
+        self._speed: float | None = None
+        self._still_since: int | None = None
+        self._now: int | None = None
+        self.stable = False
+
+    def update_pressure(self, sensor: str, pressure_pa: float, stamp_nanos: int) -> GraspStatus:
+        """A bubble's gauge pressure sample.
+
+        Raises:
+            ValueError: ``sensor`` is not ``"left"`` or ``"right"``.
+        """
+        if sensor not in self._bubbles:
+            raise ValueError(f"`sensor` must be one of {SENSORS}, got {sensor!r}")
+        self._bubbles[sensor].update(pressure_pa, stamp_nanos)
+        return self._step(stamp_nanos)
+
+    def update_gripper(self, speed_m_per_s: float, stamp_nanos: int) -> GraspStatus:
+        """A finger speed sample (sign ignored; a non-finite speed counts as moving)."""
+        speed = abs(speed_m_per_s) if math.isfinite(speed_m_per_s) else math.inf
+        self._speed = speed
+        return self._step(stamp_nanos)
+
+    def status(self, event: str = "") -> GraspStatus:
+        """The current state without a new sample."""
+        left, right = self._bubbles["left"], self._bubbles["right"]
+        return GraspStatus(
+            stable=self.stable,
+            event=event,
+            contact_left=left.contact,
+            contact_right=right.contact,
+            pressure_rise_left_pa=left.rise_pa,
+            pressure_rise_right_pa=right.rise_pa,
+            finger_speed_m_per_s=0.0 if self._speed is None else min(self._speed, 1e9),
+            stamp_nanos=self._now or 0,
+        )
+
+    def _step(self, stamp_nanos: int) -> GraspStatus:
+        self._now = stamp_nanos if self._now is None else max(self._now, stamp_nanos)
+        now = self._now
+        p = self.params
+        contact = all(b.contact for b in self._bubbles.values())
+        speed = self._speed
+        still = speed is not None and speed < p.still_speed_m_per_s
+        event = ""
+        if self.stable:
+            moving = speed is not None and speed > p.moving_speed_m_per_s
+            if not contact or moving:
+                self.stable = False
+                self._still_since = None
+                event = "released"
+        if not self.stable and not event:
+            if contact and still:
+                if self._still_since is None:
+                    self._still_since = now
+                if (now - self._still_since) * 1e-9 >= p.dwell_secs:
+                    self.stable = True
+                    event = "stable"
+            else:
+                self._still_since = None
+        return self.status(event)
