@@ -51,7 +51,6 @@ from typing import Any
 
 import msgpack
 import numpy as np
-from mcap.records import Chunk as McapChunk
 from mcap.writer import CompressionType, Writer
 
 from messages.base import Message
@@ -566,8 +565,12 @@ class BagReader:
         self._scan()
 
     def close(self) -> None:
-        self._view.release()
-        self._mm.close()
+        """Unmap the file (messages still referenced keep it mapped until they are freed)."""
+        try:
+            self._view.release()
+            self._mm.close()
+        except BufferError:
+            pass  # a BagMessage payload still points into the map; the GC unmaps it later
 
     def __enter__(self) -> BagReader:
         return self
@@ -621,9 +624,9 @@ class BagReader:
             _, _, usize, _, clen = struct.unpack_from("<QQQII", body, 0)
             if clen > 8:
                 return False
-            comp = bytes(body[28 : 28 + clen]).decode()
-            (rlen,) = struct.unpack_from("<Q", body, 28 + clen)
-            return comp in ("", "zstd", "lz4") and 36 + clen + rlen == length and usize < 1 << 34
+            comp = bytes(body[32 : 32 + clen]).decode()
+            (rlen,) = struct.unpack_from("<Q", body, 32 + clen)
+            return comp in ("", "zstd", "lz4") and 40 + clen + rlen == length and usize < 1 << 34
         except (struct.error, UnicodeDecodeError):
             return False
 
@@ -682,8 +685,8 @@ class BagReader:
                 self._warn(
                     f"{self.path}: unreadable record (opcode 0x{opcode:02x}) at offset {pos}: {err}"
                 )
-            if opcode != _MESSAGE_INDEX and opcode != _CHUNK:
-                last_chunk = None if opcode not in (_MESSAGE_INDEX,) else last_chunk
+            if opcode not in (_CHUNK, _MESSAGE_INDEX):
+                last_chunk = None  # message indexes belong to the chunk right before them
             pos = end
         else:
             if not self.has_summary:
@@ -796,19 +799,12 @@ class BagReader:
         body = self._view[ref.offset + 9 : ref.offset + ref.length]
         try:
             start, stop, usize, crc, clen = struct.unpack_from("<QQQII", body, 0)
-            compression = bytes(body[28 : 28 + clen]).decode()
-            (rlen,) = struct.unpack_from("<Q", body, 28 + clen)
-            data = body[36 + clen : 36 + clen + rlen]
+            compression = bytes(body[32 : 32 + clen]).decode()
+            (rlen,) = struct.unpack_from("<Q", body, 32 + clen)
+            data = body[40 + clen : 40 + clen + rlen]
             if data.nbytes != rlen:
                 raise ValueError("records run past the chunk")
-            if compression == "":
-                records: bytes | memoryview = data
-            else:
-                chunk = McapChunk(compression, bytes(data), stop, start, crc, usize)
-                from mcap.stream_reader import get_chunk_data_stream
-
-                stream, _ = get_chunk_data_stream(chunk, validate_crc=False)
-                records = stream.read(usize) if usize else b""
+            records = _decompress(compression, data, usize)
             if len(records) != usize:
                 raise ValueError(f"{len(records)} bytes after decompression, header says {usize}")
             if crc and zlib.crc32(records) != crc:
@@ -927,6 +923,20 @@ class BagReader:
                     channel.topic, channel.schema.type_name, channel.schema.fingerprint
                 )
         return out
+
+
+def _decompress(compression: str, data: memoryview, size: int) -> bytes | memoryview:
+    if compression == "":
+        return data
+    if compression == "zstd":
+        import zstandard
+
+        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+    if compression == "lz4":
+        import lz4.frame
+
+        return bytes(lz4.frame.decompress(bytes(data)))
+    raise ValueError(f"unknown compression {compression!r}")
 
 
 def _prefixed_str(buf: memoryview, pos: int) -> tuple[str, int]:
