@@ -15,7 +15,7 @@ import shlex
 import sys
 from pathlib import Path
 
-import nodes  # noqa: F401 - registers every node implementation
+import nodes
 from messages.errors import GraphError
 from runtime import graph as graphs
 from runtime.launcher import launch
@@ -78,6 +78,7 @@ def list_nodes() -> int:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    nodes.import_all()
     if argv[:1] == ["nodes"]:
         return list_nodes()
     if argv[:1] == ["bag"]:
