@@ -1,0 +1,209 @@
+"""Command line of the tactile classifier.
+
+    python -m perception.classify train DATASET --epochs E --out model.pt [knobs]
+    python -m perception.classify evaluate MODEL DATASET [--json]
+    python -m perception.classify info DATASET
+
+``train`` prints a progress bar (stderr), one log line per epoch (stdout, and as JSON
+lines in ``--log``, default ``OUT.log.jsonl``) and the confusion matrix of the
+validation split (30% of the grasps, by grasp) at the end. ``evaluate`` scores a saved
+model on a held-out dataset and prints its confusion matrix.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import shlex
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from perception.classify.checkpoint import load_checkpoint, save_checkpoint
+from perception.classify.dataset import MANIFEST, load_samples, read_manifest
+from perception.classify.preprocess import MODALITIES, InputSpec
+from perception.classify.train import (
+    TrainConfig,
+    append_log,
+    confusion_matrix,
+    format_confusion,
+    predict,
+    train,
+)
+
+
+def _manifest_digest(root: Path) -> str:
+    return hashlib.sha256((root / MANIFEST).read_bytes()).hexdigest()
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    config = TrainConfig(
+        epochs=args.epochs,
+        modality=args.modality,
+        input_px=args.input_px,
+        width=args.width,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        momentum=args.momentum,
+        weight_decay=args.weight_decay,
+        val_fraction=args.val_fraction,
+        seed=args.seed,
+        shift_px=args.shift_px,
+        max_frames_per_grasp=args.max_frames_per_grasp,
+    )
+    root = Path(args.dataset)
+    manifest = read_manifest(root)
+    spec = InputSpec(modality=config.modality, input_px=config.input_px)
+    started = time.monotonic()
+    samples = load_samples(root, spec, max_frames_per_grasp=config.max_frames_per_grasp)
+    print(
+        f"dataset {root}: {len(manifest['grasps'])} grasps, {len(samples.labels)} frames, "
+        f"classes {samples.classes} (loaded in {time.monotonic() - started:.1f}s)"
+    )
+    log_path = Path(args.log) if args.log else Path(str(args.out) + ".log.jsonl")
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    log_path.write_text("")
+
+    def on_epoch(record: dict[str, float]) -> None:
+        print(
+            "epoch {epoch}: train loss {train_loss:.4f} acc {train_accuracy:.4f}".format(**record)
+            + (
+                " | val loss {val_loss:.4f} acc {val_accuracy:.4f}".format(**record)
+                if "val_accuracy" in record
+                else ""
+            )
+            + f" | {record['epoch_secs']:.0f}s",
+            flush=True,
+        )
+        append_log(log_path, record)
+
+    record = {
+        "command": "python -m perception.classify " + shlex.join(args.argv),
+        "dataset": str(root),
+        "dataset_manifest_sha256": _manifest_digest(root),
+        "dataset_seeds": manifest.get("seeds", {}),
+        "dataset_counts_per_class": manifest.get("counts_per_class", {}),
+        "torch": torch.__version__,
+    }
+    result = train(samples, config, on_epoch=on_epoch, training_record=record)
+    save_checkpoint(args.out, result.model, result.meta, half=not args.full_precision)
+    print(f"trained in {result.train_secs:.0f}s; saved {args.out}")
+    if result.confusion is not None:
+        print("validation confusion matrix (by grasp split):")
+        print(format_confusion(result.confusion, samples.classes))
+    return 0
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    model, meta = load_checkpoint(args.model)
+    samples = load_samples(
+        args.dataset,
+        meta.spec,
+        classes=meta.classes,
+        max_frames_per_grasp=args.max_frames_per_grasp,
+    )
+    predicted, _ = predict(model, samples.x)
+    matrix = confusion_matrix(samples.labels, predicted, len(meta.classes))
+    accuracy = float(np.trace(matrix) / matrix.sum())
+    # A grasp is right when the majority of its frames is: what a task acting once per
+    # grasp would see.
+    grasp_correct = []
+    for grasp in np.unique(samples.grasp_ids):
+        mask = samples.grasp_ids == grasp
+        votes = np.bincount(predicted[mask], minlength=len(meta.classes))
+        grasp_correct.append(int(votes.argmax() == samples.labels[mask][0]))
+    if args.json:
+        json.dump(
+            {
+                "model": str(args.model),
+                "dataset": str(args.dataset),
+                "classes": list(meta.classes),
+                "frames": int(matrix.sum()),
+                "accuracy": accuracy,
+                "grasps": len(grasp_correct),
+                "grasp_accuracy": float(np.mean(grasp_correct)),
+                "confusion": matrix.tolist(),
+            },
+            sys.stdout,
+        )
+        sys.stdout.write("\n")
+    else:
+        print(
+            f"model {args.model} ({meta.modality}, {meta.input_px} px, width {meta.width}) "
+            f"on {args.dataset}: {len(grasp_correct)} grasps, {int(matrix.sum())} frames"
+        )
+        print(format_confusion(matrix, meta.classes))
+        print(f"grasp accuracy (majority of frames) {np.mean(grasp_correct):.4f}")
+    return 0
+
+
+def _cmd_info(args: argparse.Namespace) -> int:
+    manifest = read_manifest(args.dataset)
+    print(f"{args.dataset}: {len(manifest['grasps'])} grasps, image {manifest['image_shape']}")
+    for name, counts in manifest["counts_per_class"].items():
+        print(f"  {name:<16} {counts['grasps']:>5} grasps {counts['frames']:>7} frames")
+    print(f"  seeds {json.dumps(manifest.get('seeds', {}))}")
+    return 0
+
+
+def parser() -> argparse.ArgumentParser:
+    """The argument parser (public so docs and tests can list the options)."""
+    top = argparse.ArgumentParser(
+        prog="python -m perception.classify", description=__doc__.split("\n")[0]
+    )
+    sub = top.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("train", help="train a model on a dataset")
+    p.add_argument("dataset")
+    p.add_argument("--epochs", type=int, required=True)
+    p.add_argument("--out", required=True, help="checkpoint path (.pt)")
+    p.add_argument("--modality", choices=MODALITIES, default="depth")
+    p.add_argument("--input-px", type=int, default=112)
+    p.add_argument("--width", type=float, default=0.5, help="channel multiplier (1 = ResNet18)")
+    p.add_argument("--batch-size", type=int, default=32)
+    p.add_argument("--lr", type=float, default=0.05)
+    p.add_argument("--momentum", type=float, default=0.9)
+    p.add_argument("--weight-decay", type=float, default=5e-4)
+    p.add_argument("--val-fraction", type=float, default=0.3)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--shift-px", type=int, default=4)
+    p.add_argument("--max-frames-per-grasp", type=int, default=None)
+    p.add_argument("--threads", type=int, default=0, help="torch threads (0 = torch default)")
+    p.add_argument("--log", default=None, help="JSON lines, one per epoch")
+    p.add_argument("--full-precision", action="store_true", help="store float32 weights")
+    p.set_defaults(func=_cmd_train)
+    e = sub.add_parser("evaluate", help="score a model on a held-out dataset")
+    e.add_argument("model")
+    e.add_argument("dataset")
+    e.add_argument("--max-frames-per-grasp", type=int, default=None)
+    e.add_argument("--threads", type=int, default=0)
+    e.add_argument("--json", action="store_true")
+    e.set_defaults(func=_cmd_evaluate)
+    i = sub.add_parser("info", help="summarise a dataset's manifest")
+    i.add_argument("dataset")
+    i.set_defaults(func=_cmd_info)
+    return top
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = parser().parse_args(argv)
+    args.argv = argv
+    if getattr(args, "threads", 0) and args.command == "train":
+        torch.set_num_threads(args.threads)
+    try:
+        return int(args.func(args))
+    except ValueError as err:  # dataset, checkpoint and config errors name the culprit
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,195 @@
+"""Saving and loading a trained classifier, and running it on frames.
+
+A checkpoint is a plain dictionary of tensors, strings and numbers, saved with
+``torch.save`` and read back with ``torch.load(..., weights_only=True)`` (no pickle of
+project classes, so a checkpoint cannot run code). Besides the weights it carries what
+a user of the model must agree with: the class names in label order, the modality, the
+input size, the width multiplier and the depth normalisation, plus a free ``training``
+record (command, seed, dataset manifest digest, accuracy).
+
+Weights may be stored in half precision (``half=True``) to halve the file; they are
+turned back to float32 on load, where inference runs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from perception.classify.model import ResNet18
+from perception.classify.preprocess import InputSpec, frame_input
+
+FORMAT = "softbubble-classifier"
+VERSION = 1
+
+
+class CheckpointError(ValueError):
+    """A checkpoint file is not a classifier of this format, or does not fit its use."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class ModelMeta:
+    """Everything about a trained model except its weights."""
+
+    classes: tuple[str, ...]
+    modality: str
+    input_px: int
+    width: float
+    depth_center_m: float
+    depth_scale_m: float
+    training: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if len(self.classes) < 2 or len(set(self.classes)) != len(self.classes):
+            raise ValueError(f"classes must be >= 2 distinct names, got {list(self.classes)}")
+        if not self.width > 0:
+            raise ValueError(f"width must be > 0, got {self.width}")
+        self.spec  # noqa: B018 - checks modality, input_px and the depth scale
+
+    @property
+    def spec(self) -> InputSpec:
+        return InputSpec(
+            modality=self.modality,
+            input_px=self.input_px,
+            depth_center_m=self.depth_center_m,
+            depth_scale_m=self.depth_scale_m,
+        )
+
+    @classmethod
+    def for_spec(
+        cls, spec: InputSpec, classes: Sequence[str], width: float, training: Mapping | None = None
+    ) -> ModelMeta:
+        """Meta of a model trained on inputs of ``spec``."""
+        return cls(
+            classes=tuple(classes),
+            modality=spec.modality,
+            input_px=spec.input_px,
+            width=width,
+            depth_center_m=spec.depth_center_m,
+            depth_scale_m=spec.depth_scale_m,
+            training=dict(training or {}),
+        )
+
+
+def build_model(meta: ModelMeta) -> ResNet18:
+    """An untrained network of the shape ``meta`` describes."""
+    return ResNet18(len(meta.classes), in_channels=meta.spec.channels, width=meta.width)
+
+
+def save_checkpoint(
+    path: str | Path, model: torch.nn.Module, meta: ModelMeta, *, half: bool
+) -> None:
+    """Write ``model`` and ``meta`` to ``path`` (weights in float16 if ``half``)."""
+    state = {}
+    for name, tensor in model.state_dict().items():
+        tensor = tensor.detach().cpu()
+        if half and tensor.is_floating_point():
+            tensor = tensor.half()
+        state[name] = tensor.clone()
+    payload = {
+        "format": FORMAT,
+        "version": VERSION,
+        "classes": list(meta.classes),
+        "modality": meta.modality,
+        "input_px": int(meta.input_px),
+        "width": float(meta.width),
+        "depth_center_m": float(meta.depth_center_m),
+        "depth_scale_m": float(meta.depth_scale_m),
+        "training": dict(meta.training),
+        "state_dict": state,
+    }
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(payload, tmp)
+    tmp.replace(path)
+
+
+def load_checkpoint(path: str | Path) -> tuple[ResNet18, ModelMeta]:
+    """The model (float32, eval mode) and its meta from a checkpoint file.
+
+    Raises:
+        CheckpointError: missing file, not a classifier checkpoint, or weights that do not
+            fit the network the meta describes.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"{path}: no such checkpoint")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # torch raises several types for a bad or unsafe file
+        raise CheckpointError(f"{path}: cannot load as a weights-only checkpoint: {err}") from err
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise CheckpointError(f"{path}: not a {FORMAT} checkpoint")
+    if payload.get("version") != VERSION:
+        raise CheckpointError(f"{path}: version {payload.get('version')}, expected {VERSION}")
+    try:
+        meta = ModelMeta(
+            classes=tuple(payload["classes"]),
+            modality=payload["modality"],
+            input_px=int(payload["input_px"]),
+            width=float(payload["width"]),
+            depth_center_m=float(payload["depth_center_m"]),
+            depth_scale_m=float(payload["depth_scale_m"]),
+            training=payload.get("training", {}),
+        )
+    except (KeyError, ValueError) as err:
+        raise CheckpointError(f"{path}: bad meta: {err}") from err
+    model = build_model(meta)
+    state = {
+        name: t.float() if t.is_floating_point() else t for name, t in payload["state_dict"].items()
+    }
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as err:
+        raise CheckpointError(f"{path}: weights do not fit the network: {err}") from err
+    model.eval()
+    return model, meta
+
+
+class Classifier:
+    """A trained model ready for frames: preprocessing, forward pass, softmax.
+
+    Args:
+        model: the network (put in eval mode here).
+        meta: its classes and input spec.
+    """
+
+    def __init__(self, model: torch.nn.Module, meta: ModelMeta) -> None:
+        self.model = model.eval()
+        self.meta = meta
+        self.spec = meta.spec
+
+    @classmethod
+    def load(cls, path: str | Path) -> Classifier:
+        """A classifier from a checkpoint file (see :func:`load_checkpoint`)."""
+        return cls(*load_checkpoint(path))
+
+    @torch.inference_mode()
+    def probabilities(self, x: np.ndarray) -> np.ndarray:
+        """Class probabilities ``(N, classes)`` for inputs ``(N, C, px, px)``."""
+        logits = self.model(torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32)))
+        return torch.softmax(logits, dim=1).numpy()
+
+    def classify(
+        self,
+        *,
+        depth_left_m: np.ndarray | None = None,
+        depth_right_m: np.ndarray | None = None,
+        ir_left: np.ndarray | None = None,
+        ir_right: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Probabilities ``(classes,)`` float32 for one frame pair."""
+        x = frame_input(
+            self.spec,
+            depth_left_m=depth_left_m,
+            depth_right_m=depth_right_m,
+            ir_left=ir_left,
+            ir_right=ir_right,
+        )
+        return self.probabilities(x[None])[0].astype(np.float32)

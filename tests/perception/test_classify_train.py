@@ -1,0 +1,137 @@
+"""A tiny training run learns; checkpoints round-trip with weights_only; the CLI works."""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from perception.classify.__main__ import main
+from perception.classify.checkpoint import (
+    CheckpointError,
+    Classifier,
+    ModelMeta,
+    build_model,
+    load_checkpoint,
+    save_checkpoint,
+)
+from perception.classify.dataset import load_samples
+from perception.classify.preprocess import InputSpec
+from perception.classify.synthetic import toy_frame, write_toy_dataset
+from perception.classify.train import TrainConfig, confusion_matrix, format_confusion, train
+
+TINY = {"input_px": 32, "width": 0.125, "batch_size": 16, "lr": 0.05}
+
+
+@pytest.fixture(scope="module")
+def toy(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_toy_dataset(
+        tmp_path_factory.mktemp("toy") / "data", grasps_per_class=8, frames_per_grasp=4, seed=0
+    )
+
+
+@pytest.fixture(scope="module")
+def trained(toy: Path):
+    torch.set_num_threads(1)
+    config = TrainConfig(epochs=20, modality="depth", seed=0, **TINY)
+    samples = load_samples(toy, InputSpec(modality="depth", input_px=32))
+    return train(samples, config, progress_stream=io.StringIO())
+
+
+def test_tiny_run_learns(trained) -> None:
+    history = trained.history
+    assert len(history) == 20
+    assert history[-1]["train_loss"] < 0.6 * history[0]["train_loss"]
+    assert history[-1]["train_accuracy"] > 0.6  # chance is 0.25
+    assert history[-1]["val_accuracy"] > 0.5
+    # The confusion matrix covers the validation frames: 30% of 8 grasps = 2 per class.
+    assert trained.confusion.shape == (4, 4)
+    assert trained.confusion.sum() == 4 * 2 * 4
+    assert not set(trained.split["train_grasps"]) & set(trained.split["val_grasps"])
+
+
+def test_checkpoint_round_trip_weights_only(trained, tmp_path: Path) -> None:
+    path = tmp_path / "model.pt"
+    save_checkpoint(path, trained.model, trained.meta, half=True)
+    # The file is plain data: torch's safe loader reads it.
+    payload = torch.load(path, weights_only=True)
+    assert payload["classes"] == ["mug", "pet_bottle", "square_bottle", "wine_glass"]
+    assert payload["modality"] == "depth" and payload["input_px"] == 32
+    assert payload["width"] == 0.125
+    assert payload["state_dict"]["fc.weight"].dtype == torch.float16
+    model, meta = load_checkpoint(path)
+    assert meta.classes == trained.meta.classes and meta.width == 0.125
+    assert meta.training["config"]["epochs"] == 20
+    x = torch.randn(2, 1, 32, 32)
+    with torch.inference_mode():
+        want = torch.softmax(trained.model.eval()(x), 1)
+        got = torch.softmax(model(x), 1)
+    assert torch.allclose(want, got, atol=2e-2)  # float16 weights
+    full = tmp_path / "full.pt"
+    save_checkpoint(full, trained.model, trained.meta, half=False)
+    with torch.inference_mode():
+        assert torch.allclose(want, torch.softmax(load_checkpoint(full)[0](x), 1), atol=1e-6)
+
+
+def test_classifier_on_frames(trained) -> None:
+    classifier = Classifier(trained.model, trained.meta)
+    rng = np.random.default_rng(5)
+    left, left_ir = toy_frame("bar", (24, 32), rng)
+    right, right_ir = toy_frame("bar", (24, 32), rng)
+    probs = classifier.classify(depth_left_m=left, depth_right_m=right)
+    assert probs.shape == (4,) and probs.dtype == np.float32
+    assert abs(float(probs.sum()) - 1) < 1e-5
+
+
+def test_bad_checkpoints_are_refused(tmp_path: Path) -> None:
+    with pytest.raises(CheckpointError, match="no such"):
+        load_checkpoint(tmp_path / "missing.pt")
+    torch.save({"format": "other"}, tmp_path / "other.pt")
+    with pytest.raises(CheckpointError, match="not a softbubble-classifier"):
+        load_checkpoint(tmp_path / "other.pt")
+    # A pickled object (not plain data) is refused by the weights-only loader.
+    torch.save({"format": "softbubble-classifier", "x": Path("/")}, tmp_path / "obj.pt")
+    with pytest.raises(CheckpointError, match="weights-only"):
+        load_checkpoint(tmp_path / "obj.pt")
+    meta = ModelMeta.for_spec(InputSpec(modality="ir", input_px=32), ["a", "b"], 0.125)
+    save_checkpoint(tmp_path / "m.pt", build_model(meta), meta, half=True)
+    payload = torch.load(tmp_path / "m.pt", weights_only=True)
+    payload["width"] = 0.25  # weights of another shape than the meta says
+    torch.save(payload, tmp_path / "bad.pt")
+    with pytest.raises(CheckpointError, match="do not fit"):
+        load_checkpoint(tmp_path / "bad.pt")
+
+
+def test_confusion_matrix() -> None:
+    matrix = confusion_matrix(np.array([0, 0, 1, 2]), np.array([0, 1, 1, 2]), 3)
+    assert matrix.tolist() == [[1, 1, 0], [0, 1, 0], [0, 0, 1]]
+    assert "accuracy 0.7500 (3/4)" in format_confusion(matrix, ["a", "b", "c"])
+
+
+def test_cli_train_and_evaluate(toy: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "cli.pt"
+    args = ["train", str(toy), "--epochs", "2", "--out", str(out), "--modality", "both"]
+    args += ["--input-px", "32", "--width", "0.125", "--batch-size", "16", "--threads", "1"]
+    assert main(args) == 0
+    printed = capsys.readouterr()
+    assert "epoch 2:" in printed.out and "val loss" in printed.out
+    assert "validation confusion matrix" in printed.out
+    assert "epoch 1/2 [" in printed.err  # the progress bar
+    log = [json.loads(line) for line in Path(str(out) + ".log.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in log] == [1, 2]
+    meta = load_checkpoint(out)[1]
+    assert meta.modality == "both"
+    assert meta.training["command"].startswith("python -m perception.classify train")
+    assert len(meta.training["dataset_manifest_sha256"]) == 64
+    assert main(["evaluate", str(out), str(toy), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["frames"] == 4 * 8 * 4
+    assert np.asarray(result["confusion"]).sum() == result["frames"]
+    assert 0 <= result["accuracy"] <= 1
+    # Errors are one line naming the culprit, exit status 2.
+    assert main(["evaluate", str(out), str(tmp_path)]) == 2
+    assert "no manifest.json" in capsys.readouterr().err
