@@ -84,7 +84,8 @@ def decode_header(raw: bytes | memoryview) -> WireHeader:
     """Decode and validate frame 1 alone (cheap: no array is touched)."""
     try:
         return _wire_decoder.decode(raw)
-    except (msgspec.DecodeError, msgspec.ValidationError) as err:
+    except (msgspec.DecodeError, msgspec.ValidationError, UnicodeDecodeError, ValueError) as err:
+        # msgspec raises UnicodeDecodeError for invalid UTF-8 in a str, not DecodeError.
         raise FrameDecodeError(f"bad frame header: {err}") from err
 
 
