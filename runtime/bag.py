@@ -40,6 +40,7 @@ import logging
 import mmap
 import os
 import re
+import shlex
 import socket
 import struct
 import time
@@ -187,6 +188,7 @@ class ChannelInfo:
     topic: str
     schema: TopicSchema
     message_encoding: str = MESSAGE_ENCODING
+    offset: int = -1  # file offset of the record that declared it (-1: inside a chunk)
 
 
 # -- writing -------------------------------------------------------------------------------------
@@ -257,14 +259,16 @@ class BagWriter:
         *,
         graph_text: str = "",
         graph_source: str = "",
-        command_line: Sequence[str] = (),
+        command_line: str | Sequence[str] = "",
         extra: Mapping[str, str] | None = None,
     ) -> None:
         """Store the graph file and the command line (a ``softbubble.run`` metadata record)."""
         data = {
             "graph_yaml": graph_text,
             "graph_source": graph_source,
-            "command_line": json.dumps(list(command_line)),
+            "command_line": command_line
+            if isinstance(command_line, str)
+            else shlex.join(command_line),
             "started_nanos": str(time.time_ns()),
             "host": socket.gethostname(),
         }
@@ -556,7 +560,7 @@ class BagReader:
             raise BagError(f"{self.path}: not an MCAP file (bad magic at offset 0)")
         self.channels: dict[int, ChannelInfo] = {}
         self._schemas: dict[int, tuple[str, str, bytes]] = {}  # id -> (name, encoding, data)
-        self._pending_channels: dict[int, tuple[str, str, int, dict[str, str]]] = {}
+        self._pending_channels: dict[int, tuple[str, str, int, dict[str, str], int]] = {}
         self.metadata: list[tuple[str, dict[str, str]]] = []
         self.chunks: list[_ChunkRef] = []
         self._loose_messages: list[int] = []  # offsets of messages outside chunks
@@ -671,9 +675,9 @@ class BagReader:
                 elif opcode == _SCHEMA:
                     self._read_schema(body)
                 elif opcode == _CHANNEL:
-                    self._read_channel(body)
+                    self._read_channel(body, pos)
                 elif opcode == _METADATA:
-                    self._read_metadata(body)
+                    self._read_metadata(body, pos)
                 elif opcode == _STATISTICS:
                     self.statistics_messages = struct.unpack_from("<Q", body, 0)[0]
                 elif opcode == _DATA_END:
@@ -712,15 +716,17 @@ class BagReader:
         data = bytes(body[pos + 4 : pos + 4 + dlen])
         self._schemas.setdefault(schema_id, (name, encoding, data))
 
-    def _read_channel(self, body: memoryview) -> None:
+    def _read_channel(self, body: memoryview, offset: int = -1) -> None:
         channel_id, schema_id = struct.unpack_from("<HH", body, 0)
         topic, pos = _prefixed_str(body, 4)
         encoding, pos = _prefixed_str(body, pos)
         meta, _ = _string_map(body, pos)
         if channel_id not in self.channels:
-            self._pending_channels.setdefault(channel_id, (topic, encoding, schema_id, meta))
+            self._pending_channels.setdefault(
+                channel_id, (topic, encoding, schema_id, meta, offset)
+            )
 
-    def _read_metadata(self, body: memoryview) -> None:
+    def _read_metadata(self, body: memoryview, offset: int = -1) -> None:
         name, pos = _prefixed_str(body, 0)
         data, _ = _string_map(body, pos)
         self.metadata.append((name, data))
@@ -735,14 +741,15 @@ class BagReader:
             )
 
     def _resolve_channels(self) -> None:
-        for channel_id, (topic, encoding, schema_id, meta) in list(self._pending_channels.items()):
+        for channel_id, pending in list(self._pending_channels.items()):
+            topic, encoding, schema_id, meta, offset = pending
             if channel_id in self.channels:
                 continue
             name, _, data = self._schemas.get(schema_id, (meta.get("type", ""), "", b""))
             schema = TopicSchema.from_json(data, name)
             if not schema.fingerprint and "fingerprint" in meta:
                 schema = TopicSchema(schema.type_name, meta["fingerprint"], schema.description)
-            self.channels[channel_id] = ChannelInfo(channel_id, topic, schema, encoding)
+            self.channels[channel_id] = ChannelInfo(channel_id, topic, schema, encoding, offset)
         self._pending_channels.clear()
 
     # -- metadata
@@ -751,16 +758,8 @@ class BagReader:
         return found[-1] if found else None
 
     def run_info(self) -> dict[str, Any]:
-        """``graph_yaml``, ``graph_source``, ``command_line`` (a list) and friends, or ``{}``."""
-        data = self._last_metadata("softbubble.run")
-        if data is None:
-            return {}
-        out: dict[str, Any] = dict(data)
-        try:
-            out["command_line"] = json.loads(data.get("command_line", "[]"))
-        except ValueError:
-            out["command_line"] = [data.get("command_line", "")]
-        return out
+        """``graph_yaml``, ``graph_source``, ``command_line``, ``started_nanos``, ``host``, or ``{}``."""
+        return dict(self._last_metadata("softbubble.run") or {})
 
     def drops(self) -> dict[str, dict[str, int]]:
         """The last ``softbubble.drops`` record: per topic runtime drops, seq gaps, rejected."""
@@ -783,6 +782,13 @@ class BagReader:
         return {
             c.topic: c.schema for c in sorted(self.channels.values(), key=lambda c: c.channel_id)
         }
+
+    def first_log_nanos(self) -> int | None:
+        """The earliest ``log_time`` by the chunk headers (no decompression)."""
+        starts = [c.start_nanos for c in self.chunks]
+        for offset in self._loose_messages:
+            starts.append(struct.unpack_from("<Q", self._view, offset + 9 + 6)[0])
+        return min(starts) if starts else None
 
     def require_topics(self, topics: Iterable[str]) -> None:
         """Raise :class:`BagError` naming the file and topic for a topic not in the bag."""

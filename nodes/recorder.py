@@ -1,0 +1,108 @@
+"""The ``recorder`` node: writes every message it receives, undecoded, into an MCAP bag.
+
+Ports:
+    inputs: any, named freely in the graph (``{t0: left_camera/image, t1: pose/estimate}``);
+        a raw-input node, so each message arrives as its multipart frames and any type is
+        accepted. ``launch.py GRAPH --record OUT.mcap [--topics RE]`` adds one for you.
+    outputs: none.
+
+Wire format in the bag: see :mod:`runtime.bag` (one channel per topic, the frames as
+received). The bag is flushed every ``flush_period_secs``, so killing the recorder, even
+with SIGKILL, loses at most that much. Per-topic drops (reported by the runtime) and
+sequence gaps are written to the bag, and a recording that dropped says so when it stops.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from runtime.bag import BagWriter
+from runtime.node import Node
+from runtime.registry import register
+
+
+@dataclass(frozen=True, kw_only=True)
+class RecorderParams:
+    """Where and how to record.
+
+    ``graph_yaml`` and ``command_line`` are stored in the bag so it can be replayed through
+    the graph it came from; the launcher fills them in.
+    """
+
+    path: str
+    graph_yaml: str = ""
+    graph_source: str = ""
+    command_line: str = ""
+    flush_period_secs: float = 0.5
+    compression: str = "none"
+    chunk_size_bytes: int = 4 << 20
+
+    def __post_init__(self) -> None:
+        if not self.path:
+            raise ValueError("path must name the bag file, got ''")
+        if self.flush_period_secs <= 0:
+            raise ValueError(f"flush_period_secs must be > 0, got {self.flush_period_secs}")
+        if self.compression not in ("none", "lz4", "zstd"):
+            raise ValueError(
+                f"compression must be 'none', 'lz4' or 'zstd', got {self.compression!r}"
+            )
+        if self.chunk_size_bytes <= 0:
+            raise ValueError(f"chunk_size_bytes must be > 0, got {self.chunk_size_bytes}")
+
+
+@register("recorder")
+class Recorder(Node):
+    """Records every input topic to ``path`` (MCAP); see the module docstring."""
+
+    Params = RecorderParams
+    raw_input = True
+
+    def setup(self) -> None:
+        p = self.params
+        Path(p.path).parent.mkdir(parents=True, exist_ok=True)
+        self.writer = BagWriter(
+            p.path,
+            chunk_size_bytes=p.chunk_size_bytes,
+            compression=p.compression,
+            flush_period_secs=p.flush_period_secs,
+        )
+        self.writer.add_run_info(
+            graph_text=p.graph_yaml, graph_source=p.graph_source, command_line=p.command_line
+        )
+        # The timer flushes a quiet recording too: the last messages before a kill are on
+        # disk even when nothing arrives after them.
+        self.io.add_timer(p.flush_period_secs, self._flush)
+
+    def on_raw(self, topic: str, frames: list[Any]) -> None:
+        self.writer.write_frames(topic, frames, self.io.now_nanos())
+
+    def _flush(self) -> None:
+        self.writer.set_runtime_drops(self.io.drops())
+        self.writer.flush_if_due()
+
+    def teardown(self) -> None:
+        self.writer.set_runtime_drops(self.io.drops())
+        self.writer.close()
+        total = sum(c.messages for c in self.writer.counts.values())
+        lost = {
+            topic: d
+            for topic, d in self.writer.drops().items()
+            if d["runtime"] or d["seq_gaps"] or d["rejected"]
+        }
+        self.io.log.info(
+            "recorded %d messages on %d topics to %s",
+            total,
+            len(self.writer.counts),
+            self.params.path,
+        )
+        for topic, d in sorted(lost.items()):
+            self.io.log.warning(
+                "recording DROPPED on %s: %d dropped by the runtime, %d sequence gaps, "
+                "%d malformed frames",
+                topic,
+                d["runtime"],
+                d["seq_gaps"],
+                d["rejected"],
+            )

@@ -1,0 +1,214 @@
+"""The ``replay`` node: publishes a bag's topics in place of the nodes that recorded them.
+
+Ports:
+    inputs: none (a source).
+    outputs: one per selected bag topic, named by the full topic (``left_camera/image``), so
+        the graph's references to ``left_camera/image`` resolve to this node. The message
+        type of each is the bag's schema, which must match today's declaration (same
+        fingerprint); a topic whose fields changed since the recording is refused with an
+        error naming the file, the topic and the offset (leave it out with ``topics``).
+
+Frames are published verbatim, as recorded (``header.seq`` and ``stamp_nanos`` included),
+so downstream nodes that use message stamps behave exactly as they did live. Pacing:
+
+- ``rate`` (default 1.0): the recorded receive times, scaled (2.0 = twice as fast);
+- ``fast``: as fast as the graph takes them;
+- ``lockstep``: before each message, wait until every node downstream has handled every
+  message published so far (``io.wait_idle``), so the same bag through the same nodes gives
+  the same outputs whatever the load; implies ``fast`` pacing. The launcher must run the
+  graph with ``lockstep=True`` for the runtime to track idleness.
+
+``start_secs``/``end_secs`` cut the bag (seconds from its first message), ``topics`` selects
+topics (a full-match regex), ``remap`` renames them (``{bag_topic: published_topic}``), and
+``loop`` starts over at the end. When done (and not looping) the node waits for the graph
+to drain and asks it to stop.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+from messages.base import Message
+from messages.errors import BagError, NodeError
+from runtime.bag import BagMessage, BagReader, topic_filter
+from runtime.node import Node
+from runtime.registry import register
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReplayParams:
+    """What to replay and how fast (see the module docstring)."""
+
+    path: str
+    rate: float = 1.0
+    fast: bool = False
+    loop: bool = False
+    start_secs: float = 0.0
+    end_secs: float | None = None
+    topics: str = ""
+    remap: dict[str, str] = field(default_factory=dict)
+    lockstep: bool = False
+    idle_timeout_secs: float = 60.0
+    tick_secs: float = 0.001
+    batch_secs: float = 0.02
+    stop_when_done: bool = True
+
+    def __post_init__(self) -> None:
+        if not self.path:
+            raise ValueError("path must name the bag file, got ''")
+        if self.rate <= 0:
+            raise ValueError(f"rate must be > 0, got {self.rate}")
+        if self.start_secs < 0:
+            raise ValueError(f"start_secs must be >= 0, got {self.start_secs}")
+        if self.end_secs is not None and self.end_secs <= self.start_secs:
+            raise ValueError(
+                f"end_secs must be > start_secs ({self.start_secs}), got {self.end_secs}"
+            )
+        for name in ("idle_timeout_secs", "tick_secs", "batch_secs"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        for src, dst in self.remap.items():
+            if "/" not in dst:
+                raise ValueError(f"remap: {src!r} -> {dst!r}: a topic is 'node/output'")
+        topic_filter(self.topics)  # raises ValueError on a bad regex
+
+
+def replay_topics(params: ReplayParams) -> dict[str, tuple[str, type[Message]]]:
+    """``{published_topic: (bag_topic, message class)}`` for the selected topics.
+
+    Raises:
+        ValueError: the bag cannot be read, no topic is selected, two topics remap to one,
+            or a selected topic's schema is not today's (the message names file, topic and
+            the offset of the record that declared the channel).
+    """
+    try:
+        with BagReader(params.path) as reader:
+            reader.topics()  # a foreign bag without a summary: reads the chunks' channels
+            channels = {c.topic: c for c in reader.channels.values()}
+    except BagError as err:
+        raise ValueError(str(err)) from err
+    chosen = topic_filter(params.topics)
+    out: dict[str, tuple[str, type[Message]]] = {}
+    for topic, channel in sorted(channels.items()):
+        if not chosen(topic):
+            continue
+        published = params.remap.get(topic, topic)
+        schema = channel.schema
+        cls = schema.current_class()
+        if cls is None:
+            today = Message.registry.get(schema.type_name)
+            why = (
+                f"its fields changed since the recording (fingerprint {schema.fingerprint} in "
+                f"the bag, {today.schema().fingerprint} today)"
+                if today is not None
+                else "that type is not declared today"
+            )
+            raise ValueError(
+                f"{params.path}: topic {topic}: channel at offset {channel.offset} carries "
+                f"{schema.type_name}, and {why}; the graph cannot accept it "
+                "(leave the topic out with topics/--topics, or read it with `bag echo`)"
+            )
+        if published in out:
+            raise ValueError(
+                f"{params.path}: topics {out[published][0]!r} and {topic!r} both replay as {published!r}"
+            )
+        out[published] = (topic, cls)
+    unknown = sorted(set(params.remap) - set(channels))
+    if unknown:
+        raise ValueError(f"{params.path}: remap names topics not in the bag: {unknown}")
+    if not out:
+        raise ValueError(
+            f"{params.path}: topics {params.topics!r} selects none of {sorted(channels)}"
+        )
+    return out
+
+
+@register("replay")
+class Replay(Node):
+    """Publishes a bag's topics (see the module docstring)."""
+
+    Params = ReplayParams
+
+    @classmethod
+    def ports(cls, params: Any) -> tuple[dict[str, type[Message]], dict[str, type[Message]]]:
+        return {}, {pub: kind for pub, (_, kind) in replay_topics(params).items()}
+
+    def setup(self) -> None:
+        p = self.params
+        self.topic_map = {bag: pub for pub, (bag, _) in replay_topics(p).items()}
+        self.reader = BagReader(p.path, warn=self.io.log.warning)
+        first = self.reader.first_log_nanos() or 0
+        self.start_nanos = first + int(p.start_secs * 1e9)
+        self.end_nanos = None if p.end_secs is None else first + int(p.end_secs * 1e9)
+        self.fast = p.fast or p.lockstep
+        self.published = 0
+        self.passes = 0
+        self.done = False
+        self._restart()
+        self.io.add_timer(p.tick_secs, self._tick)
+
+    def _restart(self) -> None:
+        self._iter: Iterator[BagMessage] = self.reader.messages(
+            self.topic_map, start_nanos=self.start_nanos, end_nanos=self.end_nanos
+        )
+        self._pending: BagMessage | None = next(self._iter, None)
+        self._wall0: int | None = None
+        self._bag0 = self._pending.log_time_nanos if self._pending else 0
+        self.passes += 1
+
+    def _due(self, msg: BagMessage, now: int) -> bool:
+        if self.fast:
+            return True
+        if self._wall0 is None:
+            self._wall0 = now
+        return (msg.log_time_nanos - self._bag0) / self.params.rate <= now - self._wall0
+
+    def _tick(self) -> None:
+        if self.done:
+            return
+        budget_end = time.monotonic() + self.params.batch_secs
+        while time.monotonic() < budget_end:
+            msg = self._pending
+            if msg is None:
+                if self.params.loop and self.published:
+                    self._restart()
+                    continue
+                self._finish()
+                return
+            if not self._due(msg, self.io.now_nanos()):
+                return
+            if self.params.lockstep and not self._wait_idle(msg):
+                return
+            topic = self.topic_map[msg.topic]
+            self.io.publish_raw(topic, msg.wire_frames(topic))
+            self.published += 1
+            self._pending = next(self._iter, None)
+
+    def _wait_idle(self, msg: BagMessage) -> bool:
+        if self.io.wait_idle(self.params.idle_timeout_secs):
+            return True
+        if getattr(self.io, "stop_requested", False):
+            self.done = True  # the graph is stopping; not a lockstep failure
+            return False
+        raise NodeError(
+            f"{self.name}: graph not idle after {self.params.idle_timeout_secs} s before "
+            f"message {self.published} ({msg.topic} at offset {msg.offset}); lockstep broken"
+        )
+
+    def _finish(self) -> None:
+        self.done = True
+        # Let the graph drain before asking it to stop, so the last outputs are not lost.
+        self.io.wait_idle(self.params.idle_timeout_secs)
+        lost = self.reader.lost_messages
+        reason = f"replayed {self.published} messages from {self.params.path}" + (
+            f" ({lost} lost to corrupt chunks)" if lost else ""
+        )
+        self.io.log.info("%s", reason)
+        if self.params.stop_when_done:
+            self.io.request_stop(reason)
+
+    def teardown(self) -> None:
+        self.reader.close()
