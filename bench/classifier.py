@@ -1,0 +1,162 @@
+"""Tactile classifier: accuracy against inference and training time.
+
+Sweeps the knobs of the classifier (paper, tactile classification): modality (depth,
+IR, both), input size (224 px as in the paper, or 112 px) and network width (full
+ResNet18 or half width). For each, a model is trained on the training dataset for a
+fixed number of epochs (``train_secs``, on the torch default threads), scored on a
+held-out dataset of other grasps (``accuracy``, per frame), and timed at inference on
+one core with batch 1 (``infer_ms_median``: the network; ``preprocess_ms_median``:
+two frames to its input).
+
+Data: the datasets the auto-labelling graph writes, ``CLASSIFIER_TRAIN`` and
+``CLASSIFIER_TEST`` (environment; defaults ``out/datasets/autolabel_train`` and
+``out/datasets/autolabel_test``). ``--quick`` (or missing datasets) uses a toy dataset
+of ``perception.classify.synthetic`` at a tiny size instead, and says so in the ``data``
+column.
+
+    python -m bench.classifier [--quick] [--json]
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from bench.common import Row, main, median
+from perception.classify.checkpoint import Classifier
+from perception.classify.dataset import load_samples, read_grasp, read_manifest
+from perception.classify.preprocess import MODALITIES, InputSpec, frame_input
+from perception.classify.synthetic import write_toy_dataset
+from perception.classify.train import TrainConfig, predict, train
+
+TRAIN_DIR = Path(os.environ.get("CLASSIFIER_TRAIN", "out/datasets/autolabel_train"))
+TEST_DIR = Path(os.environ.get("CLASSIFIER_TEST", "out/datasets/autolabel_test"))
+
+
+def _time_inference(classifier: Classifier, frame: dict[str, np.ndarray], repeats: int) -> tuple:
+    """Median ms of preprocessing and of the forward pass, one thread, batch 1."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        x = frame_input(classifier.spec, **frame)[None]
+        classifier.probabilities(x)  # warm-up: first call allocates
+        pre, net = [], []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            x = frame_input(classifier.spec, **frame)[None]
+            mid = time.perf_counter()
+            classifier.probabilities(x)
+            end = time.perf_counter()
+            pre.append((mid - start) * 1e3)
+            net.append((end - mid) * 1e3)
+        return median(pre), median(net)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _first_frame(root: Path) -> dict[str, np.ndarray]:
+    entry = read_manifest(root)["grasps"][0]
+    arrays = read_grasp(root, entry)
+    return {
+        "depth_left_m": arrays["depth_left_m"][0].astype(np.float32),
+        "depth_right_m": arrays["depth_right_m"][0].astype(np.float32),
+        "ir_left": arrays["ir_left"][0],
+        "ir_right": arrays["ir_right"][0],
+    }
+
+
+def run(quick: bool) -> list[Row]:
+    with tempfile.TemporaryDirectory() as tmp:
+        if quick or not (TRAIN_DIR.is_dir() and TEST_DIR.is_dir()):
+            data = "toy"
+            train_dir = write_toy_dataset(Path(tmp) / "train", grasps_per_class=6, seed=0)
+            test_dir = write_toy_dataset(Path(tmp) / "test", grasps_per_class=3, seed=1)
+        else:
+            data, train_dir, test_dir = "autolabel", TRAIN_DIR, TEST_DIR
+        if quick:
+            grid = [(m, 32, w) for m in MODALITIES for w in (0.125, 0.0625)]
+            epochs, frames_per_grasp, repeats = 6, None, 10
+        else:
+            grid = [(m, px, w) for m in MODALITIES for px in (224, 112) for w in (1.0, 0.5)]
+            epochs, frames_per_grasp, repeats = 4, 4, 30
+        frame = _first_frame(test_dir)
+        rows = []
+        for modality, px, width in grid:
+            spec = InputSpec(modality=modality, input_px=px)
+            samples = load_samples(train_dir, spec, max_frames_per_grasp=frames_per_grasp)
+            held_out = load_samples(test_dir, spec, classes=samples.classes)
+            config = TrainConfig(
+                epochs=epochs,
+                modality=modality,
+                input_px=px,
+                width=width,
+                batch_size=16 if quick else 32,
+                val_fraction=0.0,  # scored on the held-out set instead
+                seed=0,
+            )
+            result = train(samples, config, progress_stream=io.StringIO())
+            predicted, _ = predict(result.model, held_out.x)
+            classifier = Classifier(result.model, result.meta)
+            pre_ms, net_ms = _time_inference(classifier, frame, repeats)
+            rows.append(
+                {
+                    "data": data,
+                    "modality": modality,
+                    "input_px": px,
+                    "width": width,
+                    "epochs": epochs,
+                    "train_frames": int(len(samples.labels)),
+                    "test_frames": int(len(held_out.labels)),
+                    "accuracy": float((predicted == held_out.labels).mean()),
+                    "infer_ms_median": net_ms,
+                    "preprocess_ms_median": pre_ms,
+                    "train_secs": result.train_secs,
+                }
+            )
+        return rows
+
+
+def plot(rows: list[Row], path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    markers = {"depth": "o", "ir": "s", "both": "^"}
+    for row in rows:
+        label = f"{row['modality']} {row['input_px']}px w{row['width']:g}"
+        for ax, key in zip(axes, ("infer_ms_median", "train_secs"), strict=True):
+            ax.scatter(row[key], row["accuracy"], marker=markers[row["modality"]])
+            ax.annotate(label, (row[key], row["accuracy"]), fontsize=7)
+    axes[0].set_xlabel("inference ms (one core, batch 1)")
+    axes[1].set_xlabel("training s")
+    for ax in axes:
+        ax.set_ylabel("held-out accuracy")
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"tactile classifier ({rows[0]['data'] if rows else ''} data)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+if __name__ == "__main__":
+    main(
+        "classifier",
+        run,
+        columns=[
+            "data",
+            "modality",
+            "input_px",
+            "width",
+            "accuracy",
+            "infer_ms_median",
+            "preprocess_ms_median",
+            "train_secs",
+            "train_frames",
+            "test_frames",
+        ],
+        plot=plot,
+    )
