@@ -1,0 +1,69 @@
+"""Helpers to run graphs through the real launcher in a subprocess."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+class GraphRun:
+    def __init__(self, tmp_path: Path) -> None:
+        self.tmp = tmp_path
+
+    def write(self, nodes: dict, name: str = "graph.yaml") -> Path:
+        path = self.tmp / name
+        path.write_text(yaml.safe_dump({"nodes": nodes}))
+        return path
+
+    def start(self, graph: Path, *args: str) -> subprocess.Popen[str]:
+        env = dict(os.environ, PYTHONPATH=str(ROOT))
+        return subprocess.Popen(
+            [sys.executable, str(ROOT / "launch.py"), str(graph), *args],
+            cwd=ROOT,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+
+    def run(self, graph: Path, *args: str, timeout: float = 90) -> tuple[int, str]:
+        proc = self.start(graph, *args)
+        out, _ = proc.communicate(timeout=timeout)
+        return proc.returncode, out
+
+    def rows(self, path: Path) -> list[dict]:
+        return [json.loads(line) for line in path.read_text().splitlines()]
+
+
+@pytest.fixture
+def graph_run(tmp_path: Path) -> GraphRun:
+    return GraphRun(tmp_path)
+
+
+def children_of(pid: int) -> list[int]:
+    """Direct children of ``pid`` (Linux /proc)."""
+    kids: list[int] = []
+    task_dir = Path(f"/proc/{pid}/task")
+    for task in task_dir.iterdir() if task_dir.exists() else []:
+        try:
+            kids += [int(p) for p in (task / "children").read_text().split()]
+        except OSError:
+            pass
+    return kids
+
+
+def alive(pid: int) -> bool:
+    """True if ``pid`` exists and is not a zombie."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"

@@ -1,0 +1,62 @@
+"""Node classes used only by the runtime tests (named as ``module:Class`` in graphs)."""
+
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass
+
+from messages import Header, Pressure, Tick, encode
+from runtime.node import Node
+
+
+class PressureSource(Node):
+    """Publishes a Pressure message: a type that does not fit a Tick input."""
+
+    outputs = {"pressure": Pressure}
+
+
+@dataclass(frozen=True, kw_only=True)
+class FuzzParams:
+    count: int = 50
+    seed: int = 0
+
+
+class Fuzzer(Node):
+    """Interleaves valid ticks with random bytes and mutated frames on its one topic."""
+
+    Params = FuzzParams
+    outputs = {"tick": Tick}
+
+    def setup(self) -> None:
+        self.rng = random.Random(self.params.seed)
+        self.sent = 0
+        self.io.add_timer(0.005, self.tick)
+
+    def _garbage(self, topic: str) -> list[bytes]:
+        valid = [bytes(f) for f in encode(topic, Tick(header=Header(seq=self.sent), value=-1.0))]
+        choice = self.rng.randrange(6)
+        if choice == 0:
+            return [topic.encode(), self.rng.randbytes(self.rng.randrange(1, 64))]
+        if choice == 1:  # truncated: header only, the array buffer missing
+            return valid[:2]
+        if choice == 2:  # a flipped byte in the header
+            header = bytearray(valid[1])
+            header[self.rng.randrange(len(header))] ^= 0xFF
+            return [valid[0], bytes(header), *valid[2:]]
+        if choice == 3:  # wrong buffer size
+            return [valid[0], valid[1], b"\x00" * 7]
+        if choice == 4:  # an extra frame
+            return [*valid, b"extra"]
+        return [valid[0]]  # topic only
+
+    def tick(self) -> None:
+        if self.sent >= self.params.count:
+            return
+        topic = f"{self.name}/tick"
+        self.io.publish_raw(topic, self._garbage(topic))
+        self.io.publish(
+            "tick", Tick(header=Header(stamp_nanos=self.io.now_nanos()), value=float(self.sent))
+        )
+        self.sent += 1
+        if self.sent == self.params.count:
+            self.io.request_stop("fuzzing done")
