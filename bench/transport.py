@@ -1,0 +1,408 @@
+"""Transport: the runtime's node processes against raw pyzmq, over ipc and tcp.
+
+One frame is one :class:`messages.ToFImage` of one sensor: a 172 x 224 depth image
+(float32) and IR image (uint16), 231,168 bytes of pixels, sent between two processes.
+Three implementations run side by side, in the same run, alternating per repeat:
+
+``runtime``  the real path: a graph of ``bench.image_source`` -> ``bench.image_sink``
+             (``nodes/bench_nodes.py``) started by :class:`runtime.launcher.Launcher`;
+             each node is a ``runtime.process`` child (XPUB publisher, SUB input, poll
+             loop, timers, the codec). tcp places both nodes on ``host: 127.0.0.1``.
+``codec``    two bare processes with pyzmq PUB/SUB that encode and decode with
+             ``messages.codec`` (no node runner): splits the runtime's cost between
+             codec and the runner loop.
+``raw``      two bare processes with pyzmq PUB/SUB sending the same pixel buffers as
+             ``[topic, 16-byte stamp/seq + frame id, depth, ir]``, ``copy=False``.
+
+Every implementation runs the same protocol (:class:`nodes.bench_nodes.WindowPlan` and
+:class:`nodes.bench_nodes.SinkRecord`): a latency phase at ``rate_hz`` (stamp with
+``time.time_ns`` just before encoding, latency measured once the receiver holds the
+decoded frame), then a throughput phase with at most ``window`` frames in flight,
+acknowledged every ``ack_every`` frames over a return channel (a Tick edge for the
+runtime, PUSH/PULL for the bare processes). Throughput is counted at the receiver:
+``(frames - 1) / (last - first receive time)``. Frames lost at a high-water mark
+(sequence gaps) are counted as ``drops``.
+
+Rows report medians over repeats (of each repeat's rate, median and p99 latency);
+``throughput_vs_raw`` and ``latency_vs_raw`` divide by the raw row of the same
+transport.
+
+    python -m bench.transport [--quick] [--json] [--no-plot]
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import multiprocessing as mp
+import struct
+import tempfile
+import time
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zmq
+
+from bench.common import Row, main, median, percentile
+from messages import Header, ToFImage, decode, encode
+from nodes.bench_nodes import LATENCY, SinkRecord, WindowPlan, bench_images
+from runtime.graph import check
+from runtime.launcher import Launcher
+
+ROWS, COLS = 172, 224
+TRANSPORTS = ("ipc", "tcp")
+IMPLS = ("runtime", "codec", "raw")
+TOPIC = b"source/image"
+PROBE = b"source/probe"
+ACK = struct.Struct("<q")
+RAW_HEADER = struct.Struct("<qq")  # stamp_nanos, seq; the frame id follows as UTF-8
+TIMEOUT_MS = 20_000
+
+
+@dataclass(frozen=True, kw_only=True)
+class Sizes:
+    latency_frames: int
+    throughput_frames: int
+    repeats: int
+    rate_hz: float = 1000.0
+    window: int = 32
+    ack_every: int = 8
+    hwm: int = 1000
+
+    def __post_init__(self) -> None:
+        for name in ("latency_frames", "throughput_frames", "repeats", "window", "ack_every"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.window >= self.hwm:
+            raise ValueError(f"window must be < hwm ({self.hwm}), got {self.window}")
+
+
+QUICK = Sizes(latency_frames=300, throughput_frames=1000, repeats=1)
+FULL = Sizes(latency_frames=2000, throughput_frames=5000, repeats=5)
+
+
+@dataclass
+class Measured:
+    frames_per_sec: float
+    latency_ms_median: float
+    latency_ms_p99: float
+    drops: int
+
+
+def _summarise(result: dict[str, Any]) -> Measured:
+    latencies_ms = np.asarray(result["latency_nanos"], dtype=float) / 1e6
+    first, last = result["throughput_receive_nanos"]
+    frames = result["throughput_frames"]
+    if frames < 2 or last <= first or not len(latencies_ms):
+        raise RuntimeError(f"the sink measured too little: {frames} throughput frames")
+    return Measured(
+        frames_per_sec=(frames - 1) / ((last - first) / 1e9),
+        latency_ms_median=median(latencies_ms.tolist()),
+        latency_ms_p99=percentile(latencies_ms.tolist(), 99),
+        drops=int(result["dropped"]),
+    )
+
+
+# -- the runtime: a two-node graph under the real launcher -------------------------
+
+
+def run_runtime(transport: str, sizes: Sizes, workdir: Path) -> Measured:
+    """Launch ``bench.image_source -> bench.image_sink`` and read what the sink measured."""
+    out_path = workdir / f"runtime-{transport}.json"
+    out_path.unlink(missing_ok=True)
+    host = {"host": "127.0.0.1"} if transport == "tcp" else {}
+    doc = {
+        "nodes": {
+            "source": {
+                "impl": "bench.image_source",
+                "params": {
+                    "rows": ROWS,
+                    "cols": COLS,
+                    "latency_frames": sizes.latency_frames,
+                    "rate_hz": sizes.rate_hz,
+                    "throughput_frames": sizes.throughput_frames,
+                    "window": sizes.window,
+                },
+                "inputs": {"ack": "sink/ack"},
+                **host,
+            },
+            "sink": {
+                "impl": "bench.image_sink",
+                "params": {"out_path": str(out_path), "ack_every": sizes.ack_every},
+                "inputs": {"image": {"from": "source/image", "queue_size": sizes.hwm}},
+                **host,
+            },
+        }
+    }
+    log = io.StringIO()
+    code = Launcher(check(doc, source="bench.transport"), out=log).run()
+    if code != 0 or not out_path.exists():
+        raise RuntimeError(f"the runtime graph failed (exit {code}):\n{log.getvalue()}")
+    return _summarise(json.loads(out_path.read_text()))
+
+
+# -- bare pyzmq processes ------------------------------------------------------------
+
+
+def _endpoint(transport: str, workdir: Path, name: str) -> str:
+    return f"ipc://{workdir}/{name}" if transport == "ipc" else "tcp://127.0.0.1:*"
+
+
+def _raw_frames(frame_id: str, seq: int, depth_m: np.ndarray, ir: np.ndarray) -> list[Any]:
+    header = RAW_HEADER.pack(time.time_ns(), seq) + frame_id.encode()
+    return [TOPIC, header, depth_m, ir]
+
+
+def _codec_frames(frame_id: str, seq: int, depth_m: np.ndarray, ir: np.ndarray) -> list[Any]:
+    rows, cols = depth_m.shape
+    msg = ToFImage(
+        header=Header(stamp_nanos=time.time_ns(), seq=seq, frame_id=frame_id),
+        sensor="left",
+        depth_m=depth_m,
+        ir=ir,
+        fx_px=210.0,
+        fy_px=210.0,
+        cx_px=(cols - 1) / 2,
+        cy_px=(rows - 1) / 2,
+    )
+    return encode(TOPIC.decode(), msg)
+
+
+def _source_process(
+    conn: Connection, impl: str, transport: str, sizes: Sizes, workdir: str
+) -> None:
+    """The sending process: PUB for frames, PULL for acks; paced, then windowed."""
+    ctx: zmq.Context[Any] = zmq.Context()
+    pub = ctx.socket(zmq.PUB)
+    pub.setsockopt(zmq.SNDHWM, sizes.hwm)
+    pub.setsockopt(zmq.LINGER, 1000)
+    acks = ctx.socket(zmq.PULL)
+    acks.setsockopt(zmq.LINGER, 0)
+    pub.bind(_endpoint(transport, Path(workdir), "data"))
+    acks.bind(_endpoint(transport, Path(workdir), "ack"))
+    conn.send(
+        [pub.getsockopt(zmq.LAST_ENDPOINT).decode(), acks.getsockopt(zmq.LAST_ENDPOINT).decode()]
+    )
+    depth_m, ir = bench_images(ROWS, COLS)
+    make = _codec_frames if impl == "codec" else _raw_frames
+    plan = WindowPlan(sizes.latency_frames, sizes.throughput_frames, sizes.window)
+    seq = 0
+
+    def send(frame_ids: list[str]) -> None:
+        nonlocal seq
+        for frame_id in frame_ids:
+            pub.send_multipart(make(frame_id, seq, depth_m, ir), copy=False)
+            seq += 1
+
+    # A subscriber that connects late misses messages: probe until the sink answers.
+    while not acks.poll(5):
+        pub.send(PROBE)
+    acks.recv()
+    period = int(1e9 / sizes.rate_hz)
+    due = time.monotonic_ns() + period
+    while plan.phase == LATENCY:
+        left = due - time.monotonic_ns()
+        if left > 0:
+            time.sleep(left / 1e9)
+        send(plan.on_timer())
+        # Skip missed periods rather than bursting, as the runtime's timers do.
+        due = max(due + period, time.monotonic_ns())
+    send(plan.fill())
+    while not plan.done:
+        if not acks.poll(TIMEOUT_MS):
+            break
+        send(plan.on_ack(ACK.unpack(acks.recv())[0]))
+    conn.send(plan.done)
+    pub.close()
+    acks.close()
+    ctx.term()
+
+
+def _sink_process(conn: Connection, impl: str, endpoints: list[str], sizes: Sizes) -> None:
+    """The receiving process: SUB for frames, PUSH for acks; sends its record back."""
+    ctx: zmq.Context[Any] = zmq.Context()
+    sub = ctx.socket(zmq.SUB)
+    sub.setsockopt(zmq.RCVHWM, sizes.hwm)
+    sub.setsockopt(zmq.LINGER, 0)
+    sub.connect(endpoints[0])
+    sub.setsockopt(zmq.SUBSCRIBE, b"source/")
+    acks = ctx.socket(zmq.PUSH)
+    acks.setsockopt(zmq.LINGER, 1000)
+    acks.connect(endpoints[1])
+    record = SinkRecord(sizes.ack_every)
+    ready = False
+    while sub.poll(TIMEOUT_MS):
+        frames = sub.recv_multipart(copy=False)
+        if frames[0].bytes == PROBE:
+            if not ready:
+                acks.send(b"ready")
+                ready = True
+            continue
+        if impl == "codec":
+            _, msg = decode(frames, expect=ToFImage)
+            stamp_nanos, seq, frame_id = msg.header.stamp_nanos, msg.header.seq, msg.header.frame_id
+        else:
+            header = frames[1].buffer
+            stamp_nanos, seq = RAW_HEADER.unpack_from(header)
+            frame_id = bytes(header[RAW_HEADER.size :]).decode()
+            # What a receiver holds: the two images as arrays on the received buffers.
+            np.frombuffer(frames[2].buffer, np.float32).reshape(ROWS, COLS)
+            np.frombuffer(frames[3].buffer, np.uint16).reshape(ROWS, COLS)
+        if record.take(stamp_nanos, seq, frame_id):
+            acks.send(ACK.pack(seq + 1))
+        if record.finished(frame_id, sizes.throughput_frames):
+            break
+    conn.send(record.result())
+    sub.close()
+    acks.close()
+    ctx.term()
+
+
+def run_bare(impl: str, transport: str, sizes: Sizes, workdir: Path) -> Measured:
+    """Run the ``raw`` or ``codec`` pair of processes and read what the sink measured."""
+    spawn = mp.get_context("spawn")
+    source_end, source_conn = spawn.Pipe()
+    sink_end, sink_conn = spawn.Pipe()
+    source = spawn.Process(
+        target=_source_process, args=(source_conn, impl, transport, sizes, str(workdir))
+    )
+    source.start()
+    try:
+        if not source_end.poll(TIMEOUT_MS / 1000):
+            raise RuntimeError(f"{impl}/{transport}: the source process did not bind")
+        endpoints = source_end.recv()
+        sink = spawn.Process(target=_sink_process, args=(sink_conn, impl, endpoints, sizes))
+        sink.start()
+        try:
+            if not sink_end.poll(2 * TIMEOUT_MS / 1000):
+                raise RuntimeError(f"{impl}/{transport}: the sink process sent no result")
+            result = sink_end.recv()
+            if not (source_end.poll(TIMEOUT_MS / 1000) and source_end.recv()):
+                raise RuntimeError(f"{impl}/{transport}: not every frame was acknowledged")
+        finally:
+            sink.join(timeout=5)
+            if sink.is_alive():
+                sink.kill()
+    finally:
+        source.join(timeout=5)
+        if source.is_alive():
+            source.kill()
+    return _summarise(result)
+
+
+# -- the sweep -------------------------------------------------------------------------
+
+
+def measure(impl: str, transport: str, sizes: Sizes, workdir: Path) -> Measured:
+    """One repeat of one implementation over one transport."""
+    if impl == "runtime":
+        return run_runtime(transport, sizes, workdir)
+    return run_bare(impl, transport, sizes, workdir)
+
+
+def run(quick: bool, sizes: Sizes | None = None) -> list[Row]:
+    """Every transport and implementation, ``repeats`` times, as table rows of medians."""
+    sizes = sizes or (QUICK if quick else FULL)
+    runs: dict[tuple[str, str], list[Measured]] = {}
+    with tempfile.TemporaryDirectory(prefix="bench-transport-") as tmp:
+        for repeat in range(sizes.repeats):
+            for transport in TRANSPORTS:
+                # Alternate the order so a drift of the machine's load hits every impl.
+                order = IMPLS if repeat % 2 == 0 else IMPLS[::-1]
+                for impl in order:
+                    workdir = Path(tmp) / f"{impl}-{transport}-{repeat}"
+                    workdir.mkdir()
+                    runs.setdefault((transport, impl), []).append(
+                        measure(impl, transport, sizes, workdir)
+                    )
+    rows: list[Row] = []
+    for transport in TRANSPORTS:
+        raw = _medians(runs[(transport, "raw")])
+        for impl in IMPLS:
+            m = _medians(runs[(transport, impl)])
+            rows.append(
+                {
+                    "transport": transport,
+                    "impl": impl,
+                    "frames_per_sec": m.frames_per_sec,
+                    "throughput_vs_raw": m.frames_per_sec / raw.frames_per_sec,
+                    "latency_ms_median": m.latency_ms_median,
+                    "latency_ms_p99": m.latency_ms_p99,
+                    "latency_vs_raw": m.latency_ms_median / raw.latency_ms_median,
+                    "megabytes_per_sec": m.frames_per_sec * frame_bytes() / 1e6,
+                    "drops": m.drops,
+                    "repeats": sizes.repeats,
+                    "latency_frames": sizes.latency_frames,
+                    "throughput_frames": sizes.throughput_frames,
+                    "rate_hz": sizes.rate_hz,
+                    "window": sizes.window,
+                }
+            )
+    return rows
+
+
+def _medians(measured: list[Measured]) -> Measured:
+    return Measured(
+        frames_per_sec=median([m.frames_per_sec for m in measured]),
+        latency_ms_median=median([m.latency_ms_median for m in measured]),
+        latency_ms_p99=median([m.latency_ms_p99 for m in measured]),
+        drops=sum(m.drops for m in measured),
+    )
+
+
+def frame_bytes() -> int:
+    """Pixel bytes of one frame (depth float32 + IR uint16)."""
+    return ROWS * COLS * (4 + 2)
+
+
+def plot(rows: list[Row], path: Path) -> None:
+    """Throughput and latency bars per transport and implementation."""
+    import matplotlib.pyplot as plt
+
+    fig, (ax_rate, ax_lat) = plt.subplots(1, 2, figsize=(10, 4))
+    width = 0.8 / len(IMPLS)
+    x = np.arange(len(TRANSPORTS))
+    for i, impl in enumerate(IMPLS):
+        mine = [
+            next(r for r in rows if r["transport"] == t and r["impl"] == impl) for t in TRANSPORTS
+        ]
+        offset = (i - (len(IMPLS) - 1) / 2) * width
+        ax_rate.bar(x + offset, [r["frames_per_sec"] for r in mine], width, label=impl)
+        ax_lat.bar(
+            x + offset,
+            [r["latency_ms_median"] for r in mine],
+            width,
+            yerr=[[0] * len(mine), [r["latency_ms_p99"] - r["latency_ms_median"] for r in mine]],
+            capsize=3,
+            label=impl,
+        )
+    for ax in (ax_rate, ax_lat):
+        ax.set_xticks(x, TRANSPORTS)
+        ax.legend()
+    ax_rate.set_ylabel("frames / s (one 172x224 depth + IR frame)")
+    ax_rate.set_title("throughput (window of 32 in flight)")
+    ax_lat.set_ylabel("latency, ms (bar: median, whisker: p99)")
+    ax_lat.set_title(f"latency at {rows[0]['rate_hz']:g} Hz")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+COLUMNS = [
+    "transport",
+    "impl",
+    "frames_per_sec",
+    "throughput_vs_raw",
+    "latency_ms_median",
+    "latency_ms_p99",
+    "latency_vs_raw",
+    "megabytes_per_sec",
+    "drops",
+    "repeats",
+]
+
+if __name__ == "__main__":
+    main("transport", run, columns=COLUMNS, plot=plot)
