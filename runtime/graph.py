@@ -112,7 +112,7 @@ class Graph:
         ]
 
 
-class _UniqueKeyLoader(yaml.SafeLoader):
+class _UniqueKeyLoader(yaml.SafeLoader):  # type: ignore[misc]
     """``safe_load`` that refuses duplicate mapping keys instead of keeping the last."""
 
 
@@ -207,7 +207,7 @@ def _restart(value: Any, where: str, errors: list[str]) -> RestartSpec:
         errors.append(f"{where}.restart: expected a policy name or a mapping, got {value!r}")
         return RestartSpec()
     try:
-        spec = build_params(RestartSpec, value)
+        spec: RestartSpec = build_params(RestartSpec, value)
     except ValueError as err:
         errors.append(f"{where}.restart: {err}")
         return RestartSpec()

@@ -118,7 +118,9 @@ class ZmqIO:
 
     def _bind(self, endpoint: str) -> str:
         self.pub.bind(endpoint)
-        return self.pub.getsockopt(zmq.LAST_ENDPOINT).decode()
+        endpoint = self.pub.getsockopt(zmq.LAST_ENDPOINT)
+        assert isinstance(endpoint, bytes)
+        return endpoint.decode()
 
     # -- the IO protocol -------------------------------------------------------
     def publish(self, output: str, msg: Message) -> None:
@@ -318,7 +320,7 @@ class Runner:
             if io.timers:
                 due = min(t.due_nanos for t in io.timers)
                 timeout_ms = max(0.0, min(timeout_ms, (due - time.monotonic_ns()) / 1e6))
-            events = dict(poller.poll(timeout_ms))
+            events = dict(poller.poll(int(timeout_ms)))
             if io.control in events:
                 self._on_control()
             if io.pub in events:

@@ -30,7 +30,8 @@ HEARTBEAT_SECS = 0.5
 
 def pack(kind: str, **body: Any) -> bytes:
     """One control message."""
-    return msgpack.packb({"kind": kind, **body}, use_bin_type=True)
+    packed: bytes = msgpack.packb({"kind": kind, **body}, use_bin_type=True)
+    return packed
 
 
 def unpack(raw: bytes) -> dict[str, Any]:
