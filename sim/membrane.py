@@ -1,0 +1,162 @@
+"""The membrane model: where the bubble surface lies when an object presses into it.
+
+Geometric, quasi-static model (documented in docs/sim.md):
+
+* The rest membrane is the ellipsoid cap of ``geometry.gripper``.
+* Where the object's proximity field is negative at a rest membrane point, the membrane
+  conforms to the object: seen from the internal camera, the surface along a pixel's
+  ray is the object's surface point nearest the camera on that ray (found by one
+  sphere-tracing step from the rest point back towards the camera, then secant steps
+  on the field). It never goes behind the acrylic plate: a bubble squeezed flat
+  bottoms out there.
+* Elsewhere the membrane keeps its rest shape: the volume the object displaces raises
+  the pressure (``sim.pressure``) instead of bulging the free membrane out.
+
+Contact mechanics on a grid of membrane samples (used for pressure, grip force, contact
+and ground-truth shear without rendering an image) take the penetration depth along the
+field as the local indentation: displaced volume = sum(indentation * area), contact
+area = the projected area of the indented samples, normal force = gauge pressure times
+that area (a thin membrane under pressure transmits p * A).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from geometry.se3 import invert
+
+
+@dataclass(frozen=True)
+class ContactState:
+    """One bubble's contact with the object at one instant (sample-grid model)."""
+
+    displaced_volume_m3: float
+    contact_area_m2: float
+    in_contact: bool
+    shear_in_tool_m: np.ndarray  # (2,) mean tangential membrane shift, tool (y, z)
+
+
+NO_SHEAR = np.zeros(2)
+
+
+def cull_to_bounds(
+    points: np.ndarray, lo: np.ndarray, hi: np.ndarray, margin_m: float
+) -> np.ndarray:
+    """Boolean mask of points inside the box ``[lo - margin, hi + margin]``."""
+    return np.all((points >= lo - margin_m) & (points <= hi + margin_m), axis=1)
+
+
+def contact_mechanics(
+    *,
+    field: object,
+    bounds: tuple[np.ndarray, np.ndarray],
+    samples: object,
+    tool_from_finger: np.ndarray,
+    tool_from_object: np.ndarray,
+    anchor_tool_from_object: np.ndarray | None = None,
+    max_shear_m: float = 0.006,
+) -> ContactState:
+    """Indentation, contact area and shear of one bubble on its sample grid.
+
+    Args:
+        field: the object's proximity field (``value(points)``), object frame.
+        bounds: the object's bounding box in its frame.
+        samples: ``geometry.gripper.SurfaceSamples`` of the rest membrane (frame F).
+        tool_from_finger: the bubble's plate frame in the tool frame.
+        tool_from_object: the object's pose now.
+        anchor_tool_from_object: the object's pose when this contact began (stick); None
+            for no shear.
+        max_shear_m: the stick limit: larger shifts slip and stay at this length.
+    """
+    object_from_finger = invert(tool_from_object) @ tool_from_finger
+    pts = samples.points_f @ object_from_finger[:3, :3].T + object_from_finger[:3, 3]
+    near = cull_to_bounds(pts, bounds[0], bounds[1], 1e-4)
+    if not near.any():
+        return ContactState(0.0, 0.0, False, NO_SHEAR)
+    idx = np.nonzero(near)[0]
+    phi = field.value(pts[idx])
+    inside = phi < 0
+    if not inside.any():
+        return ContactState(0.0, 0.0, False, NO_SHEAR)
+    idx = idx[inside]
+    # The membrane cannot be pushed behind the plate: indentation <= height above it.
+    pen = np.minimum(-phi[inside], samples.points_f[idx, 0])
+    area = samples.area_m2[idx]
+    volume = float(np.sum(pen * area))
+    projected = float(np.sum(area * samples.normals_f[idx, 0]))
+    shear = NO_SHEAR
+    if anchor_tool_from_object is not None:
+        pts_f = samples.points_f[idx] - pen[:, None] * samples.normals_f[idx]
+        p_tool = pts_f @ tool_from_finger[:3, :3].T + tool_from_finger[:3, 3]
+        shift = material_shift(p_tool, tool_from_object, anchor_tool_from_object, max_shear_m)
+        weights = pen * area
+        shear = (weights @ shift[:, 1:]) / weights.sum()
+    return ContactState(volume, projected, True, shear)
+
+
+def material_shift(
+    points_in_tool: np.ndarray,
+    tool_from_object: np.ndarray,
+    anchor_tool_from_object: np.ndarray,
+    max_shear_m: float,
+) -> np.ndarray:
+    """How far the membrane material at each point was carried by the object (stick).
+
+    Material touching the object at ``points_in_tool`` was, when the contact began, at
+    ``anchor * inv(now) * p``; the shift is the difference, with the component along
+    the plate normal (tool x) removed, and capped at ``max_shear_m`` (slip).
+
+    Returns:
+        ``(N, 3)`` shifts in the tool frame (x component zero).
+    """
+    back = anchor_tool_from_object @ invert(tool_from_object)
+    origin = points_in_tool @ back[:3, :3].T + back[:3, 3]
+    shift = points_in_tool - origin
+    shift[:, 0] = 0.0
+    norm = np.linalg.norm(shift, axis=1)
+    scale = np.minimum(1.0, max_shear_m / np.maximum(norm, 1e-12))
+    return shift * scale[:, None]
+
+
+def march_to_surface(
+    field: object,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    t_rest: np.ndarray,
+    phi_rest: np.ndarray,
+    t_min: np.ndarray,
+    *,
+    steps: int,
+    with_grad: bool,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Move from rest points inside the object back along their rays to its surface.
+
+    Points start at ``origins + t_rest * directions`` (object frame, unit directions
+    pointing away from the camera), where the field is ``phi_rest < 0``. A first
+    sphere-tracing step (``t += phi``, never past the surface for a distance-like
+    field) is followed by ``steps`` secant steps; the result is clamped to
+    ``[t_min, t_rest]``.
+
+    Returns:
+        ``(t, grad)``: the ray parameter of the surface, and the field gradient there
+        (object frame, ``(N, 3)``) when ``with_grad``.
+    """
+    t0, f0 = t_rest, phi_rest
+    t1 = np.maximum(t0 + f0, t_min)
+    for _ in range(steps):
+        f1 = field.value(origins + t1[:, None] * directions)
+        denom = f1 - f0
+        ok = np.abs(denom) > 1e-12
+        t2 = np.where(ok, t1 - f1 * (t1 - t0) / np.where(ok, denom, 1.0), t1 + f1)
+        t2 = np.clip(t2, t_min, t_rest)
+        t0, f0, t1 = t1, f1, t2
+    grad = None
+    if with_grad:
+        f1, grad = field.value_and_grad(origins + t1[:, None] * directions)
+        # One Newton step along the ray with the gradient we had to compute anyway.
+        slope = np.einsum("ij,ij->i", grad, directions)
+        ok = slope < -0.05
+        t1 = np.where(ok, np.clip(t1 - f1 / np.where(ok, slope, -1.0), t_min, t_rest), t1)
+    return t1, grad

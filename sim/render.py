@@ -1,0 +1,331 @@
+"""Rendering one bubble's ToF frame from a world snapshot, effect by effect.
+
+:class:`BubbleRenderer` precomputes everything that does not change between frames
+(per-pixel rays in the sensor and finger frames, the rest membrane's range and
+incidence, the ray-to-plate distances, the low-resolution grid the object field is
+evaluated on, the dot texture) and then runs only the camera effects the scene
+resolves to (``sim.effects``), in order, each adding its named arrays to the frame.
+:attr:`BubbleRenderer.calls` counts the evaluations of each effect, so tests can check
+that an effect that is off was not paid for.
+
+The library entry points (no runtime) are in ``sim/__init__.py``: :func:`sim.render`
+(a scene at a time), :func:`sim.render_grasp` (an object, a pose and an opening) and
+:class:`sim.Simulator` (step a scene frame by frame).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from geometry.se3 import invert
+from messages.base import Header
+from messages.types import MaskImage, ToFImage
+from sim import pattern as dot_pattern
+from sim.effects import EFFECTS, camera_effects
+from sim.membrane import cull_to_bounds, march_to_surface, material_shift
+from sim.scene import Scene
+from sim.world import WorldSnapshot
+
+SIDE_INDEX = {"left": 0, "right": 1}
+_EMPTY_F32 = np.zeros((0, 0), np.float32)
+_EMPTY_U16 = np.zeros((0, 0), np.uint16)
+
+
+@dataclass
+class BubbleFrame:
+    """What the camera effects produced for one bubble at one instant."""
+
+    side: str
+    arrays: dict[str, np.ndarray]
+
+    def tof_image(self, camera: Any, stamp_nanos: int) -> ToFImage:
+        """The wire message: depth (float32, NaN invalid) and IR (uint16), or empty arrays
+        for channels whose effect is off."""
+        depth = self.arrays.get("depth_m")
+        amp = self.arrays.get("amplitude")
+        ir = _EMPTY_U16
+        if amp is not None:
+            ir = np.clip(np.nan_to_num(amp, nan=0.0), 0.0, 65535.0).round().astype(np.uint16)
+        return ToFImage(
+            header=Header(stamp_nanos=stamp_nanos, frame_id=f"{self.side}_sensor"),
+            sensor=self.side,
+            depth_m=_EMPTY_F32 if depth is None else depth,
+            ir=ir,
+            fx_px=camera.fx_px,
+            fy_px=camera.fy_px,
+            cx_px=camera.cx_px,
+            cy_px=camera.cy_px,
+        )
+
+    def contact_mask(self, stamp_nanos: int) -> MaskImage:
+        """The true contact patch (255 where the membrane is indented)."""
+        contact = self.arrays["contact"]
+        return MaskImage(
+            header=Header(stamp_nanos=stamp_nanos, frame_id=f"{self.side}_sensor"),
+            sensor=self.side,
+            mask=(contact.astype(np.uint8) * 255),
+        )
+
+
+class BubbleRenderer:
+    """Renders one bubble of one scene (see the module docstring)."""
+
+    def __init__(self, scene: Scene, side: str) -> None:
+        if side not in SIDE_INDEX:
+            raise ValueError(f"`side` must be 'left' or 'right', got {side!r}")
+        self.scene = scene
+        self.side = side
+        self.effects = camera_effects(scene.resolved_effects)
+        self.calls: Counter[str] = Counter()
+        self.camera = scene.camera.intrinsics()
+        self.geometry = scene.gripper_geometry()
+        self.model = scene.object_model()
+        self.bounds = self.model.bounds_m()
+        self.need_normals = "ir" in self.effects
+        bubble = self.geometry.bubble
+        f_from_s = self.geometry.finger_from_sensor()
+        self._r_fs = f_from_s[:3, :3]
+        self._o_f = f_from_s[:3, 3]
+
+        # Full resolution: rays, rest range, distance to the plate, rest incidence.
+        unit = self.camera.unit_rays()
+        self.unit_z = unit[..., 2].astype(np.float32)
+        self.dirs_f = unit @ self._r_fs.T
+        self.rest_range = bubble.intersect_rays(self._o_f, self.dirs_f)
+        self.plate_range = _plate_range(self._o_f, self.dirs_f)
+        self.cos_rest = _rest_cos(bubble, self._o_f, self.dirs_f, self.rest_range)
+        self.unit = unit
+
+        # The grid the object field is evaluated on (every k-th pixel, centre-aligned
+        # with cv2.resize's linear upsampling).
+        k = scene.membrane.resolution_divisor
+        h, w = self.camera.shape
+        self.low_shape = (h // k, w // k)
+        hl, wl = self.low_shape
+        cols = (np.arange(wl) + 0.5) * (w / wl) - 0.5
+        rows = (np.arange(hl) + 0.5) * (h / hl) - 0.5
+        x, y = np.meshgrid(
+            (cols - self.camera.cx_px) / self.camera.fx_px,
+            (rows - self.camera.cy_px) / self.camera.fy_px,
+        )
+        rays = np.stack([x, y, np.ones_like(x)], axis=-1)
+        unit_lr = rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+        dirs_lr_f = unit_lr @ self._r_fs.T
+        rest_lr = bubble.intersect_rays(self._o_f, dirs_lr_f)
+        self._lr_valid = np.flatnonzero(np.isfinite(rest_lr))
+        self._lr_unit = unit_lr.reshape(-1, 3)[self._lr_valid]
+        self._lr_rest = rest_lr.ravel()[self._lr_valid]
+        self._lr_plate = _plate_range(self._o_f, dirs_lr_f).ravel()[self._lr_valid]
+        self._lr_rest_points = self._lr_rest[:, None] * self._lr_unit
+        self._lr_cos_rest = _rest_cos(bubble, self._o_f, dirs_lr_f, rest_lr).ravel()
+
+        self._texture: np.ndarray | None = None
+        self._sheet_mm: tuple[float, float] = (0.0, 0.0)
+
+    # ------------------------------------------------------------------ effects
+
+    def render(self, snap: WorldSnapshot) -> BubbleFrame:
+        """Run the scene's camera effects for this bubble at ``snap``."""
+        frame: dict[str, Any] = {}
+        for name in self.effects:
+            _STEPS[name](self, frame, snap)
+            self.calls[name] += 1
+            missing = [a for a in EFFECTS[name].adds if a not in frame]
+            if missing:
+                raise RuntimeError(f"effect {name!r} did not add {missing}")
+        return BubbleFrame(self.side, frame)
+
+    def tool_from_sensor(self, width_m: float) -> np.ndarray:
+        return self.geometry.tool_from_sensor(self.side, width_m)
+
+    def _membrane(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
+        object_from_sensor = invert(snap.tool_from_object) @ self.tool_from_sensor(snap.width_m)
+        rot, trans = object_from_sensor[:3, :3], object_from_sensor[:3, 3]
+        hl, wl = self.low_shape
+        indent_lr = np.zeros(hl * wl, np.float32)
+        cos_lr = self._lr_cos_rest.copy() if self.need_normals else None
+        pts = self._lr_rest_points @ rot.T + trans
+        near = np.flatnonzero(cull_to_bounds(pts, self.bounds[0], self.bounds[1], 1e-4))
+        if near.size:
+            phi = self.model.field.value(pts[near])
+            inside = phi < 0
+            idx = near[inside]
+            if idx.size:
+                dirs = self._lr_unit[idx] @ rot.T
+                origins = np.broadcast_to(trans, dirs.shape)
+                t, grad = march_to_surface(
+                    self.model.field,
+                    origins,
+                    dirs,
+                    self._lr_rest[idx],
+                    phi[inside],
+                    self._lr_plate[idx],
+                    steps=self.scene.membrane.march_steps,
+                    with_grad=self.need_normals,
+                )
+                pix = self._lr_valid[idx]
+                indent_lr[pix] = self._lr_rest[idx] - t
+                if grad is not None and cos_lr is not None:
+                    norm = np.linalg.norm(grad, axis=1)
+                    cos_lr[pix] = np.abs(np.einsum("ij,ij->i", grad, dirs)) / np.maximum(
+                        norm, 1e-12
+                    )
+        h, w = self.camera.shape
+        indent = indent_lr.reshape(hl, wl)
+        if (hl, wl) != (h, w):
+            indent = cv2.resize(indent, (w, h), interpolation=cv2.INTER_LINEAR)
+        indent = np.minimum(indent, self.rest_range - self.plate_range)
+        frame["indentation_m"] = indent
+        frame["range_m"] = self.rest_range - indent
+        frame["contact"] = indent > 1e-4
+        if cos_lr is not None:
+            cos_up = cos_lr.reshape(hl, wl).astype(np.float32)
+            if (hl, wl) != (h, w):
+                cos_up = cv2.resize(cos_up, (w, h), interpolation=cv2.INTER_LINEAR)
+            frame["cos_incidence"] = np.where(frame["contact"], cos_up, self.cos_rest)
+
+    def _depth(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
+        frame["depth_m"] = (frame["range_m"] * self.unit_z).astype(np.float32)
+
+    def _ir(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
+        r = frame["range_m"]
+        # Active illumination from the camera: Lambertian return falling with range
+        # squared, and an emitter profile dimming towards the image corners.
+        amp = self.scene.membrane.ir_gain * frame["cos_incidence"] * self.unit_z**2 / (r * r)
+        frame["amplitude"] = amp.astype(np.float32)
+
+    def _shear(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
+        h, w = self.camera.shape
+        shift = np.zeros((h, w, 2), np.float32)
+        anchor = snap.anchors.get(self.side)
+        contact = frame["contact"]
+        if anchor is not None and contact.any():
+            sigma = self.scene.bubble.shear_blur_px
+            weight = contact.astype(np.float32)
+            if sigma > 0:
+                weight = cv2.GaussianBlur(weight, (0, 0), sigma)
+            # Material beyond the patch is dragged along by the membrane's stretch,
+            # fading over a few pixels; inside the patch it sticks to the object.
+            weight = np.maximum(weight, contact)
+            rows, cols = np.nonzero(weight > 1e-3)
+            r = frame["range_m"][rows, cols]
+            ok = np.isfinite(r)
+            rows, cols, r = rows[ok], cols[ok], r[ok]
+            tool_from_sensor = self.tool_from_sensor(snap.width_m)
+            p_s = r[:, None] * self.unit[rows, cols]
+            p_t = p_s @ tool_from_sensor[:3, :3].T + tool_from_sensor[:3, 3]
+            shift_t = material_shift(
+                p_t, snap.tool_from_object, anchor, self.scene.bubble.max_shear_m
+            )
+            tool_from_finger = self.geometry.tool_from_finger(self.side, snap.width_m)
+            shift_f = shift_t @ tool_from_finger[:3, :3]
+            shift[rows, cols] = (shift_f[:, 1:] * weight[rows, cols, None]).astype(np.float32)
+        frame["material_shift_m"] = shift
+
+    def _dot_pattern(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
+        texture, (sheet_w, sheet_h) = self.texture()
+        res = self.scene.pattern.texture_mm_per_px
+        r = frame["range_m"]
+        y = self._o_f[1] + r * self.dirs_f[..., 1]
+        z = self._o_f[2] + r * self.dirs_f[..., 2]
+        shift = frame.get("material_shift_m")
+        if shift is not None:
+            y = y - shift[..., 0]
+            z = z - shift[..., 1]
+        map_x = ((y * 1000.0 + sheet_w / 2) / res - 0.5).astype(np.float32)
+        map_y = ((z * 1000.0 + sheet_h / 2) / res - 0.5).astype(np.float32)
+        map_x[~np.isfinite(map_x)] = -10.0
+        map_y[~np.isfinite(map_y)] = -10.0
+        albedo = cv2.remap(
+            texture, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=1.0
+        )
+        frame["albedo"] = albedo
+        frame["amplitude"] = frame["amplitude"] * albedo
+
+    def _tof_noise(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
+        noise = self.scene.noise
+        cam = self.scene.camera
+        rng = np.random.default_rng([self.scene.seed, SIDE_INDEX[self.side], snap.frame_index])
+        r = frame["range_m"]
+        amp = frame["amplitude"]
+        h, w = r.shape
+        # Range noise: ~1% of range at the reference amplitude (FACTS.md), growing as
+        # the return weakens (shot-noise limited: sigma ~ 1 / sqrt(amplitude)).
+        sigma = (
+            noise.range_sigma_fraction
+            * r
+            * np.sqrt(noise.reference_amplitude / np.maximum(amp, 1.0))
+        )
+        noisy = r + sigma * rng.standard_normal((h, w), dtype=np.float32)
+        with np.errstate(invalid="ignore"):
+            invalid = ~np.isfinite(r) | (noisy < cam.min_range_m) | (noisy > cam.max_range_m)
+            invalid |= frame["cos_incidence"] < math.cos(math.radians(noise.grazing_limit_deg))
+            invalid |= amp < noise.min_amplitude
+            invalid |= sigma > noise.max_noise_m
+        frame["depth_m"] = np.where(invalid, np.nan, noisy * self.unit_z).astype(np.float32)
+        std = np.sqrt(np.maximum(amp, 0.0) + noise.ir_read_noise**2)
+        frame["amplitude"] = (amp + std * rng.standard_normal((h, w), dtype=np.float32)).astype(
+            np.float32
+        )
+        frame["invalid"] = invalid
+
+    def texture(self) -> tuple[np.ndarray, tuple[float, float]]:
+        """The printed sheet's albedo raster (built on first use) and its size in mm."""
+        if self._texture is None:
+            fy, fz = self.geometry.bubble.footprint_semi_axes_m()
+            p = self.scene.pattern
+            sheet_w = round(2 * fy * 1000 + 4.0)
+            sheet_h = round(2 * fz * 1000 + 4.0)
+            tex = dot_pattern.texture(
+                density_per_mm2=p.density_per_mm2,
+                min_diameter_mm=p.min_diameter_mm,
+                max_diameter_mm=p.max_diameter_mm,
+                randomness=p.randomness,
+                seed=p.seed,
+                width_mm=float(sheet_w),
+                height_mm=float(sheet_h),
+                mm_per_px=p.texture_mm_per_px,
+                dot_albedo=p.dot_albedo,
+            )
+            self._texture = np.ascontiguousarray(tex)
+            self._sheet_mm = (float(sheet_w), float(sheet_h))
+        return self._texture, self._sheet_mm
+
+
+_STEPS: dict[str, Callable[[BubbleRenderer, dict[str, Any], WorldSnapshot], None]] = {
+    "membrane": BubbleRenderer._membrane,
+    "depth": BubbleRenderer._depth,
+    "ir": BubbleRenderer._ir,
+    "shear": BubbleRenderer._shear,
+    "dot_pattern": BubbleRenderer._dot_pattern,
+    "tof_noise": BubbleRenderer._tof_noise,
+}
+
+
+def _plate_range(origin_f: np.ndarray, dirs_f: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -origin_f[0] / dirs_f[..., 0]
+    return np.where(dirs_f[..., 0] > 0, t, np.nan)
+
+
+def _rest_cos(
+    bubble: Any, origin_f: np.ndarray, dirs_f: np.ndarray, rest: np.ndarray
+) -> np.ndarray:
+    pts = origin_f + rest[..., None] * dirs_f
+    grad = (pts + [bubble.center_offset_m, 0.0, 0.0]) / bubble.semi_axes_m**2
+    grad /= np.linalg.norm(grad, axis=-1, keepdims=True)
+    return np.abs(np.sum(grad * dirs_f, axis=-1)).astype(np.float32)
+
+
+@functools.lru_cache(maxsize=16)
+def renderer(scene: Scene, side: str) -> BubbleRenderer:
+    """A cached renderer for a scene and side (construction precomputes ~tens of ms)."""
+    return BubbleRenderer(scene, side)

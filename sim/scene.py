@@ -1,0 +1,488 @@
+"""Scene files: what the simulator shows, loaded from YAML and checked.
+
+A scene names the object (one of ``geometry.objects``, with optional dimension
+overrides), its pose trajectory in the tool frame, the scripted gripper commands, the
+bubbles, the cameras, the dot pattern, the noise, the seed and the ``effects`` to
+simulate. Every section but ``object`` is optional and defaults to FACTS.md figures::
+
+    name: mug_grasp
+    seed: 7
+    duration_secs: 4.0
+    effects: [membrane, depth, ir, dot_pattern, shear, tof_noise, pressure, gripper, ground_truth]
+    object: {name: mug, dims_m: {radius_m: 0.04}}
+    trajectory:                      # tool_from_object keyframes
+      - {t_secs: 0.0, xyz_m: [0, 0, 0.01], rpy_deg: [-90, 0, 0]}
+    gripper:
+      initial_width_m: 0.11
+      commands:
+        - {t_secs: 0.2, command: grasp, width_m: 0.07, force_n: 12}
+
+Rotations in keyframes are roll-pitch-yaw in degrees, ``R = Rz(yaw) Ry(pitch) Rx(roll)``
+(extrinsic x, then y, then z). Poses interpolate linearly in translation and along the
+geodesic in rotation. Errors name the file and the field.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import numpy as np
+import yaml
+
+from geometry.camera import PinholeCamera
+from geometry.gripper import BubbleGeometry, GripperGeometry
+from geometry.se3 import exp_so3, log_so3
+from sim.effects import ALL_EFFECTS, resolve
+
+GRIPPER_COMMANDS = ("move", "grasp", "release", "stop", "home")
+
+
+class SceneError(ValueError):
+    """A scene file that cannot be used; the message names the file and the field."""
+
+
+def _positive(obj: Any, *names: str) -> None:
+    for name in names:
+        value = getattr(obj, name)
+        if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+            raise ValueError(f"`{name}` must be > 0, got {value!r}")
+
+
+def _nonnegative(obj: Any, *names: str) -> None:
+    for name in names:
+        value = getattr(obj, name)
+        if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+            raise ValueError(f"`{name}` must be >= 0, got {value!r}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ObjectSpec:
+    """Which object, and dimension overrides passed to ``geometry.objects.make``."""
+
+    name: str
+    dims_m: tuple[tuple[str, float], ...] = ()
+
+    def model(self) -> Any:
+        """The shared object model (cached)."""
+        return _object_model(self.name, self.dims_m)
+
+
+@functools.cache
+def _object_model(name: str, dims: tuple[tuple[str, float], ...]) -> Any:
+    from geometry import objects
+
+    return objects.make(name, **dict(dims))
+
+
+@dataclass(frozen=True, kw_only=True)
+class Keyframe:
+    """``tool_from_object`` at one time: translation (m) and roll-pitch-yaw (deg)."""
+
+    t_secs: float
+    xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        _nonnegative(self, "t_secs")
+        for name in ("xyz_m", "rpy_deg"):
+            if not all(math.isfinite(v) for v in getattr(self, name)):
+                raise ValueError(f"`{name}` must be finite, got {getattr(self, name)!r}")
+
+    def pose(self) -> np.ndarray:
+        pose = np.eye(4)
+        pose[:3, :3] = rotation_from_rpy_deg(self.rpy_deg)
+        pose[:3, 3] = self.xyz_m
+        return pose
+
+
+def rotation_from_rpy_deg(rpy_deg: tuple[float, float, float] | np.ndarray) -> np.ndarray:
+    """``Rz(yaw) Ry(pitch) Rx(roll)`` from degrees."""
+    r, p, y = np.radians(np.asarray(rpy_deg, dtype=np.float64))
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+@dataclass(frozen=True, kw_only=True)
+class ScriptedCommand:
+    """A gripper command the scene issues at ``t_secs`` (as a supervisor would)."""
+
+    t_secs: float
+    command: str
+    width_m: float = 0.0
+    speed_m_per_s: float = 0.05
+    force_n: float = 20.0
+
+    def __post_init__(self) -> None:
+        _nonnegative(self, "t_secs", "width_m", "force_n")
+        _positive(self, "speed_m_per_s")
+        if self.command not in GRIPPER_COMMANDS:
+            raise ValueError(
+                f"`command` must be one of {', '.join(GRIPPER_COMMANDS)}, got {self.command!r}"
+            )
+
+
+@dataclass(frozen=True, kw_only=True)
+class GripperSpec:
+    """WSG 50 emulation: start opening, speed limit, scripted commands (FACTS.md)."""
+
+    initial_width_m: float = 0.11
+    max_width_m: float = 0.11
+    max_speed_m_per_s: float = 0.42
+    max_force_n: float = 80.0
+    plate_outset_m: float = 0.02
+    commands: tuple[ScriptedCommand, ...] = ()
+
+    def __post_init__(self) -> None:
+        _positive(self, "max_width_m", "max_speed_m_per_s", "max_force_n")
+        _nonnegative(self, "initial_width_m", "plate_outset_m")
+        if self.initial_width_m > self.max_width_m:
+            raise ValueError(
+                f"`initial_width_m` must be <= max_width_m, got {self.initial_width_m!r}"
+            )
+
+
+@dataclass(frozen=True, kw_only=True)
+class BubbleSpec:
+    """Membrane shape (see ``geometry.gripper``), inflation and mechanics.
+
+    ``compliance_m3_per_pa`` is how much the free membrane's volume grows per pascal
+    (latex stretching elsewhere); ``max_shear_m`` is where stick turns to slip.
+    """
+
+    semi_axis_normal_m: float = 0.04165
+    semi_axis_lateral_m: float = 0.04165
+    semi_axis_length_m: float = 0.0625
+    cap_height_m: float = 0.025
+    inflation_pa: float = 1000.0
+    ambient_pa: float = 101_325.0
+    dead_volume_m3: float = 10e-6
+    compliance_m3_per_pa: float = 5e-9
+    max_shear_m: float = 0.006
+    shear_blur_px: float = 3.0
+    sample_spacing_m: float = 0.003
+
+    def __post_init__(self) -> None:
+        _positive(self, "ambient_pa", "max_shear_m", "sample_spacing_m")
+        _nonnegative(self, "inflation_pa", "dead_volume_m3", "compliance_m3_per_pa")
+        _nonnegative(self, "shear_blur_px")
+
+    def geometry(self) -> BubbleGeometry:
+        return BubbleGeometry(
+            semi_axis_normal_m=self.semi_axis_normal_m,
+            semi_axis_lateral_m=self.semi_axis_lateral_m,
+            semi_axis_length_m=self.semi_axis_length_m,
+            cap_height_m=self.cap_height_m,
+        )
+
+
+@dataclass(frozen=True, kw_only=True)
+class CameraSpec:
+    """Internal ToF camera (FACTS.md: pico flexx class) and its mount on the finger."""
+
+    width_px: int = 224
+    height_px: int = 172
+    hfov_deg: float = 62.0
+    vfov_deg: float = 45.0
+    frame_rate_hz: float = 30.0
+    min_range_m: float = 0.04
+    max_range_m: float = 0.11
+    back_m: float = 0.02
+    z_m: float = -0.035
+    pitch_deg: float = 35.0
+
+    def __post_init__(self) -> None:
+        _positive(self, "width_px", "height_px", "hfov_deg", "vfov_deg", "frame_rate_hz")
+        _positive(self, "min_range_m", "max_range_m")
+        if self.max_range_m <= self.min_range_m:
+            raise ValueError(f"`max_range_m` must be > min_range_m, got {self.max_range_m!r}")
+
+    def intrinsics(self) -> PinholeCamera:
+        return PinholeCamera.from_fov(
+            self.width_px, self.height_px, hfov_deg=self.hfov_deg, vfov_deg=self.vfov_deg
+        )
+
+
+@dataclass(frozen=True, kw_only=True)
+class PatternSpec:
+    """The printed dot pattern (paper, Printed Patterning), see ``sim.pattern``."""
+
+    density_per_mm2: float = 0.08
+    min_diameter_mm: float = 1.0
+    max_diameter_mm: float = 2.0
+    randomness: float = 0.8
+    seed: int = 0
+    dot_albedo: float = 0.25
+    texture_mm_per_px: float = 0.1
+
+    def __post_init__(self) -> None:
+        _positive(self, "density_per_mm2", "min_diameter_mm", "max_diameter_mm")
+        _positive(self, "texture_mm_per_px")
+        if self.max_diameter_mm < self.min_diameter_mm:
+            raise ValueError(
+                f"`max_diameter_mm` must be >= min_diameter_mm, got {self.max_diameter_mm!r}"
+            )
+        if not 0.0 <= self.randomness <= 1.0:
+            raise ValueError(f"`randomness` must be in [0, 1], got {self.randomness!r}")
+        if not 0.0 <= self.dot_albedo <= 1.0:
+            raise ValueError(f"`dot_albedo` must be in [0, 1], got {self.dot_albedo!r}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class NoiseSpec:
+    """ToF noise and validity (FACTS.md: ~1% of range; driver invalidity rules)."""
+
+    range_sigma_fraction: float = 0.01
+    reference_amplitude: float = 1500.0
+    max_noise_m: float = 0.07
+    grazing_limit_deg: float = 80.0
+    min_amplitude: float = 60.0
+    ir_read_noise: float = 8.0
+
+    def __post_init__(self) -> None:
+        _nonnegative(self, "range_sigma_fraction", "min_amplitude", "ir_read_noise")
+        _positive(self, "reference_amplitude", "max_noise_m")
+        if not 0.0 < self.grazing_limit_deg <= 90.0:
+            raise ValueError(
+                f"`grazing_limit_deg` must be in (0, 90], got {self.grazing_limit_deg!r}"
+            )
+
+
+@dataclass(frozen=True, kw_only=True)
+class MembraneSpec:
+    """Rendering knobs of the membrane model (accuracy against time, see bench/sim.py).
+
+    ``resolution_divisor`` evaluates the object field on every k-th pixel and upsamples
+    the indentation; ``march_steps`` is the number of secant steps after the first
+    sphere-tracing step.
+    """
+
+    resolution_divisor: int = 2
+    march_steps: int = 2
+    ir_gain: float = 5.4
+
+    def __post_init__(self) -> None:
+        if self.resolution_divisor not in (1, 2, 4):
+            raise ValueError(
+                f"`resolution_divisor` must be 1, 2 or 4, got {self.resolution_divisor!r}"
+            )
+        if not 0 <= self.march_steps <= 8:
+            raise ValueError(f"`march_steps` must be in [0, 8], got {self.march_steps!r}")
+        _positive(self, "ir_gain")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Scene:
+    """A whole scene (see the module docstring). Hashable: renderers cache on it."""
+
+    name: str
+    object: ObjectSpec
+    seed: int = 0
+    duration_secs: float = 1.0
+    effects: tuple[str, ...] = ALL_EFFECTS
+    trajectory: tuple[Keyframe, ...] = (Keyframe(t_secs=0.0),)
+    gripper: GripperSpec = field(default_factory=GripperSpec)
+    bubble: BubbleSpec = field(default_factory=BubbleSpec)
+    camera: CameraSpec = field(default_factory=CameraSpec)
+    pattern: PatternSpec = field(default_factory=PatternSpec)
+    noise: NoiseSpec = field(default_factory=NoiseSpec)
+    membrane: MembraneSpec = field(default_factory=MembraneSpec)
+    path: str = ""
+
+    def __post_init__(self) -> None:
+        _positive(self, "duration_secs")
+        resolve(self.effects)
+        if not self.trajectory:
+            raise ValueError("`trajectory` must hold at least one keyframe")
+        times = [k.t_secs for k in self.trajectory]
+        if any(b <= a for a, b in zip(times, times[1:], strict=False)):
+            raise ValueError(f"`trajectory` times must increase, got {times}")
+
+    @property
+    def resolved_effects(self) -> tuple[str, ...]:
+        """The listed effects closed over their needs, in run order."""
+        return resolve(self.effects)
+
+    @property
+    def frame_period_secs(self) -> float:
+        return 1.0 / self.camera.frame_rate_hz
+
+    @property
+    def frame_count(self) -> int:
+        """Frames in the scene: t = 0, dt, ..., duration."""
+        return int(math.floor(self.duration_secs * self.camera.frame_rate_hz + 1e-9)) + 1
+
+    def gripper_geometry(self) -> GripperGeometry:
+        return _gripper_geometry(self.bubble, self.camera, self.gripper)
+
+    def object_model(self) -> Any:
+        return self.object.model()
+
+    def tool_from_object(self, t_secs: float) -> np.ndarray:
+        """The scripted object pose at ``t_secs`` (held constant outside the keyframes)."""
+        return _interpolate(self.trajectory, t_secs)
+
+    def with_effects(self, effects: tuple[str, ...] | list[str]) -> Scene:
+        """The same scene with another effect list."""
+        return _replace(self, effects=tuple(effects))
+
+
+@functools.cache
+def _gripper_geometry(
+    bubble: BubbleSpec, camera: CameraSpec, gripper: GripperSpec
+) -> GripperGeometry:
+    return GripperGeometry(
+        bubble=bubble.geometry(),
+        plate_outset_m=gripper.plate_outset_m,
+        camera_back_m=camera.back_m,
+        camera_z_m=camera.z_m,
+        camera_pitch_deg=camera.pitch_deg,
+        max_width_m=gripper.max_width_m,
+    )
+
+
+def _replace(scene: Scene, **changes: Any) -> Scene:
+    import dataclasses
+
+    return dataclasses.replace(scene, **changes)
+
+
+def _interpolate(frames: tuple[Keyframe, ...], t_secs: float) -> np.ndarray:
+    if t_secs <= frames[0].t_secs:
+        return frames[0].pose()
+    if t_secs >= frames[-1].t_secs:
+        return frames[-1].pose()
+    i = int(np.searchsorted([k.t_secs for k in frames], t_secs, side="right")) - 1
+    a, b = frames[i], frames[i + 1]
+    s = (t_secs - a.t_secs) / (b.t_secs - a.t_secs)
+    pa, pb = a.pose(), b.pose()
+    pose = np.eye(4)
+    pose[:3, :3] = pa[:3, :3] @ exp_so3(s * log_so3(pa[:3, :3].T @ pb[:3, :3]))
+    pose[:3, 3] = (1 - s) * pa[:3, 3] + s * pb[:3, 3]
+    return pose
+
+
+_SECTIONS: dict[str, type[Any]] = {
+    "gripper": GripperSpec,
+    "bubble": BubbleSpec,
+    "camera": CameraSpec,
+    "pattern": PatternSpec,
+    "noise": NoiseSpec,
+    "membrane": MembraneSpec,
+}
+
+
+def _build(cls: type[Any], values: Any, where: str) -> Any:
+    if not isinstance(values, dict):
+        raise SceneError(f"{where}: expected a mapping, got {type(values).__name__}")
+    names = {f.name for f in fields(cls)}
+    unknown = sorted(set(values) - names)
+    if unknown:
+        raise SceneError(f"{where}: unknown field(s) {unknown}; valid: {sorted(names)}")
+    try:
+        return msgspec.convert(values, cls, strict=False)
+    except (msgspec.ValidationError, ValueError) as err:
+        raise SceneError(f"{where}: {err}") from err
+
+
+def scene_from_dict(data: Any, *, path: str = "<dict>") -> Scene:
+    """Build and check a scene from a parsed YAML mapping.
+
+    Raises:
+        SceneError: the message names ``path`` and the offending field.
+    """
+    if not isinstance(data, dict):
+        raise SceneError(f"{path}: a scene must be a mapping, got {type(data).__name__}")
+    data = dict(data)
+    known = {f.name for f in fields(Scene)} - {"path"}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise SceneError(f"{path}: unknown field(s) {unknown}; valid: {sorted(known)}")
+    if "name" not in data:
+        data["name"] = Path(path).stem
+    if "object" not in data:
+        raise SceneError(f"{path}: `object` is required (e.g. {{name: mug}})")
+    obj = data["object"]
+    if isinstance(obj, str):
+        obj = {"name": obj}
+    if not isinstance(obj, dict) or "name" not in obj:
+        raise SceneError(f"{path}: object: expected {{name: ..., dims_m: {{...}}}}")
+    dims = obj.get("dims_m", {}) or {}
+    if not isinstance(dims, dict):
+        raise SceneError(f"{path}: object.dims_m: expected a mapping")
+    unknown_obj = sorted(set(obj) - {"name", "dims_m"})
+    if unknown_obj:
+        raise SceneError(f"{path}: object: unknown field(s) {unknown_obj}; valid: dims_m, name")
+    kwargs: dict[str, Any] = {
+        "object": ObjectSpec(name=str(obj["name"]), dims_m=tuple(sorted(dims.items()))),
+        "path": str(path),
+    }
+    try:
+        kwargs["object"].model()
+    except ValueError as err:
+        raise SceneError(f"{path}: object: {err}") from err
+    for key in ("name", "seed", "duration_secs"):
+        if key in data:
+            kwargs[key] = data[key]
+    if "effects" in data:
+        effects = data["effects"]
+        if not isinstance(effects, list) or not all(isinstance(e, str) for e in effects):
+            raise SceneError(f"{path}: effects: expected a list of names, got {effects!r}")
+        try:
+            resolve(effects)
+        except ValueError as err:
+            raise SceneError(f"{path}: effects: {err}") from err
+        kwargs["effects"] = tuple(effects)
+    if "trajectory" in data:
+        frames = data["trajectory"]
+        if not isinstance(frames, list) or not frames:
+            raise SceneError(f"{path}: trajectory: expected a non-empty list of keyframes")
+        kwargs["trajectory"] = tuple(
+            _build(Keyframe, f, f"{path}: trajectory[{i}]") for i, f in enumerate(frames)
+        )
+    for key, cls in _SECTIONS.items():
+        if key in data:
+            section = dict(data[key] or {})
+            if key == "gripper" and "commands" in section:
+                cmds = section["commands"] or []
+                section["commands"] = tuple(
+                    _build(ScriptedCommand, c, f"{path}: gripper.commands[{i}]")
+                    for i, c in enumerate(cmds)
+                )
+                built = _build(
+                    cls, {k: v for k, v in section.items() if k != "commands"}, f"{path}: {key}"
+                )
+                import dataclasses
+
+                kwargs[key] = dataclasses.replace(built, commands=section["commands"])
+            else:
+                kwargs[key] = _build(cls, section, f"{path}: {key}")
+    try:
+        return Scene(**kwargs)
+    except (ValueError, TypeError) as err:
+        raise SceneError(f"{path}: {err}") from err
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Load and check a scene file (``yaml.safe_load``).
+
+    Raises:
+        SceneError: unreadable file, bad YAML, or a bad field (named in the message).
+    """
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as err:
+        raise SceneError(f"{p}: cannot read scene: {err}") from err
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise SceneError(f"{p}: bad YAML: {err}") from err
+    return scene_from_dict(data, path=str(p))

@@ -1,0 +1,184 @@
+"""The world of one scene: one clock, the object's pose, the jaws, contact, anchors.
+
+:class:`World` is the only place anything is integrated over time (the gripper's
+motion, where each contact began). Sensors are pure functions of a
+:class:`WorldSnapshot` (``sim.render``), so several processes can render the same
+instant from the one ``world.sim`` node without integrating their own copies.
+
+Each step advances one camera frame: scripted commands due by then are applied (as are
+commands given with :meth:`World.command`), the gripper moves, and each bubble's contact
+is evaluated on its membrane sample grid (``sim.membrane.contact_mechanics``) when an
+effect needs it (``gripper``, ``pressure``, ``shear``, ``ground_truth``). A contact's
+anchor (the object's pose when that bubble first touched it) is what shear is measured
+against: material sticks to the object from then on, up to the slip limit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from geometry.gripper import SIDES
+from sim.gripper import GripperDynamics
+from sim.membrane import ContactState, contact_mechanics
+from sim.pressure import gauge_pressure_pa
+from sim.scene import Scene
+
+_CONTACT_EFFECTS = frozenset({"gripper", "pressure", "shear", "ground_truth"})
+
+
+@dataclass(frozen=True)
+class WorldSnapshot:
+    """Everything the sensors of one instant need (plus what ground truth reports).
+
+    ``anchors`` and ``shear_in_tool_m`` are keyed by side; an anchor is None while that
+    bubble is out of contact. Pressures are gauge pascals. Speed is a magnitude.
+    """
+
+    frame_index: int
+    time_secs: float
+    tool_from_object: np.ndarray
+    width_m: float
+    speed_m_per_s: float = 0.0
+    force_n: float = 0.0
+    gripper_state: str = "idle"
+    in_contact: dict[str, bool] = field(default_factory=lambda: {s: False for s in SIDES})
+    pressure_pa: dict[str, float] = field(default_factory=lambda: {s: 0.0 for s in SIDES})
+    anchors: dict[str, np.ndarray | None] = field(default_factory=lambda: {s: None for s in SIDES})
+    shear_in_tool_m: dict[str, np.ndarray] = field(
+        default_factory=lambda: {s: np.zeros(2) for s in SIDES}
+    )
+
+
+class World:
+    """Steps a scene frame by frame (see the module docstring)."""
+
+    def __init__(self, scene: Scene) -> None:
+        self.scene = scene
+        effects = set(scene.resolved_effects)
+        self.effects = effects
+        self.geometry = scene.gripper_geometry()
+        self.model = scene.object_model()
+        self.field = self.model.field
+        self.bounds = self.model.bounds_m()
+        self.samples = self.geometry.bubble.surface_samples(scene.bubble.sample_spacing_m)
+        self.rest_volume_m3 = self.geometry.bubble.volume_m3() + scene.bubble.dead_volume_m3
+        self.dynamics = GripperDynamics(scene.gripper, speed_limited="gripper" in effects)
+        self.needs_contact = bool(effects & _CONTACT_EFFECTS)
+        self.tracks_anchors = bool(effects & {"shear", "ground_truth"})
+        self._script = sorted(scene.gripper.commands, key=lambda c: c.t_secs)
+        self._next_command = 0
+        self._anchors: dict[str, np.ndarray | None] = {s: None for s in SIDES}
+        self.frame_index = -1
+        self.snapshot: WorldSnapshot | None = None
+
+    @property
+    def done(self) -> bool:
+        """True once the last frame of the scene has been produced."""
+        return self.frame_index >= self.scene.frame_count - 1
+
+    def command(self, command: str, width_m: float, speed_m_per_s: float, force_n: float) -> None:
+        """A gripper command from outside (a supervisor); applies from the next step."""
+        self.dynamics.command(command, width_m, speed_m_per_s, force_n)
+
+    def contact(
+        self,
+        side: str,
+        width_m: float,
+        tool_from_object: np.ndarray,
+        anchor: np.ndarray | None = None,
+    ) -> ContactState:
+        """One bubble's contact at a given opening and object pose."""
+        return contact_mechanics(
+            field=self.field,
+            bounds=self.bounds,
+            samples=self.samples,
+            tool_from_finger=self.geometry.tool_from_finger(side, width_m),
+            tool_from_object=tool_from_object,
+            anchor_tool_from_object=anchor,
+            max_shear_m=self.scene.bubble.max_shear_m,
+        )
+
+    def pressure_pa(self, state: ContactState) -> float:
+        """Gauge pressure of a bubble in this contact state (ideal gas, isothermal)."""
+        b = self.scene.bubble
+        return gauge_pressure_pa(
+            state.displaced_volume_m3,
+            rest_volume_m3=self.rest_volume_m3,
+            inflation_pa=b.inflation_pa,
+            ambient_pa=b.ambient_pa,
+            compliance_m3_per_pa=b.compliance_m3_per_pa,
+        )
+
+    def grip_force_n(self, width_m: float, tool_from_object: np.ndarray) -> float:
+        """Normal force between jaws and object at an opening: mean of the two bubbles."""
+        total = 0.0
+        for side in SIDES:
+            state = self.contact(side, width_m, tool_from_object)
+            if state.in_contact:
+                total += self.pressure_pa(state) * state.contact_area_m2
+        return total / 2.0
+
+    def step(self) -> WorldSnapshot:
+        """Advance to the next frame and return its snapshot."""
+        self.frame_index += 1
+        t = self.frame_index * self.scene.frame_period_secs
+        pose = self.scene.tool_from_object(t)
+        while (
+            self._next_command < len(self._script)
+            and self._script[self._next_command].t_secs <= t + 1e-9
+        ):
+            c = self._script[self._next_command]
+            self.dynamics.command(c.command, c.width_m, c.speed_m_per_s, c.force_n)
+            self._next_command += 1
+        dt = self.scene.frame_period_secs if self.frame_index > 0 else 0.0
+        force_at = None
+        if "gripper" in self.effects:
+
+            def force_at(w: float) -> float:
+                return self.grip_force_n(w, pose)
+
+        finger = self.dynamics.step(dt, force_at)
+        in_contact = {s: False for s in SIDES}
+        pressure = {s: 0.0 for s in SIDES}
+        shear = {s: np.zeros(2) for s in SIDES}
+        if self.needs_contact:
+            for side in SIDES:
+                state = self.contact(side, finger.width_m, pose)
+                if self.tracks_anchors:
+                    if state.in_contact and self._anchors[side] is None:
+                        self._anchors[side] = pose.copy()
+                    elif not state.in_contact:
+                        self._anchors[side] = None
+                    if self._anchors[side] is not None:
+                        state = self.contact(side, finger.width_m, pose, self._anchors[side])
+                in_contact[side] = state.in_contact
+                pressure[side] = self.pressure_pa(state)
+                shear[side] = state.shear_in_tool_m
+        self.snapshot = WorldSnapshot(
+            frame_index=self.frame_index,
+            time_secs=t,
+            tool_from_object=pose,
+            width_m=finger.width_m,
+            speed_m_per_s=finger.speed_m_per_s,
+            force_n=finger.force_n,
+            gripper_state=finger.state,
+            in_contact=in_contact,
+            pressure_pa=pressure,
+            anchors={s: (None if a is None else a.copy()) for s, a in self._anchors.items()},
+            shear_in_tool_m=shear,
+        )
+        return self.snapshot
+
+    def run_to(self, t_secs: float) -> WorldSnapshot:
+        """Step until the frame at (or just before) ``t_secs``; returns its snapshot."""
+        target = min(
+            int(round(t_secs * self.scene.camera.frame_rate_hz)), self.scene.frame_count - 1
+        )
+        if target < self.frame_index:
+            raise ValueError(f"`t_secs` {t_secs} is before the current frame {self.frame_index}")
+        while self.frame_index < target or self.snapshot is None:
+            self.step()
+        assert self.snapshot is not None
+        return self.snapshot
