@@ -18,6 +18,7 @@ Every way a frame can be wrong raises :class:`FrameDecodeError` (or its subclass
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -54,7 +55,8 @@ def _wire_array(msg: Message, name: str) -> np.ndarray:
                 f"{type(msg).__name__}.{name}: dtype must be {spec.dtype}, got {array.dtype}"
             )
         array = array.astype(want)
-    return np.ascontiguousarray(array)
+    # np.ascontiguousarray would turn a 0-d array into shape (1,).
+    return array if array.flags.c_contiguous else np.ascontiguousarray(array)
 
 
 def encode(topic: str, msg: Message) -> list[Any]:
@@ -77,14 +79,22 @@ def encode(topic: str, msg: Message) -> list[Any]:
         "fields": msgspec.to_builtins(fields),
         "arrays": [[name, a.dtype.str, list(a.shape)] for name, a in arrays],
     }
-    return [topic.encode(), _encoder.encode(header), *(memoryview(a).cast("B") for _, a in arrays)]
+    # A flat uint8 view, not memoryview.cast: cast refuses shapes with a zero-length axis.
+    buffers = [memoryview(a.reshape(-1).view(np.uint8)) for _, a in arrays]
+    return [topic.encode(), _encoder.encode(header), *buffers]
 
 
 def decode_header(raw: bytes | memoryview) -> WireHeader:
     """Decode and validate frame 1 alone (cheap: no array is touched)."""
     try:
         return _wire_decoder.decode(raw)
-    except (msgspec.DecodeError, msgspec.ValidationError, UnicodeDecodeError, ValueError) as err:
+    except (
+        msgspec.DecodeError,
+        msgspec.ValidationError,
+        UnicodeDecodeError,
+        ValueError,
+        RecursionError,  # a header nested deeper than msgspec's recursion limit
+    ) as err:
         # msgspec raises UnicodeDecodeError for invalid UTF-8 in a str, not DecodeError.
         raise FrameDecodeError(f"bad frame header: {err}") from err
 
@@ -140,7 +150,7 @@ def decode(frames: Sequence[Any], expect: type[Message] | None = None) -> tuple[
             raise FrameDecodeError(f"{topic}: {wire.type} has no array field {name!r}")
         try:
             dtype = np.dtype(dtype_str)
-        except TypeError as err:
+        except (TypeError, ValueError, SyntaxError) as err:  # numpy's dtype-string parser
             raise FrameDecodeError(f"{topic}: {wire.type}.{name}: bad dtype {dtype_str!r}") from err
         if dtype.hasobject or dtype.newbyteorder("=") != np.dtype(spec.dtype).newbyteorder("="):
             raise FrameDecodeError(
@@ -149,13 +159,21 @@ def decode(frames: Sequence[Any], expect: type[Message] | None = None) -> tuple[
         if any((not isinstance(n, int)) or n < 0 for n in shape):
             raise FrameDecodeError(f"{topic}: {wire.type}.{name}: bad shape {shape}")
         buf = _buffer(frame)
-        want = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+        want = math.prod(shape) * dtype.itemsize  # Python ints: no int64 wrap-around
         if buf.nbytes != want:
             raise FrameDecodeError(
                 f"{topic}: {wire.type}.{name}: buffer of {buf.nbytes} bytes, "
                 f"shape {shape} of {dtype_str} needs {want}"
             )
-        array = np.frombuffer(buf, dtype=dtype).reshape(shape)
+        try:
+            array = np.frombuffer(buf, dtype=dtype).reshape(shape)
+        except ValueError as err:  # over 64 axes, or an axis past numpy's limit
+            raise FrameDecodeError(
+                f"{topic}: {wire.type}.{name}: bad shape {shape}: {err}"
+            ) from err
+        # zmq.Frame buffers are writable, and over inproc they can be the sender's own
+        # array: a receiver must never write through to it.
+        array.flags.writeable = False
         try:
             spec.check(wire.type, name, array)
         except ValueError as err:
