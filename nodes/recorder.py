@@ -80,7 +80,7 @@ class Recorder(Node):
 
     def _flush(self) -> None:
         self.writer.set_runtime_drops(self.io.drops())
-        self.writer.flush_if_due()
+        self.writer.flush()
 
     def teardown(self) -> None:
         self.writer.set_runtime_drops(self.io.drops())

@@ -736,7 +736,11 @@ class BagReader:
             self.channels.setdefault(
                 channel_id,
                 ChannelInfo(
-                    channel_id, data.get("topic", ""), schema, data.get("message_encoding", "")
+                    channel_id,
+                    data.get("topic", ""),
+                    schema,
+                    data.get("message_encoding", ""),
+                    offset,
                 ),
             )
 
