@@ -257,13 +257,15 @@ def stretch_ir(ir: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
     Returns:
         uint8 ``(h, w)`` image.
     """
-    values = ir.astype(np.float32)
-    selected = values if valid is None else values[valid]
-    if selected.size == 0:
-        return np.full(ir.shape, 128, np.uint8)
-    mean, std = cv2.meanStdDev(selected.reshape(-1, 1))
+    values = ir if ir.dtype == np.float32 else ir.astype(np.float32)
+    mask_u8 = None
+    if valid is not None:
+        if not valid.any():
+            return np.full(ir.shape, 128, np.uint8)
+        mask_u8 = np.ascontiguousarray(valid).view(np.uint8)
+    mean, std = cv2.meanStdDev(values, mask=mask_u8)
     mean_v, std_v = float(mean[0, 0]), float(std[0, 0])
-    if not (math.isfinite(std_v) and std_v > 1e-6):
+    if not (math.isfinite(mean_v) and math.isfinite(std_v) and std_v > 1e-6):
         return np.full(ir.shape, 128, np.uint8)
     gain = 255.0 / (4.0 * std_v)
     out = cv2.convertScaleAbs(values, alpha=gain, beta=128.0 - gain * mean_v)
@@ -362,6 +364,20 @@ class DenseFlow:
         )
 
 
+def _summarize_vectors(
+    vectors: np.ndarray, min_magnitude_px: float
+) -> tuple[np.ndarray, np.ndarray, float, np.ndarray, bool]:
+    if vectors.shape[0] == 0:
+        return np.zeros(2), np.zeros(2), 0.0, np.zeros(2), False
+    # Column by column: numpy reduces an (n, 2) array along axis 0 slowly.
+    total = np.array([vectors[:, 0].sum(dtype=np.float64), vectors[:, 1].sum(dtype=np.float64)])
+    mean = total / vectors.shape[0]
+    magnitude = float(math.hypot(mean[0], mean[1]))
+    if magnitude < max(min_magnitude_px, 1e-12):
+        return mean, total, magnitude, np.zeros(2), False
+    return mean, total, magnitude, mean / magnitude, True
+
+
 def summarize_flow(
     flow: np.ndarray, mask: np.ndarray, *, min_magnitude_px: float
 ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray, bool]:
@@ -376,21 +392,15 @@ def summarize_flow(
         ``(mean_px, sum_px, magnitude_px, direction, defined)``; ``direction`` is
         ``(0, 0)`` when not defined.
     """
-    vectors = flow[mask].astype(np.float64)
-    finite = np.isfinite(vectors).all(axis=1)
-    if not finite.all():
-        vectors = vectors[finite]
-    if vectors.shape[0] == 0:
-        return np.zeros(2), np.zeros(2), 0.0, np.zeros(2), False
-    total = vectors.sum(axis=0)
-    mean = total / vectors.shape[0]
-    magnitude = float(math.hypot(mean[0], mean[1]))
-    if magnitude < max(min_magnitude_px, 1e-12):
-        return mean, total, magnitude, np.zeros(2), False
-    return mean, total, magnitude, mean / magnitude, True
+    vectors = flow.reshape(-1, 2)[np.flatnonzero(mask)]
+    if not np.isfinite(vectors).all():
+        vectors = vectors[np.isfinite(vectors).all(axis=1)]
+    return _summarize_vectors(vectors, min_magnitude_px)
 
 
-def rotation_about_centroid(positions: np.ndarray, displacements: np.ndarray) -> tuple[float, bool]:
+def rotation_about_centroid(
+    x: np.ndarray, y: np.ndarray, dx: np.ndarray, dy: np.ndarray
+) -> tuple[float, bool]:
     """Least-squares rotation angle of a 2D displacement field about its centroid.
 
     ``sin(theta) = sum(r x d) / sum(|r|^2)`` with ``r`` the positions and ``d`` the
@@ -398,44 +408,37 @@ def rotation_about_centroid(positions: np.ndarray, displacements: np.ndarray) ->
     over an isotropic region, exactly ``sin(theta)`` for a rigid rotation.
 
     Args:
-        positions: ``(n, 2)`` points (any unit).
-        displacements: ``(n, 2)`` displacements (same unit).
+        x, y: 1D float64 positions (any unit).
+        dx, dy: 1D float64 displacements (same unit).
 
     Returns:
         ``(theta_rad, defined)``; ``(0.0, False)`` when fewer than 3 points or no spread.
     """
-    if positions.shape[0] < 3:
+    n = x.shape[0]
+    if n < 3:
         return 0.0, False
-    r = positions - positions.mean(axis=0)
-    d = displacements - displacements.mean(axis=0)
-    spread = float(np.einsum("ij,ij->", r, r))
-    if not (math.isfinite(spread) and spread > 1e-18):
+    sx, sy, sdx, sdy = x.sum(), y.sum(), dx.sum(), dy.sum()
+    # Sums of products (BLAS dots), then the centroid terms: one pass over the data.
+    spread = float(np.dot(x, x) + np.dot(y, y) - (sx * sx + sy * sy) / n)
+    cross = float(np.dot(x, dy) - np.dot(y, dx) - (sx * sdy - sy * sdx) / n)
+    if not (math.isfinite(spread) and math.isfinite(cross) and spread > 1e-12 * n):
         return 0.0, False
-    cross = float(np.dot(r[:, 0], d[:, 1]) - np.dot(r[:, 1], d[:, 0]))
     sine = cross / spread
-    if not math.isfinite(sine):
-        return 0.0, False
     return math.asin(min(1.0, max(-1.0, sine))), True
 
 
 def flow_curl(flow: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Finite-difference curl ``d(dy)/dx - d(dx)/dy`` of a flow field (NaN outside ``mask``
-    and on its one-pixel rim, where a difference would straddle invalid pixels)."""
+    """Finite-difference curl ``d(dy)/dx - d(dx)/dy`` of a flow field.
+
+    NaN outside ``mask`` and on its one-pixel rim, where a difference would straddle
+    invalid pixels. For a rigid rotation by ``theta`` the curl is ``2 sin(theta)``.
+    """
     dvdx = np.gradient(flow[..., 1].astype(np.float64), axis=1)
     dudy = np.gradient(flow[..., 0].astype(np.float64), axis=0)
     inner = cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
     curl = dvdx - dudy
     curl[~inner] = np.nan
     return curl
-
-
-def backproject(
-    x_px: np.ndarray, y_px: np.ndarray, depth_m: np.ndarray, camera: PinholeCamera
-) -> np.ndarray:
-    """Pixels with z-depth to points ``(..., 3)`` in the sensor frame (metres)."""
-    x = (x_px - camera.cx_px) / camera.fx_px * depth_m
-    y = (y_px - camera.cy_px) / camera.fy_px * depth_m
-    return np.stack([x, y, depth_m], axis=-1)
 
 
 def tangent_basis(points: np.ndarray) -> np.ndarray:
@@ -467,66 +470,94 @@ def tangent_basis(points: np.ndarray) -> np.ndarray:
     return np.stack([t1, t2, n])
 
 
-def membrane_displacement_mm(
-    flow: np.ndarray,
-    mask: np.ndarray,
-    depth_ref_m: np.ndarray,
-    depth_cur_m: np.ndarray,
-    camera: PinholeCamera,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Tangential membrane displacement of every tracked dot, in millimetres.
+@dataclass
+class MembraneGeometry:
+    """The reference membrane, for turning flow into tangential millimetres.
 
-    Each masked reference pixel ``p`` with depth ``D_ref(p)`` is back-projected; its dot
-    is now at ``p + flow(p)`` with depth ``D_cur(p + flow(p))`` (bilinear). The 3D
-    displacement is projected onto the tangent plane fitted to the reference points.
-
-    Args:
-        flow: ``(h, w, 2)`` flow in the same pixels as the depth images.
-        mask: bool ``(h, w)``.
-        depth_ref_m: reference z-depth (NaN invalid).
-        depth_cur_m: current z-depth (NaN invalid).
-        camera: the camera of these images (their resolution).
-
-    Returns:
-        ``(positions_mm (n, 2), displacements_mm (n, 2), basis (3, 3))``: tangent-plane
-        coordinates of the reference points and their tangential displacements, for the
-        pixels where every quantity is finite; ``basis`` rows are ``t1, t2, n``.
+    Attributes:
+        camera: the camera of the working-resolution images.
+        points_m: three flat ``(h * w,)`` float64 arrays, the reference points' x, y, z
+            in the sensor frame (NaN where invalid).
+        basis: rows ``t1, t2, n`` of the tangent plane fitted to the masked points.
+        positions_mm: two flat ``(h * w,)`` arrays, the reference points' tangent coordinates.
+        grid_x, grid_y: float32 pixel coordinate grids ``(h, w)``.
     """
-    h, w = mask.shape
-    ys, xs = np.nonzero(mask)
-    fx = flow[ys, xs, 0].astype(np.float32)
-    fy = flow[ys, xs, 1].astype(np.float32)
-    map_x = (xs.astype(np.float32) + fx).reshape(1, -1)
-    map_y = (ys.astype(np.float32) + fy).reshape(1, -1)
-    d_cur = cv2.remap(
-        depth_cur_m.astype(np.float32),
-        map_x,
-        map_y,
-        cv2.INTER_LINEAR,
-        borderMode=cv2.BORDER_CONSTANT,
-        borderValue=float("nan"),
-    ).ravel()
-    d_ref = depth_ref_m[ys, xs].astype(np.float64)
-    p_ref = backproject(xs.astype(np.float64), ys.astype(np.float64), d_ref, camera)
-    p_cur = backproject(
-        map_x.ravel().astype(np.float64), map_y.ravel().astype(np.float64), d_cur, camera
-    )
-    good = np.isfinite(p_ref).all(axis=1) & np.isfinite(p_cur).all(axis=1)
-    p_ref, p_cur = p_ref[good], p_cur[good]
-    basis = tangent_basis(p_ref)
-    tangent = basis[:2].T  # (3, 2)
-    positions_mm = (p_ref @ tangent) * 1000.0
-    displacements_mm = ((p_cur - p_ref) @ tangent) * 1000.0
-    return positions_mm, displacements_mm, basis
+
+    camera: PinholeCamera
+    points_m: tuple[np.ndarray, np.ndarray, np.ndarray]
+    basis: np.ndarray
+    positions_mm: tuple[np.ndarray, np.ndarray]
+    grid_x: np.ndarray
+    grid_y: np.ndarray
+
+    @classmethod
+    def from_depth(
+        cls, depth_m: np.ndarray, mask: np.ndarray, camera: PinholeCamera
+    ) -> MembraneGeometry:
+        """Back-project the reference depth and fit the tangent plane to the masked points."""
+        points = camera.depth_to_points(depth_m).astype(np.float64)
+        selected = points[mask]
+        selected = selected[np.isfinite(selected).all(axis=1)]
+        basis = tangent_basis(selected)
+        flat = points.reshape(-1, 3)
+        coords = flat @ basis[:2].T * 1000.0
+        grid_y, grid_x = np.mgrid[0 : camera.height_px, 0 : camera.width_px].astype(np.float32)
+        return cls(
+            camera,
+            tuple(np.ascontiguousarray(flat[:, i]) for i in range(3)),  # type: ignore[arg-type]
+            basis,
+            (np.ascontiguousarray(coords[:, 0]), np.ascontiguousarray(coords[:, 1])),
+            grid_x,
+            grid_y,
+        )
+
+    def tangential_displacement_mm(
+        self, flow: np.ndarray, indices: np.ndarray, depth_cur_m: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Tangential displacement of the dots at the flat pixel ``indices``, in millimetres.
+
+        The dot of reference pixel ``p`` is now at ``p + flow(p)`` with depth
+        ``D_cur(p + flow(p))`` (bilinear); the difference of the two back-projected
+        points is projected onto the reference tangent plane.
+
+        Returns:
+            ``(s1, s2, d1, d2)``: 1D tangent coordinates of the reference points and
+            their tangential displacements (mm), for the pixels where all are finite.
+        """
+        map_x = self.grid_x + flow[..., 0]
+        map_y = self.grid_y + flow[..., 1]
+        # NaN outside the image or next to invalid depth.
+        d_cur = cv2.remap(
+            depth_cur_m.astype(np.float32, copy=False),
+            map_x,
+            map_y,
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=float("nan"),
+        )
+        z = d_cur.reshape(-1)[indices].astype(np.float64)
+        cam = self.camera
+        x = (map_x.reshape(-1)[indices] - cam.cx_px) * (z / cam.fx_px)
+        y = (map_y.reshape(-1)[indices] - cam.cy_px) * (z / cam.fy_px)
+        rx, ry, rz = (a[indices] for a in self.points_m)
+        good = np.isfinite(z) & np.isfinite(rz)
+        if not good.all():
+            x, y, z, rx, ry, rz = x[good], y[good], z[good], rx[good], ry[good], rz[good]
+            indices = indices[good]
+        x -= rx
+        y -= ry
+        z -= rz
+        t = self.basis * 1000.0
+        d1 = t[0, 0] * x + t[0, 1] * y + t[0, 2] * z
+        d2 = t[1, 0] * x + t[1, 1] * y + t[1, 2] * z
+        return self.positions_mm[0][indices], self.positions_mm[1][indices], d1, d2
 
 
 @dataclass
 class _Reference:
-    ir: np.ndarray  # working resolution, raw
-    u8: np.ndarray
+    u8: np.ndarray  # working resolution, stretched
     mask: np.ndarray
-    depth_m: np.ndarray | None
-    camera: PinholeCamera | None
+    geometry: MembraneGeometry | None
     full_shape: tuple[int, int]
 
 
@@ -562,9 +593,9 @@ class ShearTracker:
         if scale != 1.0:
             ir = resize_for_flow(ir.astype(np.float32), scale)
             # A working pixel is valid only when its whole footprint was valid.
-            mask = resize_for_flow(mask.astype(np.float32), scale) > 0.999
+            mask = resize_for_flow(mask.view(np.uint8), scale) == 1
             if depth_m is not None:
-                depth_m = resize_for_flow(depth_m.astype(np.float32), scale)
+                depth_m = resize_for_flow(depth_m.astype(np.float32, copy=False), scale)
         return ir, depth_m, mask
 
     def set_reference(
@@ -578,15 +609,19 @@ class ShearTracker:
         Args:
             ir: ``(h, w)`` IR amplitude.
             depth_m: optional ``(h, w)`` z-depth (NaN invalid), for the mask and the mm output.
-            camera: the full-resolution camera; needed for ``shear_mm``.
+            camera: the full-resolution camera; with ``depth_m``, enables ``shear_mm``.
         """
         work_ir, work_depth, mask = self._prepare(ir, depth_m)
+        geometry = None
+        if work_depth is not None and camera is not None:
+            if camera.shape != ir.shape:
+                raise ValueError(f"camera shape {camera.shape} differs from IR shape {ir.shape}")
+            work_camera = scaled_camera(camera, self.params.scale, mask.shape)
+            geometry = MembraneGeometry.from_depth(work_depth, mask, work_camera)
         self._ref = _Reference(
-            ir=work_ir,
             u8=stretch_ir(work_ir, mask),
             mask=mask,
-            depth_m=work_depth,
-            camera=camera,
+            geometry=geometry,
             full_shape=(int(ir.shape[0]), int(ir.shape[1])),
         )
         self._last_flow = None
@@ -595,7 +630,6 @@ class ShearTracker:
         self,
         ir: np.ndarray,
         depth_m: np.ndarray | None = None,
-        camera: PinholeCamera | None = None,
         *,
         keep_fields: bool = False,
     ) -> ShearResult:
@@ -603,8 +637,8 @@ class ShearTracker:
 
         Args:
             ir: ``(h, w)`` IR amplitude, same shape as the reference.
-            depth_m: optional z-depth (NaN invalid).
-            camera: the full-resolution camera (the reference's when None).
+            depth_m: optional z-depth (NaN invalid); used for the mask, and for
+                ``shear_mm`` when the reference had depth and a camera.
             keep_fields: also return the flow and mask (for overlays).
 
         Returns:
@@ -618,26 +652,37 @@ class ShearTracker:
         work_ir, work_depth, mask = self._prepare(ir, depth_m)
         mask &= ref.mask
         cur_u8 = stretch_ir(work_ir, mask)
-        ref_u8 = ref.u8
         initial = self._last_flow if self.params.warm_start else None
-        flow = self._flow(ref_u8, cur_u8, initial)
+        flow = self._flow(ref.u8, cur_u8, initial)
         if self.params.warm_start:
             self._last_flow = flow
-        fraction = float(mask.mean()) if mask.size else 0.0
+        result = self._summarize(flow, mask, work_depth)
+        if keep_fields:
+            result.flow, result.mask = flow, mask
+        return result
+
+    def _summarize(
+        self, flow: np.ndarray, mask: np.ndarray, work_depth: np.ndarray | None
+    ) -> ShearResult:
+        assert self._ref is not None
+        indices = np.flatnonzero(mask)
+        fraction = indices.size / mask.size if mask.size else 0.0
         if fraction < self.params.min_valid_fraction:
             result = ShearResult.empty(has_reference=True)
             result.valid_fraction = fraction
-            if keep_fields:
-                result.flow, result.mask = flow, mask
             return result
+        vectors = flow.reshape(-1, 2)[indices]
+        finite = np.isfinite(vectors).all()
+        if not finite:  # neither method yields NaN from finite images; stay safe anyway
+            keep = np.isfinite(vectors).all(axis=1)
+            vectors, indices = vectors[keep], indices[keep]
         to_full = 1.0 / self.params.scale
-        mean, total, magnitude, direction, defined = summarize_flow(
-            flow, mask, min_magnitude_px=self.params.min_magnitude_px / to_full
+        mean, total, magnitude, direction, defined = _summarize_vectors(
+            vectors, self.params.min_magnitude_px / to_full
         )
-        mean_full = mean * to_full
         result = ShearResult(
             has_reference=True,
-            shear_px=mean_full,
+            shear_px=mean * to_full,
             sum_px=total * to_full,
             magnitude_px=magnitude * to_full,
             direction=direction,
@@ -647,27 +692,22 @@ class ShearTracker:
             torsion_rad=0.0,
             valid_fraction=fraction,
         )
-        cam = camera or ref.camera
-        if work_depth is not None and ref.depth_m is not None and cam is not None:
-            positions, disp, _ = membrane_displacement_mm(
-                flow,
-                mask,
-                ref.depth_m,
-                work_depth,
-                scaled_camera(cam, self.params.scale, mask.shape),
-            )
-            if positions.shape[0] >= 3:
-                result.shear_mm = disp.mean(axis=0)
-                result.torsion_rad, _ = rotation_about_centroid(positions, disp)
+        geometry = self._ref.geometry
+        if geometry is not None and work_depth is not None:
+            s1, s2, d1, d2 = geometry.tangential_displacement_mm(flow, indices, work_depth)
+            if s1.shape[0] >= 3:
+                result.shear_mm = np.array([d1.mean(), d2.mean()])
+                result.torsion_rad, _ = rotation_about_centroid(s1, s2, d1, d2)
                 result.mm_defined = True
         if not result.mm_defined:
-            ys, xs = np.nonzero(mask)
-            positions = np.stack([xs, ys], axis=1).astype(np.float64)
-            disp = flow[ys, xs].astype(np.float64)
-            finite = np.isfinite(disp).all(axis=1)
-            result.torsion_rad, _ = rotation_about_centroid(positions[finite], disp[finite])
-        if keep_fields:
-            result.flow, result.mask = flow, mask
+            width = mask.shape[1]
+            rows, cols = np.divmod(indices, width)
+            result.torsion_rad, _ = rotation_about_centroid(
+                cols.astype(np.float64),
+                rows.astype(np.float64),
+                vectors[:, 0].astype(np.float64),
+                vectors[:, 1].astype(np.float64),
+            )
         return result
 
 
