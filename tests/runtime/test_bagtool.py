@@ -1,0 +1,243 @@
+"""``bag info|echo|diff`` and the replay graph builder (no processes)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+import nodes.recorder  # noqa: F401  (registers the implementations the graphs name)
+import nodes.replay  # noqa: F401
+import nodes.synthetic  # noqa: F401
+from messages.base import Header
+from messages.errors import GraphError
+from messages.types import Tick, ToFImage
+from runtime.bag import BagWriter
+from runtime.bagtool import ReplayOptions, build_replay_graph, compare_values, diff_bags, main
+
+GRAPH = yaml.safe_load(
+    """
+nodes:
+  source_a: {impl: synthetic.source, params: {rate_hz: 100, count: 10}}
+  source_b: {impl: synthetic.source, params: {rate_hz: 50, count: 5, stop_when_done: false}}
+  relay: {impl: synthetic.relay, params: {add: 1000}, inputs: {tick: source_a/tick}}
+  merge: {impl: synthetic.merge, inputs: {a: relay/tick, b: source_b/tick}}
+  sink: {impl: synthetic.sink, inputs: {tick: merge/tick, other: {from: source_b/tick, policy: latest}}}
+  rec: {impl: recorder, params: {path: old.mcap}, inputs: {t0: merge/tick}}
+"""
+)
+ALL = ("source_a/tick", "source_b/tick", "relay/tick", "merge/tick")
+
+
+def make_bag(
+    path: Path, topics: tuple[str, ...] = ALL, values: dict[str, float] | None = None
+) -> Path:
+    with BagWriter(path) as w:
+        w.add_run_info(graph_text=yaml.safe_dump(GRAPH), command_line="launch.py g.yaml")
+        for i in range(3):
+            for topic in topics:
+                value = (values or {}).get(topic, 0.0) + i
+                msg = Tick(header=Header(stamp_nanos=i, seq=i), value=value)
+                w.write_message(topic, msg, log_time_nanos=i * 1_000_000)
+    return path
+
+
+def replay_params(graph: dict) -> dict:
+    (replay,) = [n for n in graph["nodes"].values() if n["impl"] == "replay"]
+    return replay["params"]
+
+
+# -- build_replay_graph --------------------------------------------------------------------------
+
+
+def test_replacing_a_node_runs_it_and_its_downstream_live(tmp_path: Path) -> None:
+    bag = make_bag(tmp_path / "a.mcap")
+    graph = build_replay_graph(
+        GRAPH, bag, {"relay": "synthetic.relay"}, ReplayOptions(lockstep=True)
+    )
+    assert set(graph["nodes"]) == {"relay", "merge", "sink", "replay"}
+    params = replay_params(graph)
+    assert params["topics"] == "source_a/tick|source_b/tick"
+    assert params["lockstep"] is True and params["path"] == str(bag)
+    assert GRAPH["nodes"]["relay"]["impl"] == "synthetic.relay"  # the input is not modified
+
+
+def test_replacing_a_sink_replays_its_inputs(tmp_path: Path) -> None:
+    bag = make_bag(tmp_path / "a.mcap")
+    graph = build_replay_graph(GRAPH, bag, {"sink": ""})
+    assert set(graph["nodes"]) == {"sink", "replay"}
+    assert replay_params(graph)["topics"] == "merge/tick|source_b/tick"
+
+
+def test_new_impl_is_applied(tmp_path: Path) -> None:
+    bag = make_bag(tmp_path / "a.mcap")
+    graph = build_replay_graph(GRAPH, bag, {"merge": "synthetic.merge", "sink": "synthetic.sink"})
+    assert graph["nodes"]["merge"]["impl"] == "synthetic.merge"
+    assert replay_params(graph)["topics"] == "relay/tick|source_b/tick"
+
+
+def test_topics_missing_from_the_bag_pull_their_producers_in(tmp_path: Path) -> None:
+    bag = make_bag(tmp_path / "a.mcap", topics=("source_b/tick", "merge/tick"))
+    graph = build_replay_graph(GRAPH, bag, {"merge": ""})
+    # merge needs relay/tick (not recorded), relay needs source_a/tick (not recorded either).
+    assert set(graph["nodes"]) == {"source_a", "relay", "merge", "sink", "replay"}
+    assert replay_params(graph)["topics"] == "source_b/tick"
+
+
+def test_topic_selection_and_remap(tmp_path: Path) -> None:
+    bag = make_bag(tmp_path / "a.mcap", topics=("cam/a", "source_b/tick"))
+    options = ReplayOptions(remap={"cam/a": "source_a/tick"}, fast=True)
+    graph = build_replay_graph(GRAPH, bag, {"relay": ""}, options)
+    params = replay_params(graph)
+    assert params["topics"] == "cam/a|source_b/tick"
+    assert params["remap"] == {"cam/a": "source_a/tick"}
+    assert "source_a" not in graph["nodes"]
+    graph = build_replay_graph(
+        GRAPH, make_bag(tmp_path / "b.mcap"), {"relay": ""}, ReplayOptions(topics="source_b/.*")
+    )
+    assert "source_a" in graph["nodes"]  # not selected from the bag: runs live
+
+
+def test_nothing_replaced_replays_everything(tmp_path: Path) -> None:
+    bag = make_bag(tmp_path / "a.mcap")
+    graph = build_replay_graph(GRAPH, bag, {})
+    assert set(graph["nodes"]) == {"replay"}
+    assert replay_params(graph)["topics"] == "merge/tick|relay/tick|source_a/tick|source_b/tick"
+
+
+def test_replay_graph_errors(tmp_path: Path) -> None:
+    bag = make_bag(tmp_path / "a.mcap")
+    with pytest.raises(GraphError, match="no node 'pose'"):
+        build_replay_graph(GRAPH, bag, {"pose": "x"})
+    with pytest.raises(GraphError, match="unknown implementation"):
+        build_replay_graph(GRAPH, bag, {"relay": "no.such.impl"})
+
+
+def test_replay_main_prints_the_graph_from_the_bag(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from runtime.bagtool import replay_main
+
+    bag = make_bag(tmp_path / "a.mcap")
+    code = replay_main(
+        [
+            str(bag),
+            "--replace",
+            "relay=synthetic.relay",
+            "--fast",
+            "--start",
+            "0.5",
+            "--print-graph",
+        ]
+    )
+    assert code == 0
+    graph = yaml.safe_load(capsys.readouterr().out)
+    assert set(graph["nodes"]) == {"relay", "merge", "sink", "replay"}
+    assert graph["nodes"]["replay"]["params"]["fast"] is True
+    assert graph["nodes"]["replay"]["params"]["start_secs"] == 0.5
+    assert replay_main([str(bag), "--replace", "ghost", "--print-graph"]) == 2
+    assert "no node 'ghost'" in capsys.readouterr().err
+
+
+# -- info and echo -------------------------------------------------------------------------------
+
+
+def test_info_lists_topics_counts_drops_and_graph(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "a.mcap"
+    with BagWriter(path) as w:
+        w.add_run_info(
+            graph_text=yaml.safe_dump(GRAPH), graph_source="g.yaml", command_line="run it"
+        )
+        for seq in (0, 1, 3):
+            w.write_message(
+                "a/tick", Tick(header=Header(seq=seq)), log_time_nanos=seq * 100_000_000
+            )
+        w.set_runtime_drops({"a/tick": 1})
+    assert main(["info", str(path), "--graph"]) == 0
+    out = capsys.readouterr().out
+    assert "summary:   yes" in out and "duration:  0.300 s" in out
+    assert "recorded:  run it" in out and "graph:     g.yaml" in out
+    row = next(line for line in out.splitlines() if line.startswith("a/tick"))
+    assert row.split() == ["a/tick", "Tick", "3", "6.67", "0.00", "1", "1"]
+    assert "DROPPED" in out
+    assert "synthetic.relay" in out  # --graph prints the stored graph
+
+
+def test_echo_decodes_and_summarizes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "a.mcap"
+    depth = np.full((4, 5), 0.1, np.float32)
+    depth[0, 0] = np.nan
+    msg = ToFImage(
+        header=Header(seq=2),
+        sensor="left",
+        depth_m=depth,
+        ir=np.arange(20, dtype=np.uint16).reshape(4, 5),
+        fx_px=1.0,
+        fy_px=1.0,
+        cx_px=2.0,
+        cy_px=1.5,
+    )
+    with BagWriter(path) as w:
+        w.write_message("cam/image", msg, log_time_nanos=5)
+    assert main(["echo", str(path), "--topic", "cam/image"]) == 0
+    out = capsys.readouterr().out
+    assert "--- cam/image #0 ToFImage seq 2" in out
+    assert "sensor: left" in out
+    assert "depth_m: float32[4x5] min 0.1 max 0.1 mean 0.1 non-finite 1" in out
+    assert "ir: uint16[4x5] min 0 max 19 mean 9.5" in out
+    assert main(["echo", str(path), "--topic", "nope/x"]) == 2
+    err = capsys.readouterr().err
+    assert "a.mcap: topic 'nope/x' is not in the bag" in err
+
+
+def test_info_of_a_file_that_is_not_a_bag(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "x.mcap"
+    path.write_text("hello")
+    assert main(["info", str(path)]) == 2
+    assert "x.mcap: not an MCAP file" in capsys.readouterr().err
+
+
+# -- diff ----------------------------------------------------------------------------------------
+
+
+def test_diff_identical_and_different(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    a = make_bag(tmp_path / "a.mcap")
+    b = make_bag(tmp_path / "b.mcap")
+    c = make_bag(tmp_path / "c.mcap", values={"merge/tick": 1e-6})
+    assert main(["diff", str(a), str(b), "--topic", "merge/tick"]) == 0
+    assert "no differences" in capsys.readouterr().out
+    assert main(["diff", str(a), str(c), "--topic", "merge/tick"]) == 1
+    out = capsys.readouterr().out
+    assert "merge/tick #0 value: 0.0 vs 1e-06" in out and "3 difference(s) in 3 message(s)" in out
+    assert main(["diff", str(a), str(c), "--topic", "merge/tick", "--atol", "1e-5"]) == 0
+    assert main(["diff", str(a), str(c), "--topic", "relay/tick"]) == 0
+    assert main(["diff", str(a), str(c)]) == 1  # every topic
+    assert main(["diff", str(a), str(c), "--topic", "merge/tick", "--ignore", "value"]) == 0
+    assert main(["diff", str(a), str(c), "--topic", "x/y"]) == 2
+
+
+def test_diff_counts_and_arrays(tmp_path: Path) -> None:
+    a = make_bag(tmp_path / "a.mcap", topics=("t/x",))
+    short = tmp_path / "s.mcap"
+    with BagWriter(short) as w:
+        w.write_message("t/x", Tick(header=Header(), value=0.0), log_time_nanos=0)
+    diffs = diff_bags(a, short, ["t/x"])
+    assert any(d.field == "(count)" and "3 vs 1" in d.detail for d in diffs)
+    x = np.array([1.0, np.nan, 3.0])
+    assert compare_values({"v": x}, {"v": x.copy()}, rtol=0, atol=0) == []
+    (found,) = compare_values({"v": x}, {"v": x + [0, 0, 1]}, rtol=0, atol=0)
+    assert found[0] == "v" and "1 of 3 elements differ, max |a-b| 1" in found[1]
+    (found,) = compare_values({"v": x}, {"v": x[:2]}, rtol=0, atol=0)
+    assert "float64[3] vs float64[2]" in found[1]
+    assert compare_values({"h": {"s": 1}}, {"h": {"s": 2}}, rtol=0, atol=0) == [("h.s", "1 vs 2")]
+    assert (
+        compare_values({"h": {"s": 1}}, {"h": {"s": 2}}, rtol=0, atol=0, ignore=frozenset({"h.s"}))
+        == []
+    )
+    assert compare_values([True], [False], rtol=1, atol=1) == [("[0]", "True vs False")]
