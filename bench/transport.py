@@ -89,20 +89,27 @@ class Measured:
     frames_per_sec: float
     latency_ms_median: float
     latency_ms_p99: float
+    source_cpu_us_per_frame: float
+    sink_cpu_us_per_frame: float
     drops: int
 
 
-def _summarise(result: dict[str, Any]) -> Measured:
-    latencies_ms = np.asarray(result["latency_nanos"], dtype=float) / 1e6
-    first, last = result["throughput_receive_nanos"]
-    frames = result["throughput_frames"]
+def _summarise(sink: dict[str, Any], source: dict[str, Any]) -> Measured:
+    """Figures of one run from the sink's :class:`SinkRecord` and source's :class:`WindowPlan`."""
+    latencies_ms = np.asarray(sink["latency_nanos"], dtype=float) / 1e6
+    first, last = sink["throughput_receive_nanos"]
+    frames = sink["throughput_frames"]
     if frames < 2 or last <= first or not len(latencies_ms):
         raise RuntimeError(f"the sink measured too little: {frames} throughput frames")
+    if source["acked"] < source["sent"]:
+        raise RuntimeError(f"only {source['acked']} of {source['sent']} frames acknowledged")
     return Measured(
         frames_per_sec=(frames - 1) / ((last - first) / 1e9),
         latency_ms_median=median(latencies_ms.tolist()),
         latency_ms_p99=percentile(latencies_ms.tolist(), 99),
-        drops=int(result["dropped"]),
+        source_cpu_us_per_frame=source["throughput_cpu_nanos"] / 1e3 / source["throughput_frames"],
+        sink_cpu_us_per_frame=sink["throughput_cpu_nanos"] / 1e3 / frames,
+        drops=int(sink["dropped"]),
     )
 
 
@@ -111,8 +118,8 @@ def _summarise(result: dict[str, Any]) -> Measured:
 
 def run_runtime(transport: str, sizes: Sizes, workdir: Path) -> Measured:
     """Launch ``bench.image_source -> bench.image_sink`` and read what the sink measured."""
-    out_path = workdir / f"runtime-{transport}.json"
-    out_path.unlink(missing_ok=True)
+    out_path = workdir / "sink.json"
+    source_path = workdir / "source.json"
     host = {"host": "127.0.0.1"} if transport == "tcp" else {}
     doc = {
         "nodes": {
@@ -125,6 +132,7 @@ def run_runtime(transport: str, sizes: Sizes, workdir: Path) -> Measured:
                     "rate_hz": sizes.rate_hz,
                     "throughput_frames": sizes.throughput_frames,
                     "window": sizes.window,
+                    "out_path": str(source_path),
                 },
                 "inputs": {"ack": "sink/ack"},
                 **host,
@@ -139,9 +147,9 @@ def run_runtime(transport: str, sizes: Sizes, workdir: Path) -> Measured:
     }
     log = io.StringIO()
     code = Launcher(check(doc, source="bench.transport"), out=log).run()
-    if code != 0 or not out_path.exists():
+    if code != 0 or not out_path.exists() or not source_path.exists():
         raise RuntimeError(f"the runtime graph failed (exit {code}):\n{log.getvalue()}")
-    return _summarise(json.loads(out_path.read_text()))
+    return _summarise(json.loads(out_path.read_text()), json.loads(source_path.read_text()))
 
 
 # -- bare pyzmq processes ------------------------------------------------------------
@@ -215,7 +223,7 @@ def _source_process(
         if not acks.poll(TIMEOUT_MS):
             break
         send(plan.on_ack(ACK.unpack(acks.recv())[0]))
-    conn.send(plan.done)
+    conn.send(plan.result())
     pub.close()
     acks.close()
     ctx.term()
@@ -280,8 +288,9 @@ def run_bare(impl: str, transport: str, sizes: Sizes, workdir: Path) -> Measured
             if not sink_end.poll(2 * TIMEOUT_MS / 1000):
                 raise RuntimeError(f"{impl}/{transport}: the sink process sent no result")
             result = sink_end.recv()
-            if not (source_end.poll(TIMEOUT_MS / 1000) and source_end.recv()):
-                raise RuntimeError(f"{impl}/{transport}: not every frame was acknowledged")
+            if not source_end.poll(TIMEOUT_MS / 1000):
+                raise RuntimeError(f"{impl}/{transport}: the source process sent no result")
+            source_result = source_end.recv()
         finally:
             sink.join(timeout=5)
             if sink.is_alive():
@@ -290,7 +299,7 @@ def run_bare(impl: str, transport: str, sizes: Sizes, workdir: Path) -> Measured
         source.join(timeout=5)
         if source.is_alive():
             source.kill()
-    return _summarise(result)
+    return _summarise(result, source_result)
 
 
 # -- the sweep -------------------------------------------------------------------------
@@ -333,6 +342,8 @@ def run(quick: bool, sizes: Sizes | None = None) -> list[Row]:
                     "latency_ms_p99": m.latency_ms_p99,
                     "latency_vs_raw": m.latency_ms_median / raw.latency_ms_median,
                     "megabytes_per_sec": m.frames_per_sec * frame_bytes() / 1e6,
+                    "source_cpu_us_per_frame": m.source_cpu_us_per_frame,
+                    "sink_cpu_us_per_frame": m.sink_cpu_us_per_frame,
                     "drops": m.drops,
                     "repeats": sizes.repeats,
                     "latency_frames": sizes.latency_frames,
@@ -349,6 +360,8 @@ def _medians(measured: list[Measured]) -> Measured:
         frames_per_sec=median([m.frames_per_sec for m in measured]),
         latency_ms_median=median([m.latency_ms_median for m in measured]),
         latency_ms_p99=median([m.latency_ms_p99 for m in measured]),
+        source_cpu_us_per_frame=median([m.source_cpu_us_per_frame for m in measured]),
+        sink_cpu_us_per_frame=median([m.sink_cpu_us_per_frame for m in measured]),
         drops=sum(m.drops for m in measured),
     )
 
@@ -399,7 +412,8 @@ COLUMNS = [
     "latency_ms_median",
     "latency_ms_p99",
     "latency_vs_raw",
-    "megabytes_per_sec",
+    "source_cpu_us_per_frame",
+    "sink_cpu_us_per_frame",
     "drops",
     "repeats",
 ]

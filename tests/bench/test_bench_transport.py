@@ -1,0 +1,52 @@
+"""Smoke test of ``python -m bench.transport``: it runs, and its JSON has the promised shape.
+
+No timing is asserted: the figures only have to exist, be finite and be positive.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+FIGURES = (
+    "frames_per_sec",
+    "throughput_vs_raw",
+    "latency_ms_median",
+    "latency_ms_p99",
+    "latency_vs_raw",
+    "source_cpu_us_per_frame",
+    "sink_cpu_us_per_frame",
+)
+
+
+@pytest.mark.timeout(240)
+def test_quick_json_has_every_transport_and_impl_with_finite_positive_figures() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "bench.transport", "--quick", "--json", "--no-plot"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=220,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    report = json.loads(done.stdout)
+    assert set(report) == {"machine", "rows"}
+    rows = report["rows"]
+    keys = {(row["transport"], row["impl"]) for row in rows}
+    assert keys == {(t, i) for t in ("ipc", "tcp") for i in ("runtime", "codec", "raw")}
+    assert len(rows) == len(keys)
+    for row in rows:
+        for name in FIGURES:
+            value = row[name]
+            assert isinstance(value, int | float), (row["transport"], row["impl"], name, value)
+            assert math.isfinite(value) and value > 0, (row["transport"], row["impl"], name, value)
+        assert row["drops"] >= 0
+        assert row["latency_ms_p99"] >= row["latency_ms_median"]
+        if row["impl"] == "raw":
+            assert row["throughput_vs_raw"] == 1.0
