@@ -17,7 +17,7 @@ import numpy as np
 from perception.classify.dataset import DatasetWriter, GraspBuffer
 
 SHAPES = ("disc", "bar", "square", "ring")
-BASE_DEPTH_M = 0.09
+BASE_DEPTH_M = 0.06
 NOISE_M = 0.0007
 
 

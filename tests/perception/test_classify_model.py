@@ -7,7 +7,14 @@ import pytest
 import torch
 
 from perception.classify.model import ResNet18, parameter_count, stage_channels
-from perception.classify.preprocess import InputSpec, channels, frame_input, normalise_ir
+from perception.classify.preprocess import (
+    DEPTH_CENTER_M,
+    DEPTH_SCALE_M,
+    InputSpec,
+    channels,
+    frame_input,
+    normalise_ir,
+)
 
 
 def test_full_width_is_the_standard_resnet18() -> None:
@@ -64,8 +71,8 @@ def test_left_is_left_and_right_is_right() -> None:
     pair["depth_left_m"] = np.full_like(pair["depth_left_m"], 0.06)
     pair["depth_right_m"] = np.full_like(pair["depth_right_m"], 0.09)
     x = frame_input(InputSpec(modality="depth", input_px=32), **pair)[0]
-    assert np.allclose(x[:, :14], (0.06 - 0.075) / 0.02)
-    assert np.allclose(x[:, 18:], (0.09 - 0.075) / 0.02)
+    assert np.allclose(x[:, :14], (0.06 - DEPTH_CENTER_M) / DEPTH_SCALE_M)
+    assert np.allclose(x[:, 18:], (0.09 - DEPTH_CENTER_M) / DEPTH_SCALE_M)
 
 
 def test_nan_depth_and_dark_ir_stay_finite() -> None:
