@@ -132,15 +132,14 @@ class _ShearTrackerNode(Node):
 
     def _image(self, sensor: str, msg: ToFImage) -> None:
         tracker = self.trackers[sensor]
-        camera = _camera(msg)
         depth = msg.depth_m if msg.depth_m.shape == msg.ir.shape else None
         if self.want_reference[sensor] and msg.header.stamp_nanos >= self.stable_since_nanos:
-            tracker.set_reference(msg.ir, depth, camera)
+            tracker.set_reference(msg.ir, depth, _camera(msg))
             self.want_reference[sensor] = False
         every = self.params.overlay_every_n
         want_overlay = every > 0 and self.frames[sensor] % every == 0
         self.frames[sensor] += 1
-        result = tracker.update(msg.ir, depth, camera, keep_fields=want_overlay)
+        result = tracker.update(msg.ir, depth, keep_fields=want_overlay)
         header = Header(stamp_nanos=msg.header.stamp_nanos, frame_id=msg.header.frame_id)
         self.io.publish("shear", _estimate(sensor, header, result))
         if want_overlay:

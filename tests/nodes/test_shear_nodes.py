@@ -1,0 +1,150 @@
+"""The grasp monitor and shear tracker nodes through FakeIO (no sockets)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import nodes.grasp_monitor  # noqa: F401  (registers the implementations)
+import nodes.shear_tracker  # noqa: F401
+from bench.shear import DotPlane, angle_error_deg
+from geometry.camera import PinholeCamera
+from messages.base import Header
+from messages.shear import ShearReset
+from messages.types import GraspState, GripperState, Pressure, ToFImage
+from runtime.registry import resolve
+from runtime.testing import feed, make_node
+
+CAMERA = PinholeCamera.from_fov()
+
+
+def stamp(secs: float) -> Header:
+    return Header(stamp_nanos=int(secs * 1e9))
+
+
+@pytest.fixture(scope="module")
+def scene() -> DotPlane:
+    return DotPlane(CAMERA, seed=5)
+
+
+def image(scene: DotPlane, sensor: str, secs: float, t_px=(0.0, 0.0)) -> ToFImage:
+    ir, depth = scene.render(t_px)
+    return ToFImage(
+        header=stamp(secs),
+        sensor=sensor,
+        depth_m=depth,
+        ir=ir,
+        fx_px=CAMERA.fx_px,
+        fy_px=CAMERA.fy_px,
+        cx_px=CAMERA.cx_px,
+        cy_px=CAMERA.cy_px,
+    )
+
+
+def grasp_state(secs: float, stable: bool, event: str = "") -> GraspState:
+    return GraspState(header=stamp(secs), stable=stable, event=event)
+
+
+def test_grasp_monitor_node_publishes_events():
+    node, io = make_node(resolve("grasp_monitor"), {"dwell_secs": 0.2, "baseline_pa": 1000.0})
+    events = []
+    for i in range(300):
+        t = i / 100.0
+        squeeze = 1.0 if 0.5 <= t < 2.0 else 0.0
+        speed = 0.02 if 2.0 <= t < 2.3 else 0.0
+        feed(
+            node, "left", Pressure(header=stamp(t), sensor="left", pressure_pa=1000 + 60 * squeeze)
+        )
+        feed(
+            node,
+            "right",
+            Pressure(header=stamp(t), sensor="right", pressure_pa=1000 + 60 * squeeze),
+        )
+        feed(
+            node,
+            "gripper",
+            GripperState(header=stamp(t), width_m=0.05, speed_m_per_s=speed, force_n=0),
+        )
+    published = io.published["grasp"]
+    events = [(m.header.stamp_nanos * 1e-9, m.event) for m in published if m.event]
+    assert [e for _, e in events] == ["stable", "released"]
+    assert events[0][0] == pytest.approx(0.5 + 0.05 * 0 + 0.2, abs=0.1)
+    assert events[1][0] == pytest.approx(2.0, abs=0.02)
+    # One state per gripper sample, plus the events raised by pressure samples.
+    assert len(published) >= 300
+    stable_msgs = [m for m in published if m.stable]
+    assert all(m.pressure_rise_left_pa > 30 for m in stable_msgs)
+
+
+def test_grasp_monitor_rejects_bad_params():
+    with pytest.raises(ValueError, match="contact_rise_pa"):
+        make_node(resolve("grasp_monitor"), {"contact_rise_pa": -1.0})
+
+
+@pytest.mark.parametrize("impl", ["shear_tracker.farneback", "shear_tracker.dis"])
+def test_shear_tracker_reference_follows_the_grasp(scene, impl):
+    node, io = make_node(resolve(impl), {"overlay_every_n": 2})
+    feed(node, "left", image(scene, "left", 0.0, (3.0, 0.0)))
+    first = io.published["shear"][-1]
+    assert first.sensor == "left" and not first.has_reference and not first.direction_defined
+
+    feed(node, "grasp", grasp_state(1.0, True, "stable"))
+    # A frame stamped before the stable moment is not taken as the reference.
+    feed(node, "left", image(scene, "left", 0.9, (3.0, 0.0)))
+    assert not io.published["shear"][-1].has_reference
+    feed(node, "left", image(scene, "left", 1.0))  # the reference
+    at_ref = io.published["shear"][-1]
+    assert at_ref.has_reference and not at_ref.direction_defined
+    feed(node, "right", image(scene, "right", 1.0))
+    assert io.published["shear"][-1].sensor == "right"
+
+    pull = (-1.5, 1.5)
+    feed(node, "left", image(scene, "left", 1.1, pull))
+    moved = io.published["shear"][-1]
+    assert moved.direction_defined
+    assert angle_error_deg(moved.direction, np.array(pull)) < 5.0
+    assert moved.magnitude_px == pytest.approx(math.hypot(*pull), rel=0.1)
+    assert np.all(np.isfinite(moved.shear_mm)) and np.linalg.norm(moved.shear_mm) > 0.5
+
+    feed(node, "grasp", grasp_state(2.0, False, "released"))
+    feed(node, "left", image(scene, "left", 2.1, pull))
+    assert not io.published["shear"][-1].has_reference
+
+    overlays = io.published["overlay"]
+    assert overlays, "an overlay every second frame per bubble"
+    assert overlays[0].image.shape == (CAMERA.height_px, CAMERA.width_px, 3)
+    assert overlays[0].image.dtype == np.uint8
+
+
+def test_shear_tracker_reset_retakes_the_reference(scene):
+    node, io = make_node(resolve("shear_tracker.farneback"), {"overlay_every_n": 0})
+    feed(node, "grasp", grasp_state(1.0, True, "stable"))
+    feed(node, "left", image(scene, "left", 1.0))
+    feed(node, "right", image(scene, "right", 1.0))
+    feed(node, "left", image(scene, "left", 1.1, (2.0, 0.0)))
+    assert io.published["shear"][-1].direction_defined
+
+    feed(node, "reset", ShearReset(header=stamp(1.2), sensor="left"))
+    feed(node, "left", image(scene, "left", 1.3, (2.0, 0.0)))  # new reference
+    feed(node, "left", image(scene, "left", 1.4, (2.0, 0.0)))
+    assert not io.published["shear"][-1].direction_defined
+    feed(node, "right", image(scene, "right", 1.4, (2.0, 0.0)))  # right kept its reference
+    right = io.published["shear"][-1]
+    assert right.sensor == "right" and right.direction_defined
+    assert "overlay" not in io.published
+
+
+def test_shear_tracker_stable_without_event_still_takes_a_reference(scene):
+    node, io = make_node(resolve("shear_tracker.dis"), {"overlay_every_n": 0})
+    feed(node, "grasp", grasp_state(0.5, True))  # a late subscriber sees stable, no event
+    feed(node, "left", image(scene, "left", 0.6))
+    assert io.published["shear"][-1].has_reference
+
+
+def test_shear_tracker_params_check_their_method():
+    with pytest.raises(ValueError, match="method"):
+        make_node(resolve("shear_tracker.dis"), {"method": "farneback"})
+    with pytest.raises(ValueError, match="overlay_every_n"):
+        make_node(resolve("shear_tracker.farneback"), {"overlay_every_n": -1})
