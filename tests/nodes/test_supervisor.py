@@ -1,0 +1,80 @@
+"""The task supervisors as state machines, driven through FakeIO."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from messages import ClassProbabilities, GraspState, Header, ShearEstimate
+from nodes.supervisor import HandoverSupervisor, SortSupervisor
+from runtime.params import build_params
+from runtime.testing import feed, make_node
+
+
+def shear(sensor: str, magnitude_px: float, *, defined: bool = True) -> ShearEstimate:
+    direction = np.array([0.0, 1.0]) if defined else np.zeros(2)
+    return ShearEstimate(
+        header=Header(),
+        sensor=sensor,
+        shear_px=direction * magnitude_px,
+        magnitude_px=magnitude_px,
+        direction=direction,
+        direction_defined=defined,
+        shear_mm=direction * magnitude_px * 0.2,
+    )
+
+
+def events(io) -> list[str]:
+    return [e.event for e in io.published["event"]]
+
+
+def test_handover_grasps_waits_for_stable_and_releases_on_a_sustained_pull() -> None:
+    node, io = make_node(HandoverSupervisor, {"confirm_frames": 3, "release_shear_px": 1.0})
+    io.advance(0.5)
+    assert [c.command for c in io.published["command"]] == ["grasp"]
+    feed(node, "shear", shear("left", 5.0))  # not holding yet: ignored
+    feed(node, "grasp", GraspState(header=Header(), stable=True, event="stable"))
+    for magnitude in (2.0, 2.0, 0.1, 2.0, 2.0):  # interrupted: no release yet
+        feed(node, "shear", shear("left", magnitude))
+    assert "release" not in events(io)
+    feed(node, "shear", shear("left", 0.0, defined=False))
+    feed(node, "shear", shear("right", 2.0))
+    feed(node, "shear", shear("right", 2.0))
+    feed(node, "shear", shear("right", 2.0))
+    assert events(io)[-1] == "release"
+    assert io.published["command"][-1].command == "release"
+    assert (
+        "right bubble" in io.published["event"][-1].detail
+        and "90 deg" in io.published["event"][-1].detail
+    )
+    feed(node, "grasp", GraspState(header=Header(), stable=False, event="released"))
+    assert events(io)[-1] == "done" and io.stop_reason == "handover: done"
+
+
+def test_handover_times_out_without_a_grasp() -> None:
+    node, io = make_node(HandoverSupervisor, {"timeout_secs": 2.0})
+    io.advance(3.0)
+    assert events(io) == ["grasping", "timeout"] and io.stop_reason == "handover: timeout"
+
+
+def test_sort_votes_then_routes_to_the_bin() -> None:
+    node, io = make_node(SortSupervisor, {"vote_frames": 3})
+    io.advance(0.5)
+    feed(node, "grasp", GraspState(header=Header(), stable=True, event="stable"))
+    classes = ["mug", "pet_bottle", "square_bottle", "wine_glass"]
+    for p in ([0.1, 0.7, 0.1, 0.1], [0.1, 0.6, 0.2, 0.1], [0.5, 0.3, 0.1, 0.1]):
+        feed(
+            node,
+            "classes",
+            ClassProbabilities(header=Header(), classes=classes, probabilities=np.float32(p)),
+        )
+    detail = next(e.detail for e in io.published["event"] if e.event == "classified")
+    assert detail.startswith("pet_bottle") and detail.endswith("recycling")
+    assert io.published["command"][-1].command == "release"
+
+
+def test_params_check_themselves() -> None:
+    with pytest.raises(ValueError, match="release_shear_px"):
+        build_params(HandoverSupervisor.Params, {"release_shear_px": 0})
+    with pytest.raises(ValueError, match="vote_frames"):
+        build_params(SortSupervisor.Params, {"vote_frames": 0})
