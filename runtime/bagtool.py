@@ -6,6 +6,7 @@ python launch.py bag diff A B [--topic T ...] [--rtol R] [--atol A] [--ignore FI
 python launch.py replay FILE [--graph G] [--replace NODE[=IMPL] ...] [--rate X | --fast]
                         [--loop] [--start S] [--end E] [--topics RE] [--remap A=B ...]
                         [--lockstep] [--record OUT [--record-topics RE]] [--duration S]
+                        [--set NODE.PARAM=VALUE ...] [--print-graph]
 
 ``bag diff`` compares messages of a topic in order, field by field, decoded from each bag's
 stored description (no project classes needed); numbers and arrays with ``numpy.isclose``
@@ -20,6 +21,7 @@ from __future__ import annotations
 import argparse
 import copy
 import datetime
+import logging
 import re
 import shlex
 import sys
@@ -33,6 +35,8 @@ import yaml
 
 from messages.errors import BagError, GraphError
 from runtime.bag import BagMessage, BagReader, topic_filter
+
+log = logging.getLogger(__name__)
 
 # -- shared formatting ---------------------------------------------------------------------------
 
@@ -304,6 +308,26 @@ def _node_inputs(body: Mapping[str, Any]) -> list[str]:
     return topics
 
 
+def _keep_known_params(name: str, body: dict[str, Any]) -> None:
+    """Drop the parameters a swapped-in implementation does not take (they were the old one's)."""
+    import dataclasses
+
+    from runtime.registry import resolve
+
+    try:
+        cls = resolve(body["impl"])
+    except KeyError:
+        return  # the checker reports the unknown implementation
+    known = {f.name for f in dataclasses.fields(cls.Params)}
+    params = body.get("params") or {}
+    dropped = sorted(set(params) - known)
+    if dropped:
+        log.warning(
+            "replay: %s is now %s; dropping its old parameters %s", name, body["impl"], dropped
+        )
+        body["params"] = {k: v for k, v in params.items() if k in known}
+
+
 def build_replay_graph(
     graph: Mapping[str, Any],
     bag_path: Path,
@@ -313,7 +337,7 @@ def build_replay_graph(
     """The graph that replays ``bag_path`` through ``graph`` with some nodes replaced.
 
     The nodes named in ``replace`` get their new implementation (an empty string keeps
-    theirs) and run live, as does every node downstream of them. Every topic those nodes
+    theirs; parameters the new one does not take are dropped, with a warning) and run live, as does every node downstream of them. Every topic those nodes
     read comes from a ``replay`` node if the bag has it; otherwise the node publishing it
     runs live too (and so on upstream). All other nodes, recorders included, are left out.
     With nothing replaced, the replay node publishes every selected topic.
@@ -333,8 +357,9 @@ def build_replay_graph(
             raise GraphError(
                 f"--replace {name}: the graph has no node {name!r} (nodes: {', '.join(nodes)})"
             )
-        if impl:
+        if impl and impl != nodes[name].get("impl"):
             nodes[name]["impl"] = impl
+            _keep_known_params(name, nodes[name])
     checked = check(doc, source=f"{bag_path} (replay graph)")
     recorders = {n for n, spec in checked.nodes.items() if spec.cls.raw_input}
     providers = {t: node for t, (node, _) in checked.providers().items()}
@@ -441,6 +466,9 @@ def replay_main(argv: Sequence[str]) -> int:
     parser.add_argument(
         "--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"]
     )
+    parser.add_argument(
+        "--set", dest="sets", action="append", default=[], metavar="NODE.PARAM=VALUE"
+    )
     parser.add_argument("--print-graph", action="store_true", help="print the graph; run nothing")
     args = parser.parse_args(list(argv))
     try:
@@ -468,6 +496,10 @@ def replay_main(argv: Sequence[str]) -> int:
         replay_graph = build_replay_graph(
             graph, args.bag, _pairs(args.replace, "--replace", allow_bare=True), options
         )
+        if args.sets:
+            from runtime.graph import apply_overrides
+
+            replay_graph = apply_overrides(replay_graph, sets=args.sets, source=str(args.bag))
     except (BagError, GraphError, ValueError) as err:
         print(f"replay: {err}", file=sys.stderr)
         return 2

@@ -16,6 +16,7 @@ from messages.errors import GraphError
 from messages.types import Tick, ToFImage
 from runtime.bag import BagWriter
 from runtime.bagtool import ReplayOptions, build_replay_graph, compare_values, diff_bags, main
+from runtime.node import Node
 
 GRAPH = yaml.safe_load(
     """
@@ -241,3 +242,26 @@ def test_diff_counts_and_arrays(tmp_path: Path) -> None:
         == []
     )
     assert compare_values([True], [False], rtol=1, atol=1) == [("[0]", "True vs False")]
+
+
+class PlainRelay(Node):
+    """A relay without parameters, to swap in for ``synthetic.relay``."""
+
+    inputs = {"tick": Tick}
+    outputs = {"tick": Tick}
+
+    def on_tick(self, msg: Tick) -> None:
+        self.io.publish("tick", msg)
+
+
+def test_swapped_impl_drops_old_params_and_set_applies(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from runtime.bagtool import replay_main
+
+    bag = make_bag(tmp_path / "a.mcap")
+    graph = build_replay_graph(GRAPH, bag, {"relay": f"{__name__}:PlainRelay"})
+    assert graph["nodes"]["relay"]["params"] == {}
+    code = replay_main([str(bag), "--replace", "relay", "--set", "relay.add=7", "--print-graph"])
+    assert code == 0
+    assert yaml.safe_load(capsys.readouterr().out)["nodes"]["relay"]["params"] == {"add": 7}
