@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from geometry.camera import PinholeCamera
+from geometry.gripper import tool_from_sensor
 from messages.base import Header
 from messages.shear import ShearReset
 from messages.types import GraspState, OverlayImage, ShearEstimate, ToFImage
@@ -32,20 +33,30 @@ SENSORS = ("left", "right")
 
 @dataclass(frozen=True, kw_only=True)
 class ShearTrackerParams(ShearParams):
-    """The flow and mask parameters, plus the overlay's.
+    """The flow and mask parameters, plus the frame of ``shear_mm`` and the overlay's.
 
     Attributes:
+        shear_frame: ``"tool"``: ``shear_mm`` is along the tool's y and z axes (the plane
+            orthogonal to the grip force, as the ground truth) and the torsion is about
+            tool x, for both bubbles, using ``geometry.gripper``'s camera mount;
+            ``"membrane"``: along the plane fitted to the reference membrane (see
+            ``perception.shear``).
         overlay_every_n: publish an overlay every n-th frame per bubble (0: never).
         overlay_step_px: spacing of the flow arrows drawn on the overlay.
         overlay_arrow_gain: length of the mean-shear arrow per pixel of shear.
     """
 
+    shear_frame: str = "tool"
     overlay_every_n: int = 1
     overlay_step_px: int = 12
     overlay_arrow_gain: float = 10.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if self.shear_frame not in ("tool", "membrane"):
+            raise ValueError(
+                f"`shear_frame` must be 'tool' or 'membrane', got {self.shear_frame!r}"
+            )
         if self.overlay_every_n < 0:
             raise ValueError(f"`overlay_every_n` must be >= 0, got {self.overlay_every_n!r}")
         if self.overlay_step_px < 2:
@@ -76,6 +87,13 @@ class DisTrackerParams(ShearTrackerParams):
         super().__post_init__()
         if self.method != "dis":
             raise ValueError(f"`method` must be 'dis' for this node, got {self.method!r}")
+
+
+def tool_basis_in_sensor(sensor: str) -> np.ndarray:
+    """Rows: the tool's y, z and x axes in ``sensor``'s camera frame (t1, t2, n)."""
+    # The mount's rotation does not depend on the opening; any width will do.
+    tool_from_sensor_rot = tool_from_sensor(sensor, 0.05)[:3, :3]
+    return tool_from_sensor_rot[[1, 2, 0], :]
 
 
 def _camera(msg: ToFImage) -> PinholeCamera:
@@ -134,7 +152,8 @@ class _ShearTrackerNode(Node):
         tracker = self.trackers[sensor]
         depth = msg.depth_m if msg.depth_m.shape == msg.ir.shape else None
         if self.want_reference[sensor] and msg.header.stamp_nanos >= self.stable_since_nanos:
-            tracker.set_reference(msg.ir, depth, _camera(msg))
+            basis = tool_basis_in_sensor(sensor) if self.params.shear_frame == "tool" else None
+            tracker.set_reference(msg.ir, depth, _camera(msg), basis)
             self.want_reference[sensor] = False
         every = self.params.overlay_every_n
         want_overlay = every > 0 and self.frames[sensor] % every == 0

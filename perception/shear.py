@@ -128,7 +128,9 @@ class ShearParams:
             Results are always reported in full-resolution pixels.
         warm_start: start each frame's flow from the previous frame's (same reference).
         border_px: full-resolution pixels dropped at each image edge.
-        min_depth_m: nearer depth is invalid (FACTS.md: working range 4-11 cm).
+        min_depth_m: nearer depth is invalid. The driver already marks pixels outside
+            its working range (FACTS.md: 4-11 cm of *range*) as NaN; z-depth is shorter
+            than range off-axis, so these bounds are loose and only catch gross outliers.
         max_depth_m: farther depth is invalid.
         min_ir: IR below this is invalid (the driver reports invalid pixels as 0).
         saturation_ir: IR at or above this is saturated, hence invalid.
@@ -142,8 +144,8 @@ class ShearParams:
     scale: float = 1.0
     warm_start: bool = False
     border_px: int = 4
-    min_depth_m: float = 0.04
-    max_depth_m: float = 0.11
+    min_depth_m: float = 0.01
+    max_depth_m: float = 0.5
     min_ir: int = 1
     saturation_ir: int = 65535
     min_magnitude_px: float = 0.05
@@ -492,13 +494,33 @@ class MembraneGeometry:
 
     @classmethod
     def from_depth(
-        cls, depth_m: np.ndarray, mask: np.ndarray, camera: PinholeCamera
+        cls,
+        depth_m: np.ndarray,
+        mask: np.ndarray,
+        camera: PinholeCamera,
+        basis: np.ndarray | None = None,
     ) -> MembraneGeometry:
-        """Back-project the reference depth and fit the tangent plane to the masked points."""
+        """Back-project the reference depth; fit the tangent plane unless ``basis`` is given.
+
+        Args:
+            depth_m: reference z-depth (NaN invalid).
+            mask: the reference mask.
+            camera: the camera of these images.
+            basis: optional rows ``t1, t2, n`` (orthonormal, right-handed) in the sensor
+                frame, e.g. the tool's y, z and x axes: ``shear_mm`` is then expressed
+                along ``t1`` and ``t2`` and the torsion is about ``n``.
+        """
         points = camera.depth_to_points(depth_m).astype(np.float64)
-        selected = points[mask]
-        selected = selected[np.isfinite(selected).all(axis=1)]
-        basis = tangent_basis(selected)
+        if basis is None:
+            selected = points[mask]
+            selected = selected[np.isfinite(selected).all(axis=1)]
+            basis = tangent_basis(selected)
+        else:
+            basis = np.asarray(basis, dtype=np.float64)
+            if basis.shape != (3, 3) or not np.allclose(basis @ basis.T, np.eye(3), atol=1e-6):
+                raise ValueError(f"`basis` must be a 3x3 orthonormal matrix, got {basis!r}")
+            if np.linalg.det(basis) < 0:
+                raise ValueError("`basis` must be right-handed (t1 x t2 = n)")
         flat = points.reshape(-1, 3)
         coords = flat @ basis[:2].T * 1000.0
         grid_y, grid_x = np.mgrid[0 : camera.height_px, 0 : camera.width_px].astype(np.float32)
@@ -603,6 +625,7 @@ class ShearTracker:
         ir: np.ndarray,
         depth_m: np.ndarray | None = None,
         camera: PinholeCamera | None = None,
+        basis: np.ndarray | None = None,
     ) -> None:
         """Take this frame as the reference.
 
@@ -610,6 +633,8 @@ class ShearTracker:
             ir: ``(h, w)`` IR amplitude.
             depth_m: optional ``(h, w)`` z-depth (NaN invalid), for the mask and the mm output.
             camera: the full-resolution camera; with ``depth_m``, enables ``shear_mm``.
+            basis: optional tangent frame for ``shear_mm`` and the torsion (rows
+                ``t1, t2, n`` in the sensor frame); None fits the membrane's plane.
         """
         work_ir, work_depth, mask = self._prepare(ir, depth_m)
         geometry = None
@@ -617,7 +642,7 @@ class ShearTracker:
             if camera.shape != ir.shape:
                 raise ValueError(f"camera shape {camera.shape} differs from IR shape {ir.shape}")
             work_camera = scaled_camera(camera, self.params.scale, mask.shape)
-            geometry = MembraneGeometry.from_depth(work_depth, mask, work_camera)
+            geometry = MembraneGeometry.from_depth(work_depth, mask, work_camera, basis)
         self._ref = _Reference(
             u8=stretch_ir(work_ir, mask),
             mask=mask,
