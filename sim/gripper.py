@@ -103,7 +103,10 @@ class GripperDynamics:
 
     def _step_grasp(self, dt: float, force_at: Callable[[float], float]) -> None:
         f = self.finger
-        if force_at(f.width_m) >= self._force:
+        # Hold with a little hysteresis, as the WSG's force loop does: re-close only
+        # when the force has dropped by more than 10 % of its target.
+        hold = 0.9 * self._force if f.state == "holding" else self._force
+        if force_at(f.width_m) >= hold:
             f.state = "holding"
             return
         new = max(f.width_m - self._speed * dt, 0.0)
@@ -125,7 +128,7 @@ def _bisect_width(
 ) -> float:
     """The widest opening in ``[closed, open]`` where the force reaches ``force_n``."""
     lo, hi = closed_m, open_m  # force(lo) >= force_n > force(hi)
-    for _ in range(24):
+    for _ in range(16):
         mid = 0.5 * (lo + hi)
         if force_at(mid) >= force_n:
             lo = mid

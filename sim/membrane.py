@@ -126,37 +126,32 @@ def march_to_surface(
     directions: np.ndarray,
     t_rest: np.ndarray,
     phi_rest: np.ndarray,
+    grad_rest: np.ndarray,
     t_min: np.ndarray,
     *,
     steps: int,
-    with_grad: bool,
-) -> tuple[np.ndarray, np.ndarray | None]:
+) -> tuple[np.ndarray, np.ndarray]:
     """Move from rest points inside the object back along their rays to its surface.
 
     Points start at ``origins + t_rest * directions`` (object frame, unit directions
-    pointing away from the camera), where the field is ``phi_rest < 0``. A first
-    sphere-tracing step (``t += phi``, never past the surface for a distance-like
-    field) is followed by ``steps`` secant steps; the result is clamped to
-    ``[t_min, t_rest]``.
+    pointing away from the camera), where the field is ``phi_rest < 0`` with gradient
+    ``grad_rest``. Each step is a Newton step on the field along the ray,
+    ``t -= phi / (grad . d)``; where the ray runs nearly parallel to the surface
+    (``grad . d > -0.05``) it is a sphere-tracing step ``t -= |phi|`` instead, which
+    never crosses the surface of a distance-like field. For a convex object the first
+    Newton step lands on or just outside the surface and later ones converge from
+    outside. ``t`` is clamped to ``[t_min, t_rest]`` (the plate and the rest membrane).
 
     Returns:
-        ``(t, grad)``: the ray parameter of the surface, and the field gradient there
-        (object frame, ``(N, 3)``) when ``with_grad``.
+        ``(t, grad)``: the ray parameter of the surface, and the field gradient at the
+        last point evaluated (object frame, ``(N, 3)``), used for shading.
     """
-    t0, f0 = t_rest, phi_rest
-    t1 = np.maximum(t0 + f0, t_min)
-    for _ in range(steps):
-        f1 = field.value(origins + t1[:, None] * directions)
-        denom = f1 - f0
-        ok = np.abs(denom) > 1e-12
-        t2 = np.where(ok, t1 - f1 * (t1 - t0) / np.where(ok, denom, 1.0), t1 + f1)
-        t2 = np.clip(t2, t_min, t_rest)
-        t0, f0, t1 = t1, f1, t2
-    grad = None
-    if with_grad:
-        f1, grad = field.value_and_grad(origins + t1[:, None] * directions)
-        # One Newton step along the ray with the gradient we had to compute anyway.
+    t, phi, grad = t_rest, phi_rest, grad_rest
+    for i in range(steps):
         slope = np.einsum("ij,ij->i", grad, directions)
-        ok = slope < -0.05
-        t1 = np.where(ok, np.clip(t1 - f1 / np.where(ok, slope, -1.0), t_min, t_rest), t1)
-    return t1, grad
+        steep = slope < -0.05
+        newton = t - phi / np.where(steep, slope, -1.0)
+        t = np.clip(np.where(steep, newton, t - np.abs(phi)), t_min, t_rest)
+        if i < steps - 1:
+            phi, grad = field.value_and_grad(origins + t[:, None] * directions)
+    return t, grad

@@ -30,7 +30,7 @@ from messages.base import Header
 from messages.types import MaskImage, ToFImage
 from sim import pattern as dot_pattern
 from sim.effects import EFFECTS, camera_effects
-from sim.membrane import cull_to_bounds, march_to_surface, material_shift
+from sim.membrane import cull_to_bounds, march_to_surface
 from sim.scene import Scene
 from sim.world import WorldSnapshot
 
@@ -155,7 +155,7 @@ class BubbleRenderer:
         pts = self._lr_rest_points @ rot.T + trans
         near = np.flatnonzero(cull_to_bounds(pts, self.bounds[0], self.bounds[1], 1e-4))
         if near.size:
-            phi = self.model.field.value(pts[near])
+            phi, grad = self.model.field.value_and_grad(pts[near])
             inside = phi < 0
             idx = near[inside]
             if idx.size:
@@ -167,13 +167,13 @@ class BubbleRenderer:
                     dirs,
                     self._lr_rest[idx],
                     phi[inside],
+                    grad[inside],
                     self._lr_plate[idx],
                     steps=self.scene.membrane.march_steps,
-                    with_grad=self.need_normals,
                 )
                 pix = self._lr_valid[idx]
                 indent_lr[pix] = self._lr_rest[idx] - t
-                if grad is not None and cos_lr is not None:
+                if cos_lr is not None:
                     norm = np.linalg.norm(grad, axis=1)
                     cos_lr[pix] = np.abs(np.einsum("ij,ij->i", grad, dirs)) / np.maximum(
                         norm, 1e-12
@@ -204,31 +204,32 @@ class BubbleRenderer:
 
     def _shear(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
         h, w = self.camera.shape
-        shift = np.zeros((h, w, 2), np.float32)
         anchor = snap.anchors.get(self.side)
         contact = frame["contact"]
-        if anchor is not None and contact.any():
-            sigma = self.scene.bubble.shear_blur_px
-            weight = contact.astype(np.float32)
-            if sigma > 0:
-                weight = cv2.GaussianBlur(weight, (0, 0), sigma)
+        if anchor is None or not contact.any():
+            frame["material_shift_m"] = np.zeros((h, w, 2), np.float32)
+            return
+        sigma = self.scene.bubble.shear_blur_px
+        weight = contact.astype(np.float32)
+        if sigma > 0:
             # Material beyond the patch is dragged along by the membrane's stretch,
             # fading over a few pixels; inside the patch it sticks to the object.
-            weight = np.maximum(weight, contact)
-            rows, cols = np.nonzero(weight > 1e-3)
-            r = frame["range_m"][rows, cols]
-            ok = np.isfinite(r)
-            rows, cols, r = rows[ok], cols[ok], r[ok]
-            tool_from_sensor = self.tool_from_sensor(snap.width_m)
-            p_s = r[:, None] * self.unit[rows, cols]
-            p_t = p_s @ tool_from_sensor[:3, :3].T + tool_from_sensor[:3, 3]
-            shift_t = material_shift(
-                p_t, snap.tool_from_object, anchor, self.scene.bubble.max_shear_m
-            )
-            tool_from_finger = self.geometry.tool_from_finger(self.side, snap.width_m)
-            shift_f = shift_t @ tool_from_finger[:3, :3]
-            shift[rows, cols] = (shift_f[:, 1:] * weight[rows, cols, None]).astype(np.float32)
-        frame["material_shift_m"] = shift
+            weight = np.maximum(cv2.GaussianBlur(weight, (0, 0), sigma), weight)
+        # The stick shift of sim.membrane.material_shift is affine in the point for a
+        # rigid motion: shift = (I - R_b) p - t_b with back = anchor * inv(now). Fold the
+        # sensor-to-tool and tool-to-finger rotations in, keep F's (y, z): one 2x3 map
+        # per frame instead of per-pixel transforms.
+        back = anchor @ invert(snap.tool_from_object)
+        tool_from_sensor = self.tool_from_sensor(snap.width_m)
+        finger_from_tool = self.geometry.tool_from_finger(self.side, snap.width_m)[:3, :3].T
+        i_minus = np.eye(3) - back[:3, :3]
+        lin = (finger_from_tool @ i_minus @ tool_from_sensor[:3, :3])[1:]
+        off = (finger_from_tool @ (i_minus @ tool_from_sensor[:3, 3] - back[:3, 3]))[1:]
+        r = np.nan_to_num(frame["range_m"], nan=0.0)
+        shift = (r[..., None] * (self.unit @ lin.T) + off).astype(np.float32)
+        norm = np.sqrt(shift[..., 0] ** 2 + shift[..., 1] ** 2)
+        scale = np.minimum(1.0, self.scene.bubble.max_shear_m / np.maximum(norm, 1e-12))
+        frame["material_shift_m"] = shift * (scale * weight)[..., None].astype(np.float32)
 
     def _dot_pattern(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
         texture, (sheet_w, sheet_h) = self.texture()

@@ -10,8 +10,9 @@ simulate. Every section but ``object`` is optional and defaults to FACTS.md figu
     duration_secs: 4.0
     effects: [membrane, depth, ir, dot_pattern, shear, tof_noise, pressure, gripper, ground_truth]
     object: {name: mug, dims_m: {radius_m: 0.04}}
-    trajectory:                      # tool_from_object keyframes
-      - {t_secs: 0.0, xyz_m: [0, 0, 0.01], rpy_deg: [-90, 0, 0]}
+    mount_rpy_deg: [0, -90, -90]     # object axis along tool y, mug handle along tool z
+    trajectory:                      # keyframes of the held frame in the tool frame
+      - {t_secs: 0.0, xyz_m: [0, 0, 0.005], rpy_deg: [0, 0, 0]}
     gripper:
       initial_width_m: 0.11
       commands:
@@ -260,8 +261,8 @@ class MembraneSpec:
     """Rendering knobs of the membrane model (accuracy against time, see bench/sim.py).
 
     ``resolution_divisor`` evaluates the object field on every k-th pixel and upsamples
-    the indentation; ``march_steps`` is the number of secant steps after the first
-    sphere-tracing step.
+    the indentation; ``march_steps`` is the number of Newton steps along each ray from
+    the rest membrane to the object's surface (field evaluations: ``march_steps``).
     """
 
     resolution_divisor: int = 2
@@ -273,8 +274,8 @@ class MembraneSpec:
             raise ValueError(
                 f"`resolution_divisor` must be 1, 2 or 4, got {self.resolution_divisor!r}"
             )
-        if not 0 <= self.march_steps <= 8:
-            raise ValueError(f"`march_steps` must be in [0, 8], got {self.march_steps!r}")
+        if not 1 <= self.march_steps <= 8:
+            raise ValueError(f"`march_steps` must be in [1, 8], got {self.march_steps!r}")
         _positive(self, "ir_gain")
 
 
@@ -288,6 +289,7 @@ class Scene:
     duration_secs: float = 1.0
     effects: tuple[str, ...] = ALL_EFFECTS
     trajectory: tuple[Keyframe, ...] = (Keyframe(t_secs=0.0),)
+    mount_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gripper: GripperSpec = field(default_factory=GripperSpec)
     bubble: BubbleSpec = field(default_factory=BubbleSpec)
     camera: CameraSpec = field(default_factory=CameraSpec)
@@ -326,8 +328,14 @@ class Scene:
         return self.object.model()
 
     def tool_from_object(self, t_secs: float) -> np.ndarray:
-        """The scripted object pose at ``t_secs`` (held constant outside the keyframes)."""
-        return _interpolate(self.trajectory, t_secs)
+        """The scripted object pose at ``t_secs`` (held constant outside the keyframes).
+
+        Keyframes move a held frame H; ``tool_from_object = tool_from_H @ Rot(mount)``,
+        so perturbation angles in keyframes are about tool axes whatever the mount.
+        """
+        pose = _interpolate(self.trajectory, t_secs)
+        pose[:3, :3] = pose[:3, :3] @ _mount(self.mount_rpy_deg)
+        return pose
 
     def with_effects(self, effects: tuple[str, ...] | list[str]) -> Scene:
         """The same scene with another effect list."""
@@ -346,6 +354,11 @@ def _gripper_geometry(
         camera_pitch_deg=camera.pitch_deg,
         max_width_m=gripper.max_width_m,
     )
+
+
+@functools.cache
+def _mount(rpy_deg: tuple[float, float, float]) -> np.ndarray:
+    return rotation_from_rpy_deg(rpy_deg)
 
 
 def _replace(scene: Scene, **changes: Any) -> Scene:
@@ -428,6 +441,11 @@ def scene_from_dict(data: Any, *, path: str = "<dict>") -> Scene:
         kwargs["object"].model()
     except ValueError as err:
         raise SceneError(f"{path}: object: {err}") from err
+    if "mount_rpy_deg" in data:
+        mount = data["mount_rpy_deg"]
+        if not (isinstance(mount, list) and len(mount) == 3):
+            raise SceneError(f"{path}: mount_rpy_deg: expected [roll, pitch, yaw] in degrees")
+        kwargs["mount_rpy_deg"] = tuple(float(v) for v in mount)
     for key in ("name", "seed", "duration_secs"):
         if key in data:
             kwargs[key] = data[key]

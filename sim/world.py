@@ -135,9 +135,12 @@ class World:
         dt = self.scene.frame_period_secs if self.frame_index > 0 else 0.0
         force_at = None
         if "gripper" in self.effects:
+            memo: dict[float, float] = {}
 
             def force_at(w: float) -> float:
-                return self.grip_force_n(w, pose)
+                if w not in memo:
+                    memo[w] = self.grip_force_n(w, pose)
+                return memo[w]
 
         finger = self.dynamics.step(dt, force_at)
         in_contact = {s: False for s in SIDES}

@@ -1,0 +1,55 @@
+"""The simulator's shared world state: what ``world.sim`` tells the sensor nodes.
+
+One ``WorldState`` per scene frame; every sensor message of that instant carries its
+stamp. Poses are 4x4 float64 ``tool_from_object``; pressures are gauge pascals; lists of
+two are ``[left, right]``. A hardware graph has no world and no ``WorldState``.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import msgspec
+import numpy as np
+
+from messages.base import Array, Header, Message
+
+_Pose = Annotated[np.ndarray, Array("float64", (4, 4))]
+_Vec2 = Annotated[np.ndarray, Array("float64", (2,))]
+
+
+def _eye() -> np.ndarray:
+    return np.eye(4)
+
+
+def _zeros2() -> np.ndarray:
+    return np.zeros(2)
+
+
+class WorldState(Message):
+    """The simulated world at one instant (see ``sim.world.WorldSnapshot``).
+
+    ``scene_path``, ``effects`` and ``seed`` let each sensor node load the same scene the
+    world runs; ``anchor_*`` is the object's pose when that bubble's contact began
+    (identity with ``has_anchor`` false while out of contact); ``shear_*_m`` is the
+    true mean membrane shift in the contact, tool (y, z), metres.
+    """
+
+    header: Header
+    scene_path: str
+    effects: list[str]
+    seed: int
+    frame_index: int
+    time_secs: float
+    tool_from_object: _Pose
+    width_m: float
+    speed_m_per_s: float = 0.0
+    force_n: float = 0.0
+    gripper_state: str = "idle"
+    in_contact: list[bool] = msgspec.field(default_factory=lambda: [False, False])
+    pressure_pa: list[float] = msgspec.field(default_factory=lambda: [0.0, 0.0])
+    has_anchor: list[bool] = msgspec.field(default_factory=lambda: [False, False])
+    anchor_left: _Pose = msgspec.field(default_factory=_eye)
+    anchor_right: _Pose = msgspec.field(default_factory=_eye)
+    shear_left_m: _Vec2 = msgspec.field(default_factory=_zeros2)
+    shear_right_m: _Vec2 = msgspec.field(default_factory=_zeros2)

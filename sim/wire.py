@@ -1,0 +1,90 @@
+"""Between ``sim.world.WorldSnapshot`` and the ``messages.sim.WorldState`` on the wire.
+
+Kept in ``sim/`` (not in the nodes) so the world node and every sensor node convert the
+same way, and so tests can round-trip without a runtime. The sensor nodes' shared
+parameter class lives here too, since no node imports another.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+
+from geometry.gripper import SIDES
+from messages.base import Header
+from messages.sim import WorldState
+from sim.scene import Scene, load_scene
+from sim.world import WorldSnapshot
+
+
+@dataclass(frozen=True, kw_only=True)
+class SensorParams:
+    """Parameters of a per-bubble sensor node: ``sensor`` is ``left`` or ``right``."""
+
+    sensor: str
+
+    def __post_init__(self) -> None:
+        if self.sensor not in ("left", "right"):
+            raise ValueError(f"`sensor` must be 'left' or 'right', got {self.sensor!r}")
+
+
+def to_message(snap: WorldSnapshot, scene: Scene, stamp_nanos: int) -> WorldState:
+    """The wire form of a snapshot of ``scene``."""
+    anchors = [snap.anchors[s] for s in SIDES]
+    return WorldState(
+        header=Header(stamp_nanos=stamp_nanos, frame_id="tool"),
+        scene_path=scene.path,
+        effects=list(scene.effects),
+        seed=int(scene.seed),
+        frame_index=snap.frame_index,
+        time_secs=float(snap.time_secs),
+        tool_from_object=np.asarray(snap.tool_from_object, dtype=np.float64),
+        width_m=float(snap.width_m),
+        speed_m_per_s=float(snap.speed_m_per_s),
+        force_n=float(snap.force_n),
+        gripper_state=snap.gripper_state,
+        in_contact=[bool(snap.in_contact[s]) for s in SIDES],
+        pressure_pa=[float(snap.pressure_pa[s]) for s in SIDES],
+        has_anchor=[a is not None for a in anchors],
+        anchor_left=np.eye(4) if anchors[0] is None else np.asarray(anchors[0], np.float64),
+        anchor_right=np.eye(4) if anchors[1] is None else np.asarray(anchors[1], np.float64),
+        shear_left_m=np.asarray(snap.shear_in_tool_m["left"], np.float64),
+        shear_right_m=np.asarray(snap.shear_in_tool_m["right"], np.float64),
+    )
+
+
+def from_message(msg: WorldState) -> WorldSnapshot:
+    """The snapshot a ``WorldState`` carries."""
+    anchors = {"left": msg.anchor_left, "right": msg.anchor_right}
+    return WorldSnapshot(
+        frame_index=msg.frame_index,
+        time_secs=msg.time_secs,
+        tool_from_object=np.asarray(msg.tool_from_object),
+        width_m=msg.width_m,
+        speed_m_per_s=msg.speed_m_per_s,
+        force_n=msg.force_n,
+        gripper_state=msg.gripper_state,
+        in_contact=dict(zip(SIDES, msg.in_contact, strict=True)),
+        pressure_pa=dict(zip(SIDES, msg.pressure_pa, strict=True)),
+        anchors={
+            s: (np.asarray(anchors[s]) if has else None)
+            for s, has in zip(SIDES, msg.has_anchor, strict=True)
+        },
+        shear_in_tool_m={
+            "left": np.asarray(msg.shear_left_m),
+            "right": np.asarray(msg.shear_right_m),
+        },
+    )
+
+
+def scene_of(msg: WorldState) -> Scene:
+    """The scene a ``WorldState`` was produced from (loaded once per path/effects/seed)."""
+    return _scene(msg.scene_path, tuple(msg.effects), msg.seed)
+
+
+@functools.lru_cache(maxsize=8)
+def _scene(path: str, effects: tuple[str, ...], seed: int) -> Scene:
+    return dataclasses.replace(load_scene(path), effects=effects, seed=seed)
