@@ -152,7 +152,9 @@ def decode(frames: Sequence[Any], expect: type[Message] | None = None) -> tuple[
             dtype = np.dtype(dtype_str)
         except (TypeError, ValueError, SyntaxError) as err:  # numpy's dtype-string parser
             raise FrameDecodeError(f"{topic}: {wire.type}.{name}: bad dtype {dtype_str!r}") from err
-        if dtype.hasobject or dtype.newbyteorder("=") != np.dtype(spec.dtype).newbyteorder("="):
+        # The wire carries little-endian buffers only ("=f4" and "f4" mean "<f4" here): a
+        # big-endian array would reach the node and trip torch.from_numpy and OpenCV.
+        if dtype.hasobject or dtype != np.dtype(spec.dtype).newbyteorder("<"):
             raise FrameDecodeError(
                 f"{topic}: {wire.type}.{name}: dtype {dtype_str!r}, declared {spec.dtype}"
             )

@@ -33,6 +33,7 @@ from messages import (
     Tick,
     ToFImage,
     decode,
+    decode_header,
     encode,
 )
 
@@ -581,6 +582,8 @@ BAD_FRAMES: dict[str, Callable[[], list[Any]]] = {
     "dtype object of pointer size": lambda: _with_array_row(0, dtype="O8"),
     "dtype structured": lambda: _with_array_row(0, dtype="|V4"),
     "dtype int32 for float32": lambda: _with_array_row(0, dtype="<i4"),
+    "dtype big-endian": lambda: _with_array_row(0, dtype=">f4"),
+    "dtype big-endian uint16": lambda: _with_array_row(1, dtype=">u2"),
     "dtype float64 for float32": lambda: _with_array_row(0, dtype="<f8", shape=[3, 5]),
     "dtype float32 for uint16": lambda: _with_array_row(1, dtype="<f4", shape=[3, 5]),
     "shape negative": lambda: _with_array_row(0, shape=[-6, -5]),
@@ -633,6 +636,21 @@ def test_bad_frame_raises_frame_decode_error(case: str) -> None:
     frames = BAD_FRAMES[case]()
     with pytest.raises(FrameDecodeError):
         decode(frames)
+
+
+@pytest.mark.parametrize("spelling", ["float32", "f4", "=f4", "<f4"])
+def test_other_spellings_of_the_declared_dtype_are_accepted(spelling: str) -> None:
+    _, msg = decode(_with_array_row(0, dtype=spelling), expect=ToFImage)
+    assert msg.depth_m.dtype.str == "<f4"
+    assert msg.depth_m.tobytes() == _tof().depth_m.tobytes()
+
+
+def test_decode_header_alone() -> None:
+    wire = decode_header(_tof_frames()[1])
+    assert (wire.type, wire.fp) == ("ToFImage", ToFImage.schema().fingerprint)
+    assert [row[0] for row in wire.arrays] == ["depth_m", "ir"]
+    with pytest.raises(FrameDecodeError):
+        decode_header(b"\x93garbage")
 
 
 def test_expected_type_mismatch() -> None:
