@@ -513,7 +513,9 @@ def replay_main(argv: Sequence[str]) -> int:
         source=f"{args.bag} (replay)",
         record=args.record,
         topics=args.record_topics,
-        lockstep=args.lockstep,
+        # Counts are tracked in every mode, so that the replay node, when it has published
+        # everything, can wait for the graph to drain before it asks it to stop.
+        lockstep=True,
         duration_secs=args.duration,
         log_level=args.log_level,
         command_line=shlex.join([sys.executable, "launch.py", "replay", *argv]),
