@@ -397,7 +397,7 @@ class BagWriter:
     def flush(self) -> None:
         """Close the open chunk and hand everything to the OS (survives SIGKILL, not power loss)."""
         self._write_drops(final=False)
-        self._writer.flush()
+        self._writer.flush()  # type: ignore[no-untyped-call]
         self._last_flush = time.monotonic()
 
     def flush_if_due(self) -> None:
@@ -411,7 +411,7 @@ class BagWriter:
         self._closed = True
         try:
             self._write_drops(final=True)
-            self._writer.finish()
+            self._writer.finish()  # type: ignore[no-untyped-call]
         finally:
             self._file.close()
 
