@@ -7,7 +7,7 @@ Ports:
         ``contact_mask`` (MaskImage): the true contact patch, when the scene lists
         ``ground_truth``.
 
-Renders only this camera's effects (``sim.render.BubbleRenderer``); it loads the scene
+Renders only this camera's effects (``sim.tof.BubbleRenderer``); it loads the scene
 the world names in its state. A hardware graph replaces this node with a driver.
 """
 
@@ -17,7 +17,7 @@ from messages.sim import WorldState
 from messages.types import MaskImage, ToFImage
 from runtime.node import Node
 from runtime.registry import register
-from sim.render import BubbleRenderer
+from sim.tof import BubbleRenderer
 from sim.wire import SensorParams, from_message, scene_of
 
 

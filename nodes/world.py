@@ -23,6 +23,7 @@ from messages.types import GripperCommand, GroundTruth
 from runtime.node import Node
 from runtime.registry import register
 from sim import World, ground_truth, load_scene, stamp_of
+from sim.effects import resolve
 from sim.scene import Scene, SceneError
 from sim.wire import to_message
 
@@ -40,6 +41,11 @@ class WorldParams:
     def __post_init__(self) -> None:
         if not self.rate_scale > 0:
             raise ValueError(f"`rate_scale` must be > 0, got {self.rate_scale!r}")
+        if self.effects:
+            try:
+                resolve(self.effects)
+            except ValueError as err:
+                raise ValueError(f"`effects`: {err}") from err
         try:
             self.load()
         except SceneError as err:

@@ -25,8 +25,8 @@ from geometry.gripper import SIDES
 from messages.base import Header
 from messages.types import GripperState, GroundTruth, MaskImage, Pressure, ToFImage
 from sim.effects import ALL_EFFECTS, MINIMAL_EFFECTS, resolve
-from sim.render import BubbleRenderer, renderer
 from sim.scene import ObjectSpec, Scene, SceneError, load_scene, scene_from_dict
+from sim.tof import BubbleRenderer, renderer
 from sim.world import World, WorldSnapshot
 
 __all__ = [

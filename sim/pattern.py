@@ -3,7 +3,7 @@
 The paper (Printed Patterning) generates patterns by script with four knobs: dot density
 (dots/mm^2), minimum and maximum dot diameter, and randomness; they are written as
 vector files for laser cutting adhesive stencils. This module is that script, and the
-simulator textures the membrane with the same dots (``sim.render``).
+simulator textures the membrane with the same dots (``sim.tof``).
 
 Generation: dots start on a hexagonal lattice whose cell area is ``1 / density``; each
 moves by a uniform offset of up to ``randomness`` times half the lattice spacing, draws
@@ -175,14 +175,15 @@ def texture(
     shape = (int(math.ceil(height_mm / mm_per_px)), int(math.ceil(width_mm / mm_per_px)))
     ink = np.zeros(shape, np.uint8)
     shift = 4  # sub-pixel precision of cv2 drawing: 1/16 px
-    scale = (1 << shift) / mm_per_px
     for (cx, cy), d in zip(pattern.centers_mm, pattern.diameters_mm, strict=True):
         # Pixel centres sit at (i + 0.5) * mm_per_px.
         centre = (
             int(round((cx / mm_per_px - 0.5) * (1 << shift))),
             int(round((cy / mm_per_px - 0.5) * (1 << shift))),
         )
-        cv2.circle(ink, centre, int(round(d / 2 * scale)), 255, -1, cv2.LINE_AA, shift)
+        # cv2 fills a circle half a pixel wider than its radius; take it back.
+        radius = int(round((d / 2 / mm_per_px - 0.5) * (1 << shift)))
+        cv2.circle(ink, centre, max(radius, 1), 255, -1, cv2.LINE_AA, shift)
     albedo = 1.0 - (1.0 - dot_albedo) * (ink.astype(np.float32) / 255.0)
     albedo.setflags(write=False)
     return albedo

@@ -2,7 +2,7 @@
 
 :class:`World` is the only place anything is integrated over time (the gripper's
 motion, where each contact began). Sensors are pure functions of a
-:class:`WorldSnapshot` (``sim.render``), so several processes can render the same
+:class:`WorldSnapshot` (``sim.tof``), so several processes can render the same
 instant from the one ``world.sim`` node without integrating their own copies.
 
 Each step advances one camera frame: scripted commands due by then are applied (as are
