@@ -81,7 +81,7 @@ class Sizes:
 
 
 QUICK = Sizes(latency_frames=300, throughput_frames=1000, repeats=1)
-FULL = Sizes(latency_frames=2000, throughput_frames=5000, repeats=5)
+FULL = Sizes(latency_frames=2000, throughput_frames=5000, repeats=7)
 
 
 @dataclass
@@ -372,33 +372,45 @@ def frame_bytes() -> int:
 
 
 def plot(rows: list[Row], path: Path) -> None:
-    """Throughput and latency bars per transport and implementation."""
+    """Throughput, latency and CPU per frame, as bars per transport and implementation."""
     import matplotlib.pyplot as plt
 
-    fig, (ax_rate, ax_lat) = plt.subplots(1, 2, figsize=(10, 4))
+    fig, (ax_rate, ax_lat, ax_cpu) = plt.subplots(1, 3, figsize=(14, 4))
     width = 0.8 / len(IMPLS)
     x = np.arange(len(TRANSPORTS))
     for i, impl in enumerate(IMPLS):
         mine = [
             next(r for r in rows if r["transport"] == t and r["impl"] == impl) for t in TRANSPORTS
         ]
-        offset = (i - (len(IMPLS) - 1) / 2) * width
-        ax_rate.bar(x + offset, [r["frames_per_sec"] for r in mine], width, label=impl)
-        ax_lat.bar(
-            x + offset,
-            [r["latency_ms_median"] for r in mine],
+        at = x + (i - (len(IMPLS) - 1) / 2) * width
+        color = f"C{i}"
+        ax_rate.bar(at, [r["frames_per_sec"] for r in mine], width, color=color, label=impl)
+        medians = [r["latency_ms_median"] for r in mine]
+        p99s = [r["latency_ms_p99"] for r in mine]
+        ax_lat.bar(at, medians, width, color=color, label=f"{impl} median")
+        ax_lat.scatter(at, p99s, color=color, marker="_", s=200, label=f"{impl} p99")
+        source = [r["source_cpu_us_per_frame"] for r in mine]
+        ax_cpu.bar(at, source, width, color=color, label=f"{impl} source")
+        ax_cpu.bar(
+            at,
+            [r["sink_cpu_us_per_frame"] for r in mine],
             width,
-            yerr=[[0] * len(mine), [r["latency_ms_p99"] - r["latency_ms_median"] for r in mine]],
-            capsize=3,
-            label=impl,
+            bottom=source,
+            color=color,
+            alpha=0.5,
+            label=f"{impl} sink",
         )
-    for ax in (ax_rate, ax_lat):
+    for ax in (ax_rate, ax_lat, ax_cpu):
         ax.set_xticks(x, TRANSPORTS)
-        ax.legend()
-    ax_rate.set_ylabel("frames / s (one 172x224 depth + IR frame)")
-    ax_rate.set_title("throughput (window of 32 in flight)")
-    ax_lat.set_ylabel("latency, ms (bar: median, whisker: p99)")
+        ax.legend(fontsize=7)
+    ax_rate.set_ylabel("frames / s (172x224 depth f32 + IR u16)")
+    ax_rate.set_title(f"throughput, {rows[0]['window']} frames in flight")
+    ax_lat.set_yscale("log")
+    ax_lat.set_ylabel("latency, ms (bar: median, tick: p99)")
     ax_lat.set_title(f"latency at {rows[0]['rate_hz']:g} Hz")
+    ax_cpu.set_ylabel("process CPU, us per frame")
+    ax_cpu.set_title("CPU per frame (solid: source, light: sink)")
+    fig.suptitle(f"bench.transport: medians of {rows[0]['repeats']} repeats")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
