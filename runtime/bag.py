@@ -149,20 +149,27 @@ class TopicSchema:
             obj = json.loads(data) if data else {}
         except ValueError:
             obj = {}
+        if not isinstance(obj, dict):
+            obj = {}
+        description = obj.get("description")
         return TopicSchema(
             type_name=str(obj.get("type", name)),
             fingerprint=str(obj.get("fingerprint", "")),
-            description=obj.get("description"),
+            description=description if isinstance(description, dict) else None,
         )
 
     def array_names(self) -> set[str] | None:
         """Names of the array fields per the stored description (``None`` if unknown)."""
         if not self.description:
             return None
+        fields = self.description.get("fields", [])
         return {
-            name
-            for name, kind in self.description.get("fields", [])
-            if isinstance(kind, dict) and "array" in kind
+            str(item[0])
+            for item in (fields if isinstance(fields, list) else [])
+            if isinstance(item, list)
+            and len(item) == 2
+            and isinstance(item[1], dict)
+            and "array" in item[1]
         }
 
     def current_class(self) -> type[Message] | None:
@@ -450,7 +457,7 @@ class BagMessage:
         """Frame 1 decoded with the plain ``msgpack`` package."""
         try:
             obj = msgpack.unpackb(self.frames()[0], raw=False)
-        except (ValueError, msgpack.ExtraData, msgpack.FormatError, msgpack.StackError) as err:
+        except (ValueError, TypeError, msgpack.FormatError, msgpack.StackError) as err:
             raise BagError(f"{self._where()}: header is not MessagePack: {err}") from err
         if not isinstance(obj, dict) or not {"type", "fields", "arrays"} <= set(obj):
             raise BagError(f"{self._where()}: header is not a frame header")
@@ -464,14 +471,22 @@ class BagMessage:
         """
         frames = self.frames()
         head = self.header()
-        arrays = head["arrays"]
+        arrays, fields = head["arrays"], head["fields"]
+        if (
+            not isinstance(fields, dict)
+            or not isinstance(arrays, list)
+            or not all(isinstance(a, list) and len(a) == 3 for a in arrays)
+        ):
+            raise BagError(f"{self._where()}: header fields or arrays are malformed")
         if len(arrays) != len(frames) - 1:
             raise BagError(
                 f"{self._where()}: header lists {len(arrays)} arrays, payload has {len(frames) - 1}"
             )
         declared = self.channel.schema.array_names()
-        out: dict[str, Any] = dict(head["fields"])
+        out: dict[str, Any] = dict(fields)
         for (name, dtype_str, shape), buf in zip(arrays, frames[1:], strict=True):
+            if not isinstance(name, str):
+                raise BagError(f"{self._where()}: array name {name!r} is not a string")
             if declared is not None and name not in declared:
                 raise BagError(
                     f"{self._where()}: array {name!r} is not in the stored description "

@@ -423,3 +423,45 @@ def test_schema_record_carries_description(tmp_path: Path) -> None:
     assert body["type"] == "Tick" and body["packing"] == PACKING
     assert body["description"] == Tick.schema().description
     assert channel.metadata["fingerprint"] == Tick.schema().fingerprint
+
+
+@pytest.fixture(scope="module")
+def small_bag(tmp_path_factory: pytest.TempPathFactory) -> bytes:
+    path = tmp_path_factory.mktemp("fuzz") / "a.mcap"
+    with BagWriter(path, compression="zstd") as w:
+        w.add_run_info(graph_text="nodes: {}\n", command_line="x")
+        for i in range(12):
+            w.write_message("a/tick", tick(i), log_time_nanos=i)
+            w.write_message("c/image", tof(i), log_time_nanos=i)
+            if i % 4 == 3:
+                w.flush()
+    return path.read_bytes()
+
+
+@settings(max_examples=150, deadline=None)
+@given(data=st.data())
+def test_damaged_bags_never_raise_anything_but_bag_error(
+    small_bag: bytes, data: st.DataObject, tmp_path_factory: pytest.TempPathFactory
+) -> None:
+    """Random flips, cuts and overwrites: the reader warns or raises BagError, nothing else."""
+    damaged = bytearray(small_bag)
+    for _ in range(data.draw(st.integers(1, 4))):
+        at = data.draw(st.integers(0, len(damaged) - 1))
+        damaged[at] = data.draw(st.integers(0, 255))
+    if data.draw(st.booleans()):
+        damaged = damaged[: data.draw(st.integers(0, len(damaged)))]
+    path = tmp_path_factory.mktemp("damaged") / "d.mcap"
+    path.write_bytes(bytes(damaged))
+    try:
+        with BagReader(path, warn=lambda _: None) as r:
+            r.topics()
+            r.run_info()
+            r.drops()
+            for m in r.messages():
+                try:
+                    m.decode_plain()
+                except BagError:
+                    pass
+            r.stats()
+    except BagError:
+        pass
