@@ -59,11 +59,30 @@ def _wire_array(msg: Message, name: str) -> np.ndarray:
     return array if array.flags.c_contiguous else np.ascontiguousarray(array)
 
 
+def _numpy_scalar(obj: Any) -> Any:
+    """Numpy scalars (what reductions like ``depth.mean()`` return) travel as Python values."""
+    if isinstance(obj, np.generic) and obj.dtype.kind in "biufU":
+        return obj.item()
+    raise NotImplementedError(f"cannot encode {type(obj).__name__}")
+
+
+def _unencodable(fields: dict[str, Any]) -> str:
+    """The first field that does not encode (only called once encoding has failed)."""
+    for name, value in fields.items():
+        try:
+            _encoder.encode(msgspec.to_builtins(value, enc_hook=_numpy_scalar))
+        except (TypeError, OverflowError, NotImplementedError):
+            return name
+    return "?"
+
+
 def encode(topic: str, msg: Message) -> list[Any]:
     """Encode ``msg`` as multipart frames ``[topic, header, *buffers]``.
 
     Raises:
-        ValueError: an array field does not match its declaration (names the field).
+        ValueError: an array field does not match its declaration, or a field holds a
+            value MessagePack cannot carry (an int past 64 bits, an arbitrary object);
+            the message names the field.
     """
     schema = msg.schema()
     msg.validate()
@@ -73,15 +92,20 @@ def encode(topic: str, msg: Message) -> list[Any]:
         for name, value in msgspec.structs.asdict(msg).items()
         if name not in schema.array_fields
     }
-    header = {
-        "type": type(msg).__name__,
-        "fp": schema.fingerprint,
-        "fields": msgspec.to_builtins(fields),
-        "arrays": [[name, a.dtype.str, list(a.shape)] for name, a in arrays],
-    }
+    try:
+        header = _encoder.encode(
+            {
+                "type": type(msg).__name__,
+                "fp": schema.fingerprint,
+                "fields": msgspec.to_builtins(fields, enc_hook=_numpy_scalar),
+                "arrays": [[name, a.dtype.str, list(a.shape)] for name, a in arrays],
+            }
+        )
+    except (TypeError, OverflowError, NotImplementedError) as err:
+        raise ValueError(f"{type(msg).__name__}.{_unencodable(fields)}: {err}") from err
     # A flat uint8 view, not memoryview.cast: cast refuses shapes with a zero-length axis.
     buffers = [memoryview(a.reshape(-1).view(np.uint8)) for _, a in arrays]
-    return [topic.encode(), _encoder.encode(header), *buffers]
+    return [topic.encode(), header, *buffers]
 
 
 def decode_header(raw: bytes | memoryview) -> WireHeader:

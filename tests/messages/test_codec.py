@@ -725,6 +725,69 @@ def test_encode_refuses_arrays_that_do_not_fit(case: str) -> None:
         encode("x/out", make())
 
 
+def _scalars(**overrides: Any) -> CodecScalars:
+    values: dict[str, Any] = {
+        "header": Header(seq=1),
+        "count": 3,
+        "ratio": 0.5,
+        "name": "probe",
+        "flag": True,
+        "counts": [1, 2],
+        "ratios": [0.25],
+        "names": ["a"],
+        "flags": [False],
+        "stamps": [],
+        "blob": np.zeros(2, np.uint8),
+    }
+    values.update(overrides)
+    return CodecScalars(**values)
+
+
+SCALAR_REFUSALS: dict[str, tuple[dict[str, Any], str]] = {
+    "int past uint64": ({"count": 2**64}, "count"),
+    "int below int64": ({"count": -(2**63) - 1}, "count"),
+    "list element past uint64": ({"counts": [1, 2**70]}, "counts"),
+    "nested int past uint64": ({"header": Header(seq=2**64)}, "header"),
+    "arbitrary object": ({"name": object()}, "name"),
+    "complex number": ({"ratio": 1 + 2j}, "ratio"),
+    "numpy complex": ({"ratio": np.complex64(1)}, "ratio"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(SCALAR_REFUSALS))
+def test_encode_refuses_scalars_messagepack_cannot_carry(case: str) -> None:
+    overrides, field = SCALAR_REFUSALS[case]
+    with pytest.raises(ValueError, match=rf"CodecScalars\.{field}\b"):
+        encode("x/out", _scalars(**overrides))
+
+
+NUMPY_SCALARS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
+    "float32": ({"ratio": np.float32(0.5)}, {"ratio": 0.5}),
+    "float64": ({"ratio": np.float64(-2.25)}, {"ratio": -2.25}),
+    "float16 nan": ({"ratio": np.float16("nan")}, {"ratio": math.nan}),
+    "int64": ({"count": np.int64(-(2**63))}, {"count": -(2**63)}),
+    "uint64": ({"count": np.uint64(2**64 - 1)}, {"count": 2**64 - 1}),
+    "uint8": ({"count": np.uint8(255)}, {"count": 255}),
+    "bool": ({"flag": np.bool_(False)}, {"flag": False}),
+    "str": ({"name": np.str_("left")}, {"name": "left"}),
+    "lists": (
+        {"counts": list(np.arange(3)), "ratios": list(np.ones(2, np.float32))},
+        {"counts": [0, 1, 2], "ratios": [1.0, 1.0]},
+    ),
+    "nested": ({"header": Header(seq=np.int32(7))}, {"header": Header(seq=7)}),
+}
+
+
+@pytest.mark.parametrize("case", sorted(NUMPY_SCALARS))
+def test_numpy_scalars_travel_as_python_values(case: str) -> None:
+    """Reductions return numpy scalars (``depth.mean()``); a sender may pass them as is."""
+    overrides, expected = NUMPY_SCALARS[case]
+    _, got = decode(encode("x/out", _scalars(**overrides)), expect=CodecScalars)
+    for name, want in expected.items():
+        assert _same_scalar(getattr(got, name), want) or getattr(got, name) == want, name
+        assert not isinstance(getattr(got, name), np.generic), name
+
+
 # --------------------------------------------------------------------------- fuzz
 
 
