@@ -104,7 +104,7 @@ def encode(topic: str, msg: Message) -> list[Any]:
     except (TypeError, OverflowError, NotImplementedError) as err:
         raise ValueError(f"{type(msg).__name__}.{_unencodable(fields)}: {err}") from err
     # A flat uint8 view, not memoryview.cast: cast refuses shapes with a zero-length axis.
-    buffers = [memoryview(a.reshape(-1).view(np.uint8)) for _, a in arrays]
+    buffers = [a.reshape(-1).view(np.uint8).data for _, a in arrays]
     return [topic.encode(), header, *buffers]
 
 
