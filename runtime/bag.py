@@ -244,6 +244,7 @@ class BagWriter:
             enable_crcs=True,
         )
         self._writer.start(profile=PROFILE, library="softbubble runtime.bag")
+        self._file.flush()  # a valid (empty) bag from the first moment
         self.flush_period_secs = flush_period_secs
         self._last_flush = time.monotonic()
         self._schemas: dict[tuple[str, str], int] = {}
@@ -281,6 +282,7 @@ class BagWriter:
         }
         data.update(extra or {})
         self._writer.add_metadata("softbubble.run", data)
+        self._file.flush()
 
     def _channel_for(self, topic: str, type_name: str, fingerprint: str) -> int:
         cached = self._topic_channel.get(topic)

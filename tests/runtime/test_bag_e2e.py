@@ -5,6 +5,11 @@ Each run starts a handful of node processes (a few seconds in all on a loaded ma
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -94,3 +99,69 @@ def test_lockstep_replay_is_deterministic_and_a_swap_changes_it(
     assert values(swapped, "relay/tick") == [2.0 * i for i in range(40)]
     diffs = diff_bags(first, swapped, ["relay/tick"])
     assert len(diffs) == 40 and all(d.field == "value" for d in diffs)
+
+
+def _pid_holding(path: Path, parent: int) -> int | None:
+    """The child of ``parent`` that has ``path`` open (Linux /proc), if any."""
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+            ppid = int(stat.rsplit(")", 1)[1].split()[1])
+            if ppid != parent:
+                continue
+            for fd in (entry / "fd").iterdir():
+                if Path(os.readlink(fd)) == path:
+                    return int(entry.name)
+        except (OSError, ValueError, IndexError):
+            continue
+    return None
+
+
+@pytest.mark.skipif(not Path("/proc/self/fd").exists(), reason="needs Linux /proc")
+def test_sigkilled_recorder_leaves_a_readable_bag(tmp_path: Path) -> None:
+    bag = (tmp_path / "killed.mcap").resolve()
+    root = Path(__file__).resolve().parents[2]
+    # launch() in a child of its own (it is the one killed node's parent), importing only
+    # the node modules it needs.
+    script = (
+        "import sys, nodes.synthetic, nodes.recorder\n"
+        "from runtime.launcher import launch\n"
+        "graph = {'nodes': {'src': {'impl': 'synthetic.source',"
+        " 'params': {'rate_hz': 100, 'count': 100000}}}}\n"
+        "sys.exit(launch(graph, source='g', record=sys.argv[1], log_level='WARNING'))\n"
+    )
+    launcher = subprocess.Popen(
+        [sys.executable, "-c", script, str(bag)],
+        cwd=root,
+        env={**os.environ, "PYTHONPATH": str(root)},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        pid = None
+        while pid is None and time.monotonic() < deadline and launcher.poll() is None:
+            time.sleep(0.1)
+            pid = _pid_holding(bag, launcher.pid)
+        assert pid is not None, "the recorder never opened the bag"
+        with BagReader(bag, warn=lambda _: None) as r:
+            start = len(list(r.messages()))
+        while time.monotonic() < deadline:  # let it record past a few flushes
+            time.sleep(0.3)
+            with BagReader(bag, warn=lambda _: None) as r:
+                if len(list(r.messages())) >= start + 50:
+                    break
+        os.kill(pid, signal.SIGKILL)
+        launcher.wait(timeout=60)
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+            launcher.wait()
+    with BagReader(bag, warn=lambda _: None) as r:
+        assert not r.has_summary
+        seqs = [m.sequence for m in r.messages(["src/tick"])]
+        assert len(seqs) >= 50
+        assert seqs == list(range(len(seqs))), "everything up to the last flush, in order"
+        assert "synthetic.source" in r.run_info()["graph_yaml"]
