@@ -5,9 +5,8 @@ Geometric, quasi-static model (documented in docs/sim.md):
 * The rest membrane is the ellipsoid cap of ``geometry.gripper``.
 * Where the object's proximity field is negative at a rest membrane point, the membrane
   conforms to the object: seen from the internal camera, the surface along a pixel's
-  ray is the object's surface point nearest the camera on that ray (found by one
-  sphere-tracing step from the rest point back towards the camera, then secant steps
-  on the field). It never goes behind the acrylic plate: a bubble squeezed flat
+  ray is the object's surface point nearest the camera on that ray (found by Newton
+  steps on the field from the rest point back towards the camera). It never goes behind the acrylic plate: a bubble squeezed flat
   bottoms out there.
 * Elsewhere the membrane keeps its rest shape: the volume the object displaces raises
   the pressure (``sim.pressure``) instead of bulging the free membrane out.
@@ -22,6 +21,7 @@ that area (a thin membrane under pressure transmits p * A).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -39,6 +39,46 @@ class ContactState:
 
 
 NO_SHEAR = np.zeros(2)
+
+
+class CulledField:
+    """An object's field evaluated only where it matters to the membrane, for speed.
+
+    A union (``geometry.fields.Union``) evaluates every child at every point; here
+    each child is evaluated only at points inside its bounding box grown by
+    ``margin_m``, and points outside every grown box get the value ``margin_m`` (they
+    are at least that far outside the object) with a zero gradient. Values within
+    ``margin_m`` of the surface, and all values inside the object, are the shared
+    field's own. The membrane needs nothing else: it asks whether rest points are
+    inside and walks along rays that stay within a step of the surface.
+    """
+
+    def __init__(self, field: Any, margin_m: float = 0.005) -> None:
+        from geometry.fields import Union
+
+        children = list(field.children) if isinstance(field, Union) else [field]
+        self.margin_m = margin_m
+        self.parts = [(c, *c.bounds_m()) for c in children]
+        lo = np.min([p[1] for p in self.parts], axis=0)
+        hi = np.max([p[2] for p in self.parts], axis=0)
+        self.bounds = (lo, hi)
+
+    def value_and_grad(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        n = len(points)
+        value = np.full(n, self.margin_m)
+        grad = np.zeros((n, 3))
+        for child, lo, hi in self.parts:
+            idx = np.flatnonzero(cull_to_bounds(points, lo, hi, self.margin_m))
+            if idx.size == 0:
+                continue
+            v, g = child.value_and_grad(points[idx])
+            better = v < value[idx]
+            value[idx[better]] = v[better]
+            grad[idx[better]] = g[better]
+        return value, grad
+
+    def value(self, points: np.ndarray) -> np.ndarray:
+        return self.value_and_grad(points)[0]
 
 
 def cull_to_bounds(
@@ -136,11 +176,12 @@ def march_to_surface(
     Points start at ``origins + t_rest * directions`` (object frame, unit directions
     pointing away from the camera), where the field is ``phi_rest < 0`` with gradient
     ``grad_rest``. Each step is a Newton step on the field along the ray,
-    ``t -= phi / (grad . d)``; where the ray runs nearly parallel to the surface
-    (``grad . d > -0.05``) it is a sphere-tracing step ``t -= |phi|`` instead, which
-    never crosses the surface of a distance-like field. For a convex object the first
-    Newton step lands on or just outside the surface and later ones converge from
-    outside. ``t`` is clamped to ``[t_min, t_rest]`` (the plate and the rest membrane).
+    ``t -= phi / (grad . d)``, limited to four times ``|phi|``; where the ray runs
+    nearly parallel to the surface (``grad . d > -0.05``) it is a sphere-tracing step
+    ``t += phi`` instead (towards the camera from inside, away from it from outside).
+    For a convex object the first Newton step lands on or just outside the surface and
+    later ones converge from outside. ``t`` is clamped to ``[t_min, t_rest]`` (the
+    plate and the rest membrane).
 
     Returns:
         ``(t, grad)``: the ray parameter of the surface, and the field gradient at the
@@ -150,8 +191,11 @@ def march_to_surface(
     for i in range(steps):
         slope = np.einsum("ij,ij->i", grad, directions)
         steep = slope < -0.05
-        newton = t - phi / np.where(steep, slope, -1.0)
-        t = np.clip(np.where(steep, newton, t - np.abs(phi)), t_min, t_rest)
+        # Newton, but never more than a few times the field's value: on rays that
+        # graze the surface the tangent overshoots far past it.
+        step = np.where(steep, -phi / np.where(steep, slope, -1.0), phi)
+        step = np.clip(step, -4.0 * np.abs(phi), 4.0 * np.abs(phi))
+        t = np.clip(t + step, t_min, t_rest)
         if i < steps - 1:
             phi, grad = field.value_and_grad(origins + t[:, None] * directions)
     return t, grad

@@ -30,7 +30,7 @@ from messages.base import Header
 from messages.types import MaskImage, ToFImage
 from sim import pattern as dot_pattern
 from sim.effects import EFFECTS, camera_effects
-from sim.membrane import cull_to_bounds, march_to_surface
+from sim.membrane import CulledField, cull_to_bounds, march_to_surface
 from sim.scene import Scene
 from sim.world import WorldSnapshot
 
@@ -88,7 +88,8 @@ class BubbleRenderer:
         self.camera = scene.camera.intrinsics()
         self.geometry = scene.gripper_geometry()
         self.model = scene.object_model()
-        self.bounds = self.model.bounds_m()
+        self.field = CulledField(self.model.field)
+        self.bounds = self.field.bounds
         self.need_normals = "ir" in self.effects
         bubble = self.geometry.bubble
         f_from_s = self.geometry.finger_from_sensor()
@@ -103,6 +104,15 @@ class BubbleRenderer:
         self.plate_range = _plate_range(self._o_f, self.dirs_f)
         self.cos_rest = _rest_cos(bubble, self._o_f, self.dirs_f, self.rest_range)
         self.unit = unit
+        # float32 working copies: images are float32, and half the bytes is most of
+        # the time in these per-pixel passes.
+        f32 = np.float32
+        self._rest32 = self.rest_range.astype(f32)
+        self._max_indent32 = (self.rest_range - self.plate_range).astype(f32)
+        self._unit32 = unit.astype(f32)
+        self._dir_y32 = np.ascontiguousarray(self.dirs_f[..., 1], dtype=f32)
+        self._dir_z32 = np.ascontiguousarray(self.dirs_f[..., 2], dtype=f32)
+        self._illum32 = (scene.membrane.ir_gain * self.unit_z**2).astype(f32)
 
         # The grid the object field is evaluated on (every k-th pixel, centre-aligned
         # with cv2.resize's linear upsampling).
@@ -155,14 +165,14 @@ class BubbleRenderer:
         pts = self._lr_rest_points @ rot.T + trans
         near = np.flatnonzero(cull_to_bounds(pts, self.bounds[0], self.bounds[1], 1e-4))
         if near.size:
-            phi, grad = self.model.field.value_and_grad(pts[near])
+            phi, grad = self.field.value_and_grad(pts[near])
             inside = phi < 0
             idx = near[inside]
             if idx.size:
                 dirs = self._lr_unit[idx] @ rot.T
                 origins = np.broadcast_to(trans, dirs.shape)
                 t, grad = march_to_surface(
-                    self.model.field,
+                    self.field,
                     origins,
                     dirs,
                     self._lr_rest[idx],
@@ -174,17 +184,19 @@ class BubbleRenderer:
                 pix = self._lr_valid[idx]
                 indent_lr[pix] = self._lr_rest[idx] - t
                 if cos_lr is not None:
+                    # A zero gradient (a point left far outside by a clamped step) keeps
+                    # the rest membrane's incidence.
                     norm = np.linalg.norm(grad, axis=1)
-                    cos_lr[pix] = np.abs(np.einsum("ij,ij->i", grad, dirs)) / np.maximum(
-                        norm, 1e-12
-                    )
+                    ok = norm > 1e-9
+                    cos = np.abs(np.einsum("ij,ij->i", grad, dirs)) / np.where(ok, norm, 1.0)
+                    cos_lr[pix[ok]] = cos[ok]
         h, w = self.camera.shape
         indent = indent_lr.reshape(hl, wl)
         if (hl, wl) != (h, w):
             indent = cv2.resize(indent, (w, h), interpolation=cv2.INTER_LINEAR)
-        indent = np.minimum(indent, self.rest_range - self.plate_range)
+        indent = np.minimum(indent, self._max_indent32)
         frame["indentation_m"] = indent
-        frame["range_m"] = self.rest_range - indent
+        frame["range_m"] = self._rest32 - indent
         frame["contact"] = indent > 1e-4
         if cos_lr is not None:
             cos_up = cos_lr.reshape(hl, wl).astype(np.float32)
@@ -193,14 +205,13 @@ class BubbleRenderer:
             frame["cos_incidence"] = np.where(frame["contact"], cos_up, self.cos_rest)
 
     def _depth(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
-        frame["depth_m"] = (frame["range_m"] * self.unit_z).astype(np.float32)
+        frame["depth_m"] = frame["range_m"] * self.unit_z
 
     def _ir(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
         r = frame["range_m"]
         # Active illumination from the camera: Lambertian return falling with range
         # squared, and an emitter profile dimming towards the image corners.
-        amp = self.scene.membrane.ir_gain * frame["cos_incidence"] * self.unit_z**2 / (r * r)
-        frame["amplitude"] = amp.astype(np.float32)
+        frame["amplitude"] = frame["cos_incidence"] * self._illum32 / (r * r)
 
     def _shear(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
         h, w = self.camera.shape
@@ -226,7 +237,7 @@ class BubbleRenderer:
         lin = (finger_from_tool @ i_minus @ tool_from_sensor[:3, :3])[1:]
         off = (finger_from_tool @ (i_minus @ tool_from_sensor[:3, 3] - back[:3, 3]))[1:]
         r = np.nan_to_num(frame["range_m"], nan=0.0)
-        shift = (r[..., None] * (self.unit @ lin.T) + off).astype(np.float32)
+        shift = r[..., None] * (self._unit32 @ lin.T.astype(np.float32)) + off.astype(np.float32)
         norm = np.sqrt(shift[..., 0] ** 2 + shift[..., 1] ** 2)
         scale = np.minimum(1.0, self.scene.bubble.max_shear_m / np.maximum(norm, 1e-12))
         frame["material_shift_m"] = shift * (scale * weight)[..., None].astype(np.float32)
@@ -235,14 +246,14 @@ class BubbleRenderer:
         texture, (sheet_w, sheet_h) = self.texture()
         res = self.scene.pattern.texture_mm_per_px
         r = frame["range_m"]
-        y = self._o_f[1] + r * self.dirs_f[..., 1]
-        z = self._o_f[2] + r * self.dirs_f[..., 2]
+        y = np.float32(self._o_f[1]) + r * self._dir_y32
+        z = np.float32(self._o_f[2]) + r * self._dir_z32
         shift = frame.get("material_shift_m")
         if shift is not None:
             y = y - shift[..., 0]
             z = z - shift[..., 1]
-        map_x = ((y * 1000.0 + sheet_w / 2) / res - 0.5).astype(np.float32)
-        map_y = ((z * 1000.0 + sheet_h / 2) / res - 0.5).astype(np.float32)
+        map_x = y * np.float32(1000.0 / res) + np.float32(sheet_w / 2 / res - 0.5)
+        map_y = z * np.float32(1000.0 / res) + np.float32(sheet_h / 2 / res - 0.5)
         map_x[~np.isfinite(map_x)] = -10.0
         map_y[~np.isfinite(map_y)] = -10.0
         albedo = cv2.remap(

@@ -21,7 +21,7 @@ import numpy as np
 
 from geometry.gripper import SIDES
 from sim.gripper import GripperDynamics
-from sim.membrane import ContactState, contact_mechanics
+from sim.membrane import ContactState, CulledField, contact_mechanics
 from sim.pressure import gauge_pressure_pa
 from sim.scene import Scene
 
@@ -60,8 +60,8 @@ class World:
         self.effects = effects
         self.geometry = scene.gripper_geometry()
         self.model = scene.object_model()
-        self.field = self.model.field
-        self.bounds = self.model.bounds_m()
+        self.field = CulledField(self.model.field)
+        self.bounds = self.field.bounds
         self.samples = self.geometry.bubble.surface_samples(scene.bubble.sample_spacing_m)
         self.rest_volume_m3 = self.geometry.bubble.volume_m3() + scene.bubble.dead_volume_m3
         self.dynamics = GripperDynamics(scene.gripper, speed_limited="gripper" in effects)
@@ -113,9 +113,11 @@ class World:
 
     def grip_force_n(self, width_m: float, tool_from_object: np.ndarray) -> float:
         """Normal force between jaws and object at an opening: mean of the two bubbles."""
+        return self._force_n({s: self.contact(s, width_m, tool_from_object) for s in SIDES})
+
+    def _force_n(self, states: dict[str, ContactState]) -> float:
         total = 0.0
-        for side in SIDES:
-            state = self.contact(side, width_m, tool_from_object)
+        for state in states.values():
             if state.in_contact:
                 total += self.pressure_pa(state) * state.contact_area_m2
         return total / 2.0
@@ -133,29 +135,34 @@ class World:
             self.dynamics.command(c.command, c.width_m, c.speed_m_per_s, c.force_n)
             self._next_command += 1
         dt = self.scene.frame_period_secs if self.frame_index > 0 else 0.0
+        # One contact evaluation per side and opening within a step: the gripper's force
+        # loop and the snapshot share them. Anchors (for shear) are the previous
+        # step's; a contact that starts now gets the current pose, i.e. zero shear.
+        memo: dict[float, dict[str, ContactState]] = {}
+
+        def contacts(w: float) -> dict[str, ContactState]:
+            if w not in memo:
+                anchors = self._anchors if self.tracks_anchors else {}
+                memo[w] = {s: self.contact(s, w, pose, anchors.get(s)) for s in SIDES}
+            return memo[w]
+
         force_at = None
         if "gripper" in self.effects:
-            memo: dict[float, float] = {}
 
             def force_at(w: float) -> float:
-                if w not in memo:
-                    memo[w] = self.grip_force_n(w, pose)
-                return memo[w]
+                return self._force_n(contacts(w))
 
         finger = self.dynamics.step(dt, force_at)
         in_contact = {s: False for s in SIDES}
         pressure = {s: 0.0 for s in SIDES}
         shear = {s: np.zeros(2) for s in SIDES}
         if self.needs_contact:
-            for side in SIDES:
-                state = self.contact(side, finger.width_m, pose)
+            for side, state in contacts(finger.width_m).items():
                 if self.tracks_anchors:
                     if state.in_contact and self._anchors[side] is None:
                         self._anchors[side] = pose.copy()
                     elif not state.in_contact:
                         self._anchors[side] = None
-                    if self._anchors[side] is not None:
-                        state = self.contact(side, finger.width_m, pose, self._anchors[side])
                 in_contact[side] = state.in_contact
                 pressure[side] = self.pressure_pa(state)
                 shear[side] = state.shear_in_tool_m
