@@ -195,7 +195,7 @@ class Replay(Node):
             return False
         raise NodeError(
             f"{self.name}: graph not idle after {self.params.idle_timeout_secs} s before "
-            f"message {self.published} ({msg.topic} at offset {msg.offset}); lockstep broken"
+            f"message {self.published} ({msg.topic} at {msg.position()}); lockstep broken"
         )
 
     def _finish(self) -> None:

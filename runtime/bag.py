@@ -440,16 +440,23 @@ class BagMessage:
     payload: memoryview
     offset: int  # file offset of the chunk (or of the message record outside chunks)
     path: Path
+    chunk_pos: int = -1  # offset of the record in the decompressed chunk (-1: not in one)
 
-    def _where(self) -> str:
-        return f"{self.path}: topic {self.topic}: message at offset {self.offset}"
+    def position(self) -> str:
+        """``offset N (+M in the chunk)``: where the message is in the file."""
+        inside = f" (+{self.chunk_pos} in the chunk)" if self.chunk_pos >= 0 else ""
+        return f"offset {self.offset}{inside}"
+
+    def where(self) -> str:
+        """``FILE: topic T: message at offset N (+M in the chunk)`` for error messages."""
+        return f"{self.path}: topic {self.topic}: message at {self.position()}"
 
     def frames(self) -> list[memoryview]:
         """``[header, *buffers]`` as received on the wire (no topic frame)."""
         try:
             return unpack_frames(self.payload)
         except ValueError as err:
-            raise BagError(f"{self._where()}: {err}") from err
+            raise BagError(f"{self.where()}: {err}") from err
 
     def wire_frames(self, topic: str | None = None) -> list[Any]:
         """The full multipart message ``[topic, header, *buffers]``, ready to publish."""
@@ -460,9 +467,9 @@ class BagMessage:
         try:
             obj = msgpack.unpackb(self.frames()[0], raw=False)
         except (ValueError, TypeError, msgpack.FormatError, msgpack.StackError) as err:
-            raise BagError(f"{self._where()}: header is not MessagePack: {err}") from err
+            raise BagError(f"{self.where()}: header is not MessagePack: {err}") from err
         if not isinstance(obj, dict) or not {"type", "fields", "arrays"} <= set(obj):
-            raise BagError(f"{self._where()}: header is not a frame header")
+            raise BagError(f"{self.where()}: header is not a frame header")
         return obj
 
     def decode_plain(self) -> dict[str, Any]:
@@ -479,19 +486,19 @@ class BagMessage:
             or not isinstance(arrays, list)
             or not all(isinstance(a, list) and len(a) == 3 for a in arrays)
         ):
-            raise BagError(f"{self._where()}: header fields or arrays are malformed")
+            raise BagError(f"{self.where()}: header fields or arrays are malformed")
         if len(arrays) != len(frames) - 1:
             raise BagError(
-                f"{self._where()}: header lists {len(arrays)} arrays, payload has {len(frames) - 1}"
+                f"{self.where()}: header lists {len(arrays)} arrays, payload has {len(frames) - 1}"
             )
         declared = self.channel.schema.array_names()
         out: dict[str, Any] = dict(fields)
         for (name, dtype_str, shape), buf in zip(arrays, frames[1:], strict=True):
             if not isinstance(name, str):
-                raise BagError(f"{self._where()}: array name {name!r} is not a string")
+                raise BagError(f"{self.where()}: array name {name!r} is not a string")
             if declared is not None and name not in declared:
                 raise BagError(
-                    f"{self._where()}: array {name!r} is not in the stored description "
+                    f"{self.where()}: array {name!r} is not in the stored description "
                     f"of {self.channel.schema.type_name}"
                 )
             try:
@@ -500,7 +507,7 @@ class BagMessage:
                     raise TypeError("object dtype")
                 out[name] = np.frombuffer(buf, dtype=dtype).reshape(shape)
             except (TypeError, ValueError) as err:
-                raise BagError(f"{self._where()}: array {name!r}: {err}") from err
+                raise BagError(f"{self.where()}: array {name!r}: {err}") from err
         return out
 
     def decode(self) -> Message:
@@ -513,7 +520,7 @@ class BagMessage:
         try:
             return decode(self.wire_frames())[1]
         except FrameDecodeError as err:
-            raise BagError(f"{self._where()}: {err}") from err
+            raise BagError(f"{self.where()}: {err}") from err
 
 
 @dataclass
@@ -893,7 +900,7 @@ class BagReader:
                     )
                     break
                 if opcode == _MESSAGE:
-                    msg = self._message(body, offset, wanted, start_nanos, end_nanos)
+                    msg = self._message(body, offset, wanted, start_nanos, end_nanos, pos)
                     if msg is not None:
                         yield msg
                 elif opcode == _SCHEMA:
@@ -910,7 +917,12 @@ class BagReader:
         wanted: set[str] | None,
         start_nanos: int | None,
         end_nanos: int | None,
+        chunk_pos: int = -1,
     ) -> BagMessage | None:
+        if body.nbytes < 22:
+            self.lost_messages += 1
+            self._warn(f"{self.path}: message record at offset {offset} is too short; skipped")
+            return None
         channel_id, seq, log_time, pub_time = struct.unpack_from("<HIQQ", body, 0)
         channel = self.channels.get(channel_id)
         if channel is None:
@@ -926,7 +938,7 @@ class BagReader:
         if end_nanos is not None and log_time >= end_nanos:
             return None
         return BagMessage(
-            channel.topic, channel, log_time, pub_time, seq, body[22:], offset, self.path
+            channel.topic, channel, log_time, pub_time, seq, body[22:], offset, self.path, chunk_pos
         )
 
     def stats(self) -> dict[str, TopicStats]:

@@ -169,7 +169,7 @@ def echo_lines(
             fields = msg.decode_plain()
             yield (
                 f"--- {topic} #{index} {msg.channel.schema.type_name} seq {msg.sequence} "
-                f"log {_stamp(msg.log_time_nanos)} offset {msg.offset}"
+                f"log {_stamp(msg.log_time_nanos)} {msg.position()}"
             )
             for name, value in fields.items():
                 yield f"{name}: {_show(value, full)}"
