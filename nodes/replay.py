@@ -19,7 +19,7 @@ so downstream nodes that use message stamps behave exactly as they did live. Pac
   graph with ``lockstep=True`` for the runtime to track idleness.
 
 ``start_secs``/``end_secs`` cut the bag (seconds from its first message), ``topics`` selects
-topics (a full-match regex), ``remap`` renames them (``{bag_topic: published_topic}``), and
+topics (a regex, ``re.search`` like ``launch.py --topics``), ``remap`` renames them (``{bag_topic: published_topic}``), and
 ``loop`` starts over at the end. When done (and not looping) the node waits for the graph
 to drain and asks it to stop.
 """

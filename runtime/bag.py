@@ -999,7 +999,8 @@ def _string_map(buf: memoryview, pos: int) -> tuple[dict[str, str], int]:
 
 
 def topic_filter(pattern: str | None) -> Callable[[str], bool]:
-    """A predicate for topics matching ``pattern`` (a full-match regex; ``None`` = all).
+    """A predicate for topics matching ``pattern`` (``re.search``, as ``launch.py --topics``
+    selects what to record; anchor it with ``^...$`` for exact names; ``None`` = all).
 
     Raises:
         ValueError: the pattern is not a valid regular expression.
@@ -1010,4 +1011,4 @@ def topic_filter(pattern: str | None) -> Callable[[str], bool]:
         regex = re.compile(pattern)
     except re.error as err:
         raise ValueError(f"topics: bad regular expression {pattern!r}: {err}") from err
-    return lambda topic: regex.fullmatch(topic) is not None
+    return lambda topic: regex.search(topic) is not None

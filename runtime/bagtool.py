@@ -301,6 +301,11 @@ class ReplayOptions:
     lockstep: bool = False
 
 
+def exact_topics(topics: Sequence[str]) -> str:
+    """A ``topics`` pattern that selects exactly these topics."""
+    return "^(?:" + "|".join(re.escape(t) for t in sorted(topics)) + ")$"
+
+
 def _node_inputs(body: Mapping[str, Any]) -> list[str]:
     topics = []
     for ref in (body.get("inputs") or {}).values():
@@ -415,7 +420,7 @@ def build_replay_graph(
         "fast": options.fast,
         "loop": options.loop,
         "start_secs": options.start_secs,
-        "topics": "|".join(re.escape(t) for t in bag_names),
+        "topics": exact_topics(bag_names),
         "remap": {bag: pub for pub, bag in replayed.items() if pub != bag},
         "lockstep": options.lockstep,
     }

@@ -15,7 +15,14 @@ from messages.base import Header
 from messages.errors import GraphError
 from messages.types import Tick, ToFImage
 from runtime.bag import BagWriter
-from runtime.bagtool import ReplayOptions, build_replay_graph, compare_values, diff_bags, main
+from runtime.bagtool import (
+    ReplayOptions,
+    build_replay_graph,
+    compare_values,
+    diff_bags,
+    exact_topics,
+    main,
+)
 from runtime.node import Node
 
 GRAPH = yaml.safe_load(
@@ -60,7 +67,7 @@ def test_replacing_a_node_runs_it_and_its_downstream_live(tmp_path: Path) -> Non
     )
     assert set(graph["nodes"]) == {"relay", "merge", "sink", "replay"}
     params = replay_params(graph)
-    assert params["topics"] == "source_a/tick|source_b/tick"
+    assert params["topics"] == exact_topics(["source_a/tick", "source_b/tick"])
     assert params["lockstep"] is True and params["path"] == str(bag)
     assert GRAPH["nodes"]["relay"]["impl"] == "synthetic.relay"  # the input is not modified
 
@@ -69,14 +76,14 @@ def test_replacing_a_sink_replays_its_inputs(tmp_path: Path) -> None:
     bag = make_bag(tmp_path / "a.mcap")
     graph = build_replay_graph(GRAPH, bag, {"sink": ""})
     assert set(graph["nodes"]) == {"sink", "replay"}
-    assert replay_params(graph)["topics"] == "merge/tick|source_b/tick"
+    assert replay_params(graph)["topics"] == exact_topics(["merge/tick", "source_b/tick"])
 
 
 def test_new_impl_is_applied(tmp_path: Path) -> None:
     bag = make_bag(tmp_path / "a.mcap")
     graph = build_replay_graph(GRAPH, bag, {"merge": "synthetic.merge", "sink": "synthetic.sink"})
     assert graph["nodes"]["merge"]["impl"] == "synthetic.merge"
-    assert replay_params(graph)["topics"] == "relay/tick|source_b/tick"
+    assert replay_params(graph)["topics"] == exact_topics(["relay/tick", "source_b/tick"])
 
 
 def test_topics_missing_from_the_bag_pull_their_producers_in(tmp_path: Path) -> None:
@@ -84,7 +91,7 @@ def test_topics_missing_from_the_bag_pull_their_producers_in(tmp_path: Path) -> 
     graph = build_replay_graph(GRAPH, bag, {"merge": ""})
     # merge needs relay/tick (not recorded), relay needs source_a/tick (not recorded either).
     assert set(graph["nodes"]) == {"source_a", "relay", "merge", "sink", "replay"}
-    assert replay_params(graph)["topics"] == "source_b/tick"
+    assert replay_params(graph)["topics"] == exact_topics(["source_b/tick"])
 
 
 def test_topic_selection_and_remap(tmp_path: Path) -> None:
@@ -92,7 +99,7 @@ def test_topic_selection_and_remap(tmp_path: Path) -> None:
     options = ReplayOptions(remap={"cam/a": "source_a/tick"}, fast=True)
     graph = build_replay_graph(GRAPH, bag, {"relay": ""}, options)
     params = replay_params(graph)
-    assert params["topics"] == "cam/a|source_b/tick"
+    assert params["topics"] == exact_topics(["cam/a", "source_b/tick"])
     assert params["remap"] == {"cam/a": "source_a/tick"}
     assert "source_a" not in graph["nodes"]
     graph = build_replay_graph(
@@ -105,7 +112,9 @@ def test_nothing_replaced_replays_everything(tmp_path: Path) -> None:
     bag = make_bag(tmp_path / "a.mcap")
     graph = build_replay_graph(GRAPH, bag, {})
     assert set(graph["nodes"]) == {"replay"}
-    assert replay_params(graph)["topics"] == "merge/tick|relay/tick|source_a/tick|source_b/tick"
+    assert replay_params(graph)["topics"] == exact_topics(
+        ["merge/tick", "relay/tick", "source_a/tick", "source_b/tick"]
+    )
 
 
 def test_replay_graph_errors(tmp_path: Path) -> None:
@@ -265,3 +274,12 @@ def test_swapped_impl_drops_old_params_and_set_applies(
     code = replay_main([str(bag), "--replace", "relay", "--set", "relay.add=7", "--print-graph"])
     assert code == 0
     assert yaml.safe_load(capsys.readouterr().out)["nodes"]["relay"]["params"] == {"add": 7}
+
+
+def test_exact_topics_selects_only_those() -> None:
+    from runtime.bag import topic_filter
+
+    chosen = topic_filter(exact_topics(["a/tick", "b.c/x"]))
+    assert chosen("a/tick") and chosen("b.c/x")
+    assert not any(chosen(t) for t in ("a/tick2", "xa/tick", "bxc/x", "a/tic"))
+    assert topic_filter("camera")("left_camera/image")  # search, as --topics when recording
