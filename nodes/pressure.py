@@ -16,6 +16,7 @@ from messages.types import Pressure
 from runtime.node import Node
 from runtime.registry import register
 from sim import pressure
+from sim.effects import resolve
 from sim.wire import SensorParams, from_message
 
 
@@ -31,7 +32,7 @@ class SimPressure(Node):
         self.warned = False
 
     def on_world(self, msg: WorldState) -> None:
-        if "pressure" not in msg.effects and "gripper" not in msg.effects:
+        if "pressure" not in resolve(msg.effects):
             if not self.warned:
                 self.io.log.info(
                     "%s: the scene has no pressure effect; nothing to publish", self.name

@@ -265,8 +265,8 @@ class MembraneSpec:
     the rest membrane to the object's surface (field evaluations: ``march_steps``).
     """
 
-    resolution_divisor: int = 2
-    march_steps: int = 2
+    resolution_divisor: int = 4
+    march_steps: int = 3
     ir_gain: float = 5.4
 
     def __post_init__(self) -> None:

@@ -137,6 +137,8 @@ class BubbleRenderer:
         self._lr_rest_points = self._lr_rest[:, None] * self._lr_unit
         self._lr_cos_rest = _rest_cos(bubble, self._o_f, dirs_lr_f, rest_lr).ravel()
 
+        self._membrane_cache: tuple[tuple[bytes, float], dict[str, np.ndarray]] | None = None
+        self.membrane_cache_hits = 0
         self._texture: np.ndarray | None = None
         self._sheet_mm: tuple[float, float] = (0.0, 0.0)
 
@@ -157,6 +159,13 @@ class BubbleRenderer:
         return self.geometry.tool_from_sensor(self.side, width_m)
 
     def _membrane(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
+        # The membrane is a pure function of the object's pose and the opening: a held,
+        # unmoving object (most of a grasp) reuses the last frame's result.
+        key = (np.asarray(snap.tool_from_object, np.float64).tobytes(), float(snap.width_m))
+        if self._membrane_cache is not None and self._membrane_cache[0] == key:
+            frame.update(self._membrane_cache[1])
+            self.membrane_cache_hits += 1
+            return
         object_from_sensor = invert(snap.tool_from_object) @ self.tool_from_sensor(snap.width_m)
         rot, trans = object_from_sensor[:3, :3], object_from_sensor[:3, 3]
         hl, wl = self.low_shape
@@ -203,6 +212,14 @@ class BubbleRenderer:
             if (hl, wl) != (h, w):
                 cos_up = cv2.resize(cos_up, (w, h), interpolation=cv2.INTER_LINEAR)
             frame["cos_incidence"] = np.where(frame["contact"], cos_up, self.cos_rest)
+        result = {
+            k: frame[k]
+            for k in ("indentation_m", "range_m", "contact", "cos_incidence")
+            if k in frame
+        }
+        for array in result.values():
+            array.setflags(write=False)
+        self._membrane_cache = (key, result)
 
     def _depth(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
         frame["depth_m"] = frame["range_m"] * self.unit_z

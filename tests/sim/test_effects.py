@@ -72,3 +72,19 @@ def test_world_skips_contact_mechanics_without_contact_effects(
     for _ in range(5):
         snap = world.step()
     assert snap.pressure_pa == {"left": 0.0, "right": 0.0}
+
+
+def test_still_object_reuses_the_membrane_and_stays_identical() -> None:
+    scene = make_scene(effects=["membrane", "depth", "tof_noise"], duration_secs=0.2)
+    simulator = sim.Simulator(scene)
+    first = simulator.step()
+    second = simulator.step()
+    renderer = simulator.renderers["left"]
+    assert renderer.membrane_cache_hits == 1
+    np.testing.assert_array_equal(
+        first.frames["left"].arrays["range_m"], second.frames["left"].arrays["range_m"]
+    )
+    # The noise is drawn per frame even when the membrane is reused.
+    assert not np.array_equal(
+        first.images["left"].depth_m, second.images["left"].depth_m, equal_nan=True
+    )
