@@ -284,12 +284,15 @@ class BagWriter:
         self._writer.add_metadata("softbubble.run", data)
         self._file.flush()
 
-    def _channel_for(self, topic: str, type_name: str, fingerprint: str) -> int:
+    def _channel_for(
+        self, topic: str, type_name: str, fingerprint: str, schema: TopicSchema | None = None
+    ) -> int:
         cached = self._topic_channel.get(topic)
         if cached is not None and cached[0] == type_name and cached[1] == fingerprint:
             return cached[2]
         key = (type_name, fingerprint)
-        schema = schema_for(type_name, fingerprint)
+        if schema is None:
+            schema = schema_for(type_name, fingerprint)
         schema_id = self._schemas.get(key)
         if schema_id is None:
             if schema.description is None:
@@ -373,6 +376,31 @@ class BagWriter:
         counts.bytes += len(payload)
         self.flush_if_due()
         return True
+
+    def copy_message(self, msg: BagMessage) -> None:
+        """Write a message read from another bag as it is: payload, times, stored schema."""
+        if self._closed:
+            raise BagError(f"{self.path}: write after close")
+        schema = msg.channel.schema
+        channel_id = self._channel_for(msg.topic, schema.type_name, schema.fingerprint, schema)
+        counts = self.counts.setdefault(msg.topic, TopicCounts())
+        if counts.last_seq is not None and msg.sequence > counts.last_seq + 1:
+            counts.seq_gaps += msg.sequence - counts.last_seq - 1
+        counts.last_seq = msg.sequence
+        self._writer.add_message(
+            channel_id,
+            log_time=msg.log_time_nanos,
+            data=bytes(msg.payload),
+            publish_time=msg.publish_time_nanos,
+            sequence=msg.sequence,
+        )
+        counts.messages += 1
+        counts.bytes += msg.payload.nbytes
+        self.flush_if_due()
+
+    def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
+        """Store a metadata record as is (used to carry a bag's run info over on recovery)."""
+        self._writer.add_metadata(name, dict(data))
 
     def write_message(self, topic: str, msg: Message, log_time_nanos: int) -> bool:
         """Encode ``msg`` with the codec and record it (tests, tools, benchmarks)."""

@@ -1,6 +1,7 @@
 """The bag command line: ``bag info|echo|diff`` and ``replay`` (see docs/bags.md).
 
 python launch.py bag info FILE [--graph]
+python launch.py bag recover FILE OUT
 python launch.py bag echo FILE --topic T [--limit N] [--full]
 python launch.py bag diff A B [--topic T ...] [--rtol R] [--atol A] [--ignore FIELD ...]
 python launch.py replay FILE [--graph G] [--replace NODE[=IMPL] ...] [--rate X | --fast]
@@ -34,7 +35,7 @@ import numpy as np
 import yaml
 
 from messages.errors import BagError, GraphError
-from runtime.bag import BagMessage, BagReader, topic_filter
+from runtime.bag import BagMessage, BagReader, BagWriter, topic_filter
 
 log = logging.getLogger(__name__)
 
@@ -173,6 +174,35 @@ def echo_lines(
             )
             for name, value in fields.items():
                 yield f"{name}: {_show(value, full)}"
+
+
+# -- recover -------------------------------------------------------------------------------------
+
+
+def recover(src: Path, dst: Path) -> tuple[int, list[str]]:
+    """Copy every readable message of ``src`` into a complete bag ``dst`` (with a summary).
+
+    Returns:
+        The number of messages copied and the problems met reading ``src``.
+    """
+    if src.resolve() == dst.resolve():
+        raise BagError(f"{src}: recover writes a new file; give another output path")
+    problems: list[str] = []
+    with BagReader(src, warn=problems.append) as reader:
+        copied = 0
+        with BagWriter(dst) as writer:
+            run = reader.run_info()
+            if run:
+                writer.add_metadata("softbubble.run", run)
+            for msg in reader.messages():
+                writer.copy_message(msg)
+                copied += 1
+            old = reader.drops()
+            writer.set_runtime_drops({t: d.get("runtime", 0) for t, d in old.items()})
+            for topic, d in old.items():
+                if topic in writer.counts:
+                    writer.counts[topic].rejected = d.get("rejected", 0)
+    return copied, problems
 
 
 # -- diff ----------------------------------------------------------------------------------------
@@ -542,6 +572,9 @@ def main(argv: Sequence[str]) -> int:
     p_echo.add_argument("--topic", required=True)
     p_echo.add_argument("--limit", type=int, default=None)
     p_echo.add_argument("--full", action="store_true", help="print arrays in full")
+    p_recover = sub.add_parser("recover", help="rewrite a damaged or cut bag with a summary")
+    p_recover.add_argument("file", type=Path)
+    p_recover.add_argument("out", type=Path)
     p_diff = sub.add_parser("diff", help="per-message differences; exit 0 only when none")
     p_diff.add_argument("a", type=Path)
     p_diff.add_argument("b", type=Path)
@@ -556,6 +589,12 @@ def main(argv: Sequence[str]) -> int:
     try:
         if args.command == "info":
             print(info_text(args.file, show_graph=args.graph))
+            return 0
+        if args.command == "recover":
+            copied, problems = recover(args.file, args.out)
+            for problem in problems:
+                print(f"warning: {problem}", file=sys.stderr)
+            print(f"{args.out}: {copied} message(s) recovered from {args.file}")
             return 0
         if args.command == "echo":
             for line in echo_lines(args.file, args.topic, limit=args.limit, full=args.full):

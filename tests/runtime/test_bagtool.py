@@ -283,3 +283,35 @@ def test_exact_topics_selects_only_those() -> None:
     assert chosen("a/tick") and chosen("b.c/x")
     assert not any(chosen(t) for t in ("a/tick2", "xa/tick", "bxc/x", "a/tic"))
     assert topic_filter("camera")("left_camera/image")  # search, as --topics when recording
+
+
+def test_recover_rewrites_a_cut_bag_with_a_summary(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from mcap.reader import make_reader
+
+    from runtime.bag import BagReader
+
+    path = tmp_path / "a.mcap"
+    with BagWriter(path) as w:
+        w.add_run_info(graph_text="nodes: {}\n", command_line="launch.py g.yaml")
+        for i in range(10):
+            w.write_message("a/tick", Tick(header=Header(seq=i), value=float(i)), log_time_nanos=i)
+            if i % 3 == 2:
+                w.flush()
+        w.set_runtime_drops({"a/tick": 4})
+    with BagReader(path) as r:
+        cut = r.chunks[-1].offset + 20  # the last chunk is lost
+    path.write_bytes(path.read_bytes()[:cut])
+    out = tmp_path / "fixed.mcap"
+    assert main(["recover", str(path), str(out)]) == 0
+    assert "9 message(s) recovered" in capsys.readouterr().out
+    with BagReader(out) as r:
+        assert r.has_summary and not r.problems
+        assert [m.decode().value for m in r.messages()] == [float(i) for i in range(9)]
+        assert r.run_info()["command_line"] == "launch.py g.yaml"
+        assert r.drops()["a/tick"]["runtime"] == 4
+    with open(out, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics.message_count == 9
+    assert main(["recover", str(out), str(out)]) == 2
