@@ -354,12 +354,14 @@ class Runner:
         frames = self._recv(inp)
         if frames is None:
             return False
+        skipped = 0
         if inp.policy == "latest":
             while (newer := self._recv(inp)) is not None:
-                inp.counters.superseded += 1
-                inp.counters.received += 1
+                skipped += 1
                 frames = newer
-        self._deliver(inp, frames)
+            inp.counters.superseded += skipped
+            inp.counters.received += skipped
+        self._deliver(inp, frames, skipped)
         return True
 
     def _recv(self, inp: _Input) -> list[Any] | None:
@@ -368,7 +370,8 @@ class Runner:
         except zmq.Again:
             return None
 
-    def _deliver(self, inp: _Input, frames: list[Any]) -> None:
+    def _deliver(self, inp: _Input, frames: list[Any], skipped: int = 0) -> None:
+        """Decode and handle one message; ``skipped`` newer-than-last ones were superseded."""
         counters = inp.counters
         counters.received += 1
         if self.raw:
@@ -384,7 +387,7 @@ class Runner:
         seq = msg.header.seq if hasattr(msg, "header") else None
         if seq is not None:
             if counters.last_seq is not None and seq > counters.last_seq + 1:
-                counters.dropped += seq - counters.last_seq - 1
+                counters.dropped += max(0, seq - counters.last_seq - 1 - skipped)
             counters.last_seq = seq  # a restarted publisher starts again at 0
         self._call(lambda: self.node.handle(inp.port, msg))
 

@@ -100,6 +100,7 @@ def test_latest_policy_never_works_through_a_backlog(graph_run: GraphRun, tmp_pa
     assert values[-1] == 399.0  # the newest one is always the one handled
     superseded = [line for line in log.splitlines() if line.startswith("[launch] src/tick")]
     assert superseded and int(superseded[0].split()[5]) > 0
+    assert int(superseded[0].split()[4]) == 0  # skipped on purpose is not "dropped"
 
 
 def test_killed_node_restarts_by_policy(graph_run: GraphRun, tmp_path: Path) -> None:
