@@ -7,6 +7,8 @@ import signal
 import time
 from pathlib import Path
 
+import pytest
+
 from tests.runtime.conftest import GraphRun, alive, children_of
 
 FUZZER = "tests.runtime.nodes_for_tests:Fuzzer"
@@ -26,13 +28,17 @@ def wait_for_line(proc, text: str, timeout: float = 60) -> list[str]:
     raise AssertionError(f"{text!r} not seen; output:\n{''.join(lines)}")
 
 
+@pytest.mark.parametrize("host", [None, "127.0.0.1"], ids=["ipc", "tcp"])
 def test_two_node_graph_delivers_every_message_in_order(
-    graph_run: GraphRun, tmp_path: Path
+    graph_run: GraphRun, tmp_path: Path, host: str | None
 ) -> None:
     out = tmp_path / "sink.jsonl"
+    source = {"impl": "synthetic.source", "params": {"rate_hz": 400, "count": 300}}
+    if host:
+        source["host"] = host
     graph = graph_run.write(
         {
-            "src": {"impl": "synthetic.source", "params": {"rate_hz": 400, "count": 300}},
+            "src": source,
             "sink": {
                 "impl": "synthetic.sink",
                 "params": {"out_path": str(out)},
