@@ -363,6 +363,18 @@ def _keep_known_params(name: str, body: dict[str, Any]) -> None:
         body["params"] = {k: v for k, v in params.items() if k in known}
 
 
+def _reach(start: set[str], edges: Mapping[str, set[str]]) -> set[str]:
+    """Every node reachable from ``start`` along ``edges`` (``start`` included)."""
+    seen = set(start)
+    todo = list(start)
+    while todo:
+        for nxt in edges.get(todo.pop(), ()):
+            if nxt not in seen:
+                seen.add(nxt)
+                todo.append(nxt)
+    return seen
+
+
 def build_replay_graph(
     graph: Mapping[str, Any],
     bag_path: Path,
@@ -372,9 +384,12 @@ def build_replay_graph(
     """The graph that replays ``bag_path`` through ``graph`` with some nodes replaced.
 
     The nodes named in ``replace`` get their new implementation (an empty string keeps
-    theirs; parameters the new one does not take are dropped, with a warning) and run live, as does every node downstream of them. Every topic those nodes
-    read comes from a ``replay`` node if the bag has it; otherwise the node publishing it
-    runs live too (and so on upstream). All other nodes, recorders included, are left out.
+    theirs; parameters the new one does not take are dropped, with a warning) and run
+    live, as does every node downstream of them, except one that also feeds back into
+    their inputs (a loop through a simulated world): the replay stays open-loop there, with
+    a warning. Every topic the live nodes read comes from a ``replay`` node if the bag has
+    it; otherwise the node publishing it runs live too (and so on upstream). All other
+    nodes, recorders included, are left out.
     With nothing replaced, the replay node publishes every selected topic.
 
     Raises:
@@ -400,18 +415,30 @@ def build_replay_graph(
     providers = {t: node for t, (node, _) in checked.providers().items()}
     inputs = {n: _node_inputs(body) for n, body in nodes.items()}
 
-    live = set(replace)
-    grown = True
-    while grown:  # everything downstream of a live node is live
-        grown = False
-        for name, topics in inputs.items():
-            if (
-                name not in live
-                and name not in recorders
-                and any(providers.get(t) in live for t in topics)
-            ):
-                live.add(name)
-                grown = True
+    feeds: dict[str, set[str]] = {n: set() for n in nodes}  # producer -> its consumers
+    for name, topics in inputs.items():
+        for topic in topics:
+            if topic in providers and name not in recorders:
+                feeds[providers[topic]].add(name)
+    downstream = _reach(set(replace), feeds) - set(replace)
+    fed_by: dict[str, set[str]] = {n: set() for n in nodes}
+    for producer, consumers in feeds.items():
+        for consumer in consumers:
+            fed_by[consumer].add(producer)
+    upstream = _reach(set(replace), fed_by) - set(replace)
+    # A node both downstream and upstream of a replaced one closes a loop back into its
+    # inputs (a supervisor commanding the simulated world that the cameras see): running
+    # it live would make the world live too, so the replay stays open-loop there and that
+    # node's topics come from the bag. Name it in --replace to run it live anyway.
+    live = set(replace) | (downstream - upstream)
+    for name in sorted(downstream & upstream):
+        log.warning(
+            "replay: %s is downstream of %s but feeds back into its inputs; "
+            "replayed from the bag (add --replace %s to run it live)",
+            name,
+            ", ".join(sorted(replace)),
+            name,
+        )
 
     with BagReader(bag_path) as reader:
         bag_topics = list(reader.topics())

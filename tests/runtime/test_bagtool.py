@@ -315,3 +315,33 @@ def test_recover_rewrites_a_cut_bag_with_a_summary(
         summary = make_reader(f).get_summary()
     assert summary is not None and summary.statistics.message_count == 9
     assert main(["recover", str(out), str(out)]) == 2
+
+
+LOOP = yaml.safe_load(
+    """
+nodes:
+  source: {impl: synthetic.source}
+  world: {impl: synthetic.merge, inputs: {a: source/tick, b: ctrl/tick}}
+  cam: {impl: synthetic.relay, inputs: {tick: world/tick}}
+  proc: {impl: synthetic.relay, inputs: {tick: cam/tick}}
+  ctrl: {impl: synthetic.relay, inputs: {tick: proc/tick}}
+  log: {impl: synthetic.sink, inputs: {tick: proc/tick}}
+"""
+)
+
+
+def test_a_loop_back_into_the_replaced_node_stays_open(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    bag = make_bag(
+        tmp_path / "a.mcap",
+        topics=("source/tick", "world/tick", "cam/tick", "proc/tick", "ctrl/tick"),
+    )
+    graph = build_replay_graph(LOOP, bag, {"proc": ""})
+    # ctrl is downstream of proc but commands the world that the camera sees: replayed.
+    assert set(graph["nodes"]) == {"proc", "log", "replay"}
+    assert replay_params(graph)["topics"] == exact_topics(["cam/tick"])
+    assert "ctrl is downstream of proc but feeds back" in caplog.text
+    graph = build_replay_graph(LOOP, bag, {"proc": "", "ctrl": ""})
+    assert set(graph["nodes"]) == {"proc", "ctrl", "log", "replay"}
+    assert replay_params(graph)["topics"] == exact_topics(["cam/tick"])
