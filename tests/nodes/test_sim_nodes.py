@@ -144,3 +144,19 @@ def test_world_state_round_trips_the_snapshot(tmp_path: Path) -> None:
     assert back.in_contact == snap.in_contact and back.width_m == snap.width_m
     for side in ("left", "right"):
         assert (back.anchors[side] is None) == (snap.anchors[side] is None)
+
+
+def test_node_images_are_bit_identical_to_the_library(tmp_path: Path) -> None:
+    import sim
+
+    scene_path = _scene_file(
+        tmp_path, effects=["membrane", "depth", "ir", "tof_noise", "dot_pattern"]
+    )
+    _, wio = _run_world(scene_path)
+    cam, io = make_node(SimBubbleCamera, {"sensor": "right"})
+    state = wio.published["state"][4]
+    feed(cam, "world", state)
+    node_image = io.published["image"][0]
+    lib_image = sim.render(scene_path, state.time_secs).images["right"]
+    assert node_image.depth_m.tobytes() == lib_image.depth_m.tobytes()
+    assert node_image.ir.tobytes() == lib_image.ir.tobytes()
