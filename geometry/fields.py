@@ -50,13 +50,17 @@ def _points(points: np.ndarray) -> np.ndarray:
 
 
 def _safe_norm_np(sq: np.ndarray) -> np.ndarray:
-    """sqrt of a squared norm, 0 where it is (numerically) zero; never NaN."""
-    return np.where(sq > EPS2, np.sqrt(np.maximum(sq, EPS2)), 0.0)
+    """sqrt of a squared norm (a sum of squares, so >= 0: the value itself is safe)."""
+    return np.sqrt(sq)
 
 
 def _safe_inv(norm: np.ndarray) -> np.ndarray:
-    """1/norm where norm > 0, else 0 (the gradient of a zero norm is taken as zero)."""
-    return np.where(norm > 0.0, 1.0 / np.maximum(norm, 1e-300), 0.0)
+    """1 / max(norm, sqrt(EPS2)): finite, and a zero norm's numerator is zero too.
+
+    A gradient ``v / ||v||`` becomes ``v * _safe_inv(||v||)``: exactly ``v / ||v||``
+    above 1e-15 m, zero at ``v = 0``, and never longer than 1 in between.
+    """
+    return 1.0 / np.maximum(norm, np.sqrt(EPS2))
 
 
 def _safe_norm_ca(sq: ca.SX | ca.MX) -> ca.SX | ca.MX:
@@ -105,15 +109,10 @@ class SlabField(Field):
     def value_and_grad(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         pts = _points(points)
         delta, jac = self.slab(pts)
-        pos = np.maximum(delta, 0.0)
-        outer = _safe_norm_np(np.einsum("nk,nk->n", pos, pos))
-        rows = np.arange(len(pts))
-        imax = np.argmax(delta, axis=1)
-        dmax = delta[rows, imax]
-        value = outer + np.minimum(dmax, 0.0)
-        weights = pos * _safe_inv(outer)[:, None]
-        grad = np.einsum("nk,nkj->nj", weights, jac)
-        grad += (dmax < 0.0)[:, None] * jac[rows, imax]
+        value, weights = _slab_combine([delta[:, k] for k in range(delta.shape[1])])
+        grad = np.zeros_like(pts)
+        for k, w in enumerate(weights):
+            grad += w[:, None] * jac[:, k]
         return value, grad
 
     def casadi(self, p: ca.SX | ca.MX) -> ca.SX | ca.MX:
@@ -125,6 +124,34 @@ class SlabField(Field):
         for d in delta[1:]:
             dmax = ca.fmax(dmax, d)
         return _safe_norm_ca(sq) + ca.fmin(dmax, 0.0)
+
+
+def _slab_combine(cols: Sequence[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The slab combination of the components of ``delta`` (k arrays of (N,)).
+
+    Returns the values (N,) and d(value)/d(delta_k) for each k. The outer norm
+    contributes ``max(delta, 0) / ||max(delta, 0)||`` (zero inside), the inner term a one
+    on the first largest component when it is negative. Works column by column: numpy
+    reductions over a short last axis are several times slower.
+    """
+    pos = [np.maximum(c, 0.0) for c in cols]
+    sq = pos[0] * pos[0]
+    for p in pos[1:]:
+        sq = sq + p * p
+    outer = _safe_norm_np(sq)
+    inv = _safe_inv(outer)
+    dmax = cols[0]
+    for c in cols[1:]:
+        dmax = np.maximum(dmax, c)
+    # The inside term's one goes to the first largest component only (ties on the
+    # medial surface would otherwise double the gradient).
+    free = dmax < 0.0
+    weights = []
+    for c, p in zip(cols, pos, strict=True):
+        first = free & (c == dmax)
+        free = free & ~first
+        weights.append(p * inv + first)
+    return outer + np.minimum(dmax, 0.0), weights
 
 
 def _radial(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -162,6 +189,21 @@ class CappedCylinder(SlabField):
         jac[:, 0] = grho
         jac[:, 1, 2] = np.sign(pts[:, 2])
         return delta, jac
+
+    def value_and_grad(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # The pose fit's hot path: the same formula as the generic slab path with the
+        # Jacobian's structure (radial, axial) written out, about 3x faster.
+        pts = _points(points)
+        rho = _safe_norm_np(pts[:, 0] ** 2 + pts[:, 1] ** 2)
+        value, (w_rho, w_z) = _slab_combine(
+            [rho - self.radius_m, np.abs(pts[:, 2]) - 0.5 * self.height_m]
+        )
+        radial = w_rho * _safe_inv(rho)
+        grad = np.empty_like(pts)
+        grad[:, 0] = radial * pts[:, 0]
+        grad[:, 1] = radial * pts[:, 1]
+        grad[:, 2] = w_z * np.sign(pts[:, 2])
+        return value, grad
 
     def slab_casadi(self, p: ca.SX | ca.MX) -> list[ca.SX | ca.MX]:
         rho = _safe_norm_ca(p[0] ** 2 + p[1] ** 2)

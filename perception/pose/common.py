@@ -1,0 +1,205 @@
+"""What every pose solver shares: the problem, the result, observability, seeds, errors.
+
+The unknown is the paper's ``G X T``, here named ``object_from_tool`` (a 4x4 pose):
+a point of the grasp cloud in the tool frame maps into the object frame G, where the
+proximity field ``phi`` is evaluated. The cost is ``sum_i phi(object_from_tool p_i)^2``
+(paper, eq. "proximity pose optimization"). Results carry ``tool_from_object`` too
+(the inverse, what ``PoseEstimate`` stores), so no caller inverts by hand.
+
+Perturbations are on the left, in the object frame: ``X <- exp(xi) X`` with
+``xi = (tx, ty, tz, rx, ry, rz)``. The residual Jacobian row of point ``q = X p`` is
+``[g, q x g]`` with ``g = grad phi(q)``. In these coordinates the symmetries of the
+object are coordinate axes: a body of revolution cannot be yawed about z, a cylinder
+seen only on its side cannot be moved along z; their columns of the Jacobian are zero
+and ``observable`` reports them as ``False``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from geometry import se3
+from geometry.fields import Field
+
+DOF_NAMES = ("tx", "ty", "tz", "rx", "ry", "rz")
+
+
+@dataclass(frozen=True, kw_only=True)
+class FitResult:
+    """One solve: the pose both ways, how well it fits and how the solver got there.
+
+    Attributes:
+        object_from_tool: the estimate (paper's G X T), 4x4.
+        residual_rms_m: RMS of the field values at the estimate (metres).
+        cost: sum of squared field values (m^2).
+        iterations: solver iterations (summed over re-seeds when recovering).
+        status: ``ok``, ``recovered`` (a wrong minimum was detected and a re-seed won),
+            ``suspect`` (even the best minimum fits worse than the acceptance RMS),
+            ``no_patch`` (too few points: the seed is returned), or ``failed``.
+        solve_secs: wall time of the solve.
+        points_used: points after dropping non-finite ones and subsampling.
+        observable: per ``(tx, ty, tz, rx, ry, rz)`` in the object frame.
+        solver: which solver produced it.
+        seeds_tried: how many starting poses were solved from.
+        message: why a solve failed (empty otherwise).
+    """
+
+    object_from_tool: np.ndarray
+    residual_rms_m: float
+    cost: float
+    iterations: int
+    status: str
+    solve_secs: float
+    points_used: int
+    observable: tuple[bool, ...] = (False,) * 6
+    solver: str = ""
+    seeds_tried: int = 1
+    message: str = ""
+
+    @property
+    def tool_from_object(self) -> np.ndarray:
+        """The inverse of :attr:`object_from_tool` (what ``PoseEstimate`` carries)."""
+        return se3.invert(self.object_from_tool)
+
+
+def clean_points(points: np.ndarray, max_points: int | None = None, seed: int = 0) -> np.ndarray:
+    """Finite rows of an (N, 3) cloud as float64, subsampled to ``max_points`` (fixed seed).
+
+    Subsampling with a fixed generator keeps a repeated solve on the same patch
+    deterministic.
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if max_points is not None and len(pts) > max_points:
+        idx = np.random.default_rng(seed).choice(len(pts), size=max_points, replace=False)
+        pts = pts[np.sort(idx)]
+    return pts
+
+
+def residuals_and_jacobian(
+    fld: Field, object_from_tool: np.ndarray, points_in_tool: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Field values ``r`` (N,) and the left-perturbation Jacobian ``J`` (N, 6)."""
+    q = points_in_tool @ object_from_tool[:3, :3].T + object_from_tool[:3, 3]
+    r, g = fld.value_and_grad(q)
+    jac = np.empty((len(q), 6))
+    jac[:, :3] = g
+    # q x g, written out: np.cross is several times slower on (N, 3).
+    jac[:, 3] = q[:, 1] * g[:, 2] - q[:, 2] * g[:, 1]
+    jac[:, 4] = q[:, 2] * g[:, 0] - q[:, 0] * g[:, 2]
+    jac[:, 5] = q[:, 0] * g[:, 1] - q[:, 1] * g[:, 0]
+    return r, jac
+
+
+def residuals(fld: Field, object_from_tool: np.ndarray, points_in_tool: np.ndarray) -> np.ndarray:
+    """Field values (N,) of the tool-frame points under ``object_from_tool``."""
+    q = points_in_tool @ object_from_tool[:3, :3].T + object_from_tool[:3, 3]
+    return fld.value(q)
+
+
+def scaled_information(jac: np.ndarray, length_m: float) -> np.ndarray:
+    """``S J^T J S / N`` with rotations scaled to metres at lever arm ``length_m``.
+
+    Per point and in one unit, so the eigenvalues compare with a fixed floor: a
+    direction along which every point's field gradient moves by its full length has
+    eigenvalue about 1.
+    """
+    n = max(len(jac), 1)
+    scale = np.array([1.0, 1.0, 1.0, 1.0 / length_m, 1.0 / length_m, 1.0 / length_m])
+    js = jac * scale
+    return (js.T @ js) / n
+
+
+def observability(
+    info: np.ndarray, floor: float
+) -> tuple[tuple[bool, ...], np.ndarray, np.ndarray]:
+    """Observable axes and the eigen-split of a scaled information matrix.
+
+    Returns:
+        ``(observable per axis, observable eigenvectors (6, k), their eigenvalues (k,))``.
+        An axis is unobservable when more than half of it lies in the span of the
+        eigenvectors whose eigenvalue is under ``floor``.
+    """
+    w, v = np.linalg.eigh(0.5 * (info + info.T))
+    weak = w < floor
+    share = np.sum(v[:, weak] ** 2, axis=1)
+    flags = tuple(bool(s <= 0.5) for s in share)
+    return flags, v[:, ~weak], w[~weak]
+
+
+def characteristic_length(fld: Field) -> float:
+    """Half the diagonal of the field's bounding box: the lever arm of a rotation."""
+    lo, hi = fld.bounds_m()
+    return float(max(0.5 * np.linalg.norm(hi - lo), 1e-3))
+
+
+def axis_error_deg(
+    tool_from_object_est: np.ndarray, tool_from_object_true: np.ndarray, *, flip_symmetric: bool
+) -> float:
+    """Angle between the estimated and true object z axes in the tool frame (degrees).
+
+    With ``flip_symmetric`` the axis is a line (a plain cylinder: z and -z look alike).
+    """
+    a = tool_from_object_est[:3, 2]
+    b = tool_from_object_true[:3, 2]
+    ang = se3.angle_between(a, b)
+    if flip_symmetric:
+        ang = min(ang, np.pi - ang)
+    return float(np.degrees(ang))
+
+
+def offaxis_error_m(tool_from_object_est: np.ndarray, tool_from_object_true: np.ndarray) -> float:
+    """Distance of the estimated origin from the true axis line (metres, tool frame)."""
+    axis = tool_from_object_true[:3, 2]
+    d = tool_from_object_est[:3, 3] - tool_from_object_true[:3, 3]
+    return float(np.linalg.norm(d - (d @ axis) * axis))
+
+
+def frame_from_axis(axis: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """A ``tool_from_object`` whose z is ``axis`` (normalized) at ``centre``; x arbitrary."""
+    z = np.asarray(axis, dtype=np.float64)
+    z = z / max(np.linalg.norm(z), 1e-300)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return se3.make_pose(np.stack([x, y, z], axis=1), centre)
+
+
+def seed_poses(points_in_tool: np.ndarray, bubble: np.ndarray | None = None) -> list[np.ndarray]:
+    """Starting ``tool_from_object`` poses for a cold start, most likely first.
+
+    The first few come from the data: the object centre is put midway between the two
+    bubbles' patch centroids, and the axis along each patch's principal direction (a
+    cylinder touches a bubble along a line parallel to its axis), then the other
+    in-plane direction. Then the cardinal poses: axis along tool x, y, z. Each axis is
+    also tried flipped (top and bottom differ for bottles and glasses).
+    """
+    pts = np.asarray(points_in_tool, dtype=np.float64)
+    if len(pts) == 0:
+        return [np.eye(4)]
+    groups = [pts]
+    if bubble is not None and len(bubble) == len(pts):
+        groups = [pts[bubble == k] for k in (0, 1) if np.any(bubble == k)]
+    centroids = [g.mean(axis=0) for g in groups if len(g)]
+    centre = np.mean(centroids, axis=0)
+    axes: list[np.ndarray] = []
+    for g in groups:
+        if len(g) >= 3:
+            _, _, vt = np.linalg.svd(g - g.mean(axis=0), full_matrices=False)
+            axes.append(vt[0])
+            if len(vt) > 1:
+                axes.append(vt[1])
+    axes += [np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0])]
+    unique: list[np.ndarray] = []
+    for a in axes:
+        a = a / max(np.linalg.norm(a), 1e-300)
+        if all(abs(a @ u) < 0.985 for u in unique):  # 10 degrees apart at least
+            unique.append(a)
+    seeds = []
+    for a in unique:
+        seeds.append(frame_from_axis(a, centre))
+        seeds.append(frame_from_axis(-a, centre))
+    return seeds
