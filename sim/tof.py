@@ -193,9 +193,16 @@ class BubbleRenderer:
                 pix = self._lr_valid[idx]
                 indent_lr[pix] = self._lr_rest[idx] - t
                 if cos_lr is not None:
-                    # A zero gradient (a point left far outside by a clamped step) keeps
-                    # the rest membrane's incidence.
                     norm = np.linalg.norm(grad, axis=1)
+                    flat = np.flatnonzero(norm <= 1e-9)
+                    if flat.size:
+                        # A point exactly on the surface can get a zero gradient from
+                        # the field's slab combination: ask 20 um inside instead.
+                        inner = origins[flat] + (t[flat] + 2e-5)[:, None] * dirs[flat]
+                        grad[flat] = self.field.value_and_grad(inner)[1]
+                        norm[flat] = np.linalg.norm(grad[flat], axis=1)
+                    # A zero gradient that remains (a point left far outside by a clamped
+                    # step) keeps the rest membrane's incidence.
                     ok = norm > 1e-9
                     cos = np.abs(np.einsum("ij,ij->i", grad, dirs)) / np.where(ok, norm, 1.0)
                     cos_lr[pix[ok]] = cos[ok]
