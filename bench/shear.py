@@ -5,13 +5,26 @@ one row per setting; ``--json`` rows carry ``method``, ``setting``,
 ``dir_err_deg_median``, ``dir_err_deg_p95``, ``mag_err_px_median``,
 ``ms_per_frame_median`` and more. Timing is on one core (``bench.common.one_core``):
 ``ms_per_frame_median`` is the thread's CPU time per frame (robust to other processes
-sharing the machine), ``wall_ms_per_frame_median`` the wall time; both cover :meth:`perception.shear.ShearTracker.update` (mask, stretch, flow, summary,
-mm and torsion), not the rendering.
+sharing the machine), ``wall_ms_per_frame_median`` the wall time; both cover
+:meth:`perception.shear.ShearTracker.update` (mask, stretch, flow, summary, mm and
+torsion) for one bubble, not the rendering.
 
-Sequences (the same for every setting): pure translations in 8 directions at several
-magnitudes, twists about the image centre, mixtures of both, and a handover pull (a
-ramp of shear in one direction). The direction error is scored on frames whose true
-mean shear is at least ``DIR_MIN_TRUTH_PX``; the torsion error on frames with a twist.
+Sequences (the simulator, ``sim``; the same for every setting, both bubbles): a mug held
+at its grasp pose in ``scenes/mug_grasp.yaml`` and moved in the hand, rendered with the
+``shear`` and ``dot_pattern`` effects, as ramps of frames from rest (shear builds up
+over frames in a grasp; warm starts use that): pure translations along the tool's y and
+z in 8 directions, twists about the grasp axis, mixtures of both; and the pull of
+``scenes/mug_handover.yaml`` from the moment the grasp monitor reports a stable grasp
+(the reference) to the release.
+
+Errors: ``dir_err_deg`` is the paper's direction (the normalized summed flow, in the
+image) against the true mean image motion of the material over the same pixels, scored
+where that is at least ``DIR_MIN_TRUTH_PX``; ``dir_err_mm_deg`` is the angle between
+the estimated ``shear_mm`` (tool y, z; beyond the paper) and the true mean material
+shift, scored where that is at least ``DIR_MIN_TRUTH_MM``. An undefined direction where
+one is scored counts as 180 degrees. The true motion follows the material (see
+:func:`truth`). ``mag_err_px`` compares the mean shear in pixels with the true mean
+image motion; ``torsion_err_deg`` is scored on twisted frames.
 
 Target (issue 5): median direction error < 2 deg and 95th percentile < 5 deg at
 >= 300 frames/s per bubble on one core.
@@ -27,165 +40,325 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+import sim
 from bench.common import Row, main, median, one_core, percentile
 from geometry.camera import PinholeCamera
+from geometry.gripper import SIDES, GripperGeometry
+from messages.types import ToFImage
+from perception.grasp import GraspMonitor
 from perception.shear import (
     DisParams,
     FarnebackParams,
     ShearParams,
     ShearTracker,
     membrane_mask,
+    rotation_about_centroid,
+    tool_basis_in_sensor,
 )
 
-DIR_MIN_TRUTH_PX = 0.5
+DIR_MIN_TRUTH_MM = 0.25
+DIR_MIN_TRUTH_PX = 1.0
+RAMP_STEP_MM = 0.5
+GRASP_SCENE = "scenes/mug_grasp.yaml"
+HANDOVER_SCENE = "scenes/mug_handover.yaml"
 
 
 @dataclass(frozen=True)
 class Frame:
-    """One frame of a sequence and its ground truth (full-resolution pixels)."""
+    """One bubble's frame and its ground truth, against the sequence's reference.
 
-    ir: np.ndarray
-    depth_m: np.ndarray
-    truth_px: np.ndarray  # mean displacement over the reference mask
-    truth_mm: np.ndarray  # same, on the membrane (t1, t2)
+    ``truth_px`` is the mean over the reference mask of the true image motion of the
+    membrane material (its shift back-projected from the noise-free reference range);
+    ``truth_mm`` the mean material shift in the tool's (y, z) plane, over the same pixels;
+    ``torsion_rad`` the least-squares rotation of that shift field about tool x (the
+    estimator's definition), which is smaller than the object's twist because the
+    membrane outside the contact does not turn.
+    """
+
+    image: ToFImage
+    truth_px: np.ndarray
+    truth_mm: np.ndarray
     torsion_rad: float
     sequence: str
 
 
-class DotPlane:
-    """A random-dot membrane seen face-on at a fixed depth, warped by a known rigid field.
+@dataclass(frozen=True)
+class Sequence:
+    """Frames of one bubble against one reference image."""
 
-    A stand-in for the simulator's IR rendering: dots of 1.6-3.2 px diameter, a
-    supersampled texture sampled through the inverse of the motion, vignetting, and
-    Gaussian amplitude noise. The motion of a dot at pixel ``p`` is
-    ``c + R(theta) (p - c) + t - p`` with ``c`` the image centre.
+    name: str
+    sensor: str
+    reference: ToFImage
+    frames: list[Frame]
+
+
+class SimGrasp:
+    """A mug held by the simulated gripper, moved in the hand from its grasp pose.
+
+    The grasp (opening, pose) is the scene's at ``grasp_secs``; :meth:`instant` renders
+    both bubbles with the mug shifted along the tool's y and z axes and twisted about
+    its x axis (the grasp axis), against the grasp pose as the shear anchor.
     """
 
-    def __init__(
-        self,
-        camera: PinholeCamera,
-        *,
-        depth_m: float = 0.08,
-        dots_per_px: float = 1.0 / 40.0,
-        noise_ir: float = 20.0,
-        depth_noise_m: float = 0.0008,
-        seed: int = 0,
-        supersample: int = 4,
-    ) -> None:
-        self.camera = camera
-        self.depth_m = depth_m
-        self.noise_ir = noise_ir
-        self.depth_noise_m = depth_noise_m
-        self.rng = np.random.default_rng(seed)
-        h, w = camera.shape
-        s = supersample
-        self.supersample = s
-        texture = np.zeros((h * s, w * s), np.float32)
-        margin = 20
-        count = int((h + 2 * margin) * (w + 2 * margin) * dots_per_px)
-        shift = 4  # cv2 drawing with 4 fractional bits
-        for _ in range(count):
-            x = self.rng.uniform(-margin, w + margin) * s
-            y = self.rng.uniform(-margin, h + margin) * s
-            r = self.rng.uniform(0.8, 1.6) * s
-            centre = (int(x * (1 << shift)), int(y * (1 << shift)))
-            cv2.circle(texture, centre, int(r * (1 << shift)), 1.0, -1, cv2.LINE_AA, shift)
-        self.texture = cv2.GaussianBlur(texture, (0, 0), s * 0.5)
-        ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
-        self.xs, self.ys = xs, ys
-        cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
-        self.centre = (cx, cy)
-        self.shading = (1.0 - 0.4 * (((xs - cx) / w) ** 2 + ((ys - cy) / h) ** 2)).astype(
-            np.float32
+    def __init__(self, scene_path: str = GRASP_SCENE, grasp_secs: float = 1.5) -> None:
+        self.scene = sim.load_scene(scene_path)
+        self.width_m = sim.render(self.scene, grasp_secs).snapshot.width_m
+        self.anchor = self.scene.tool_from_object(grasp_secs)
+        self.geometry = self.scene.gripper_geometry()
+        self.camera = self.scene.camera.intrinsics()
+
+    def pose(self, shift_mm: tuple[float, float], twist_rad: float) -> np.ndarray:
+        """The anchor twisted about tool x, then shifted along tool (y, z)."""
+        c, s = math.cos(twist_rad), math.sin(twist_rad)
+        rot = np.eye(4)
+        rot[1:3, 1:3] = [[c, -s], [s, c]]
+        pose = rot @ self.anchor
+        pose[1:3, 3] += np.asarray(shift_mm) / 1000.0
+        return pose
+
+    def instant(
+        self, shift_mm: tuple[float, float] = (0.0, 0.0), twist_rad: float = 0.0, index: int = 0
+    ) -> sim.Instant:
+        """Both bubbles with the mug moved; ``index`` selects the noise draw."""
+        return sim.render_grasp(
+            self.scene.object.name,
+            self.pose(shift_mm, twist_rad),
+            self.width_m,
+            effects=self.scene.effects,
+            dims_m=dict(self.scene.object.dims_m),
+            anchor_tool_from_object=self.anchor,
+            frame_index=index,
+            scene=self.scene,
         )
 
-    def field(self, t_px: tuple[float, float], theta_rad: float) -> np.ndarray:
-        """The true displacement ``(h, w, 2)`` of the dot at each reference pixel."""
-        cx, cy = self.centre
-        co, si = math.cos(theta_rad), math.sin(theta_rad)
-        rx, ry = self.xs - cx, self.ys - cy
-        dx = co * rx - si * ry - rx + t_px[0]
-        dy = si * rx + co * ry - ry + t_px[1]
-        return np.stack([dx, dy], axis=-1)
 
-    def render(
-        self, t_px: tuple[float, float] = (0.0, 0.0), theta_rad: float = 0.0
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """IR (uint16) and depth (float32 m, with noise) of the membrane moved by the field."""
-        cx, cy = self.centre
-        co, si = math.cos(-theta_rad), math.sin(-theta_rad)
-        qx, qy = self.xs - cx - t_px[0], self.ys - cy - t_px[1]
-        gx = cx + co * qx - si * qy
-        gy = cy + si * qx + co * qy
-        s = self.supersample
-        dots = cv2.remap(self.texture, (gx + 0.5) * s - 0.5, (gy + 0.5) * s - 0.5, cv2.INTER_LINEAR)
-        ir = (800.0 + 2000.0 * dots) * self.shading
-        ir += self.rng.normal(0.0, self.noise_ir, ir.shape)
-        depth = self.depth_m + self.rng.normal(0.0, self.depth_noise_m, ir.shape)
-        return (
-            np.clip(ir, 0, 65535).astype(np.uint16),
-            depth.astype(np.float32),
+def _sheet_coordinates(
+    geometry: GripperGeometry, camera: PinholeCamera, arrays: dict[str, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel: the printed-sheet coordinates of the material seen there, and the
+    finger-frame (y, z) of the membrane point, both ``(h, w, 2)`` metres.
+
+    The simulator textures the membrane point with finger coordinates (y, z) by the
+    sheet at ``(y, z) - material_shift`` (``sim.tof``), so equal sheet coordinates in two
+    frames mean the same material.
+    """
+    finger_from_sensor = geometry.finger_from_sensor()
+    dirs = camera.unit_rays() @ finger_from_sensor[:3, :3].T
+    yz = finger_from_sensor[1:3, 3] + arrays["range_m"][..., None] * dirs[..., 1:]
+    return (yz - arrays["material_shift_m"]).astype(np.float32), yz
+
+
+def truth(
+    geometry: GripperGeometry,
+    camera: PinholeCamera,
+    reference: sim.Instant,
+    current: sim.Instant,
+    sensor: str,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(truth_px, truth_mm, torsion_rad)`` of ``current`` against ``reference``, one bubble.
+
+    The true flow follows the material: for each masked reference pixel ``q`` with sheet
+    coordinates ``c``, Newton's method finds the current pixel ``p`` whose material is
+    ``c`` (the sheet map is smooth; a few steps converge to 1e-5 m). The material's
+    displacement is the change of its membrane point's (y, z), in the tool frame.
+    """
+    sheet_ref, yz_ref = _sheet_coordinates(geometry, camera, reference.frames[sensor].arrays)
+    sheet_cur, yz_cur = _sheet_coordinates(geometry, camera, current.frames[sensor].arrays)
+    ref_image = reference.images[sensor]
+    mask = membrane_mask(ref_image.ir, ref_image.depth_m, ShearParams())
+    mask &= np.isfinite(sheet_ref).all(axis=-1)
+    h, w = mask.shape
+    grid_y, grid_x = np.mgrid[0:h, 0:w].astype(np.float32)
+    d_dx = np.gradient(sheet_cur, axis=1)
+    d_dy = np.gradient(sheet_cur, axis=0)
+    px, py = grid_x.copy(), grid_y.copy()
+    residual = np.full((h, w, 2), np.inf, np.float32)
+
+    def sample(image: np.ndarray) -> np.ndarray:
+        return cv2.remap(
+            image, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
         )
 
-    def mm_per_px(self) -> np.ndarray:
-        """Membrane millimetres per pixel along x and y (face-on plane: depth / focal length)."""
-        return self.depth_m * 1000.0 / np.array([self.camera.fx_px, self.camera.fy_px])
+    for _ in range(8):
+        residual = sample(sheet_cur) - sheet_ref
+        jx, jy = sample(d_dx), sample(d_dy)
+        det = jx[..., 0] * jy[..., 1] - jy[..., 0] * jx[..., 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step_x = -(jy[..., 1] * residual[..., 0] - jy[..., 0] * residual[..., 1]) / det
+            step_y = -(-jx[..., 1] * residual[..., 0] + jx[..., 0] * residual[..., 1]) / det
+        px = np.where(np.isfinite(step_x), px + np.clip(step_x, -4, 4), px).astype(np.float32)
+        py = np.where(np.isfinite(step_y), py + np.clip(step_y, -4, 4), py).astype(np.float32)
+    residual = sample(sheet_cur) - sheet_ref
+    with np.errstate(invalid="ignore"):
+        converged = np.nan_to_num(np.abs(residual).max(axis=-1), nan=np.inf) < 1e-5
+    mask &= converged
+    flow = np.stack([px - grid_x, py - grid_y], axis=-1)[mask]
+    rows, cols = np.nonzero(mask)
+    moved_yz = np.stack(
+        [
+            cv2.remap(yz_cur[..., i].astype(np.float32), px, py, cv2.INTER_LINEAR)[mask]
+            for i in (0, 1)
+        ],
+        axis=1,
+    )
+    # Finger (y, z) to tool (y, z): the finger's x is the plate normal, so the finger's
+    # y-z plane is the tool's; the left finger's y is the tool's -y.
+    to_tool = geometry.tool_from_finger(sensor, 0.05)[1:3, 1:3]
+    displacement_mm = (moved_yz - yz_ref[mask]) @ to_tool.T * 1000.0
+    position_mm = yz_ref[mask] @ to_tool.T * 1000.0
+    torsion, _ = rotation_about_centroid(
+        *(np.ascontiguousarray(a[:, i]) for a in (position_mm, displacement_mm) for i in (0, 1))
+    )
+    return flow.mean(axis=0), displacement_mm.mean(axis=0), torsion
 
 
-def sequences(quick: bool, seed: int = 0) -> tuple[DotPlane, Frame, list[Frame]]:
-    """The reference frame and the scored frames, identical for every setting."""
-    camera = PinholeCamera.from_fov()
-    scene = DotPlane(camera, seed=seed)
-    ref_ir, ref_depth = scene.render()
-    ref_mask = membrane_mask(ref_ir, ref_depth, ShearParams())
-    ref = Frame(ref_ir, ref_depth, np.zeros(2), np.zeros(2), 0.0, "reference")
-    frames: list[Frame] = []
+def ramps(quick: bool) -> list[tuple[str, list[tuple[tuple[float, float], float]]]]:
+    """In-hand motions as ramps of frames (shift mm along tool y, z; twist rad).
 
-    def add(t: tuple[float, float], theta: float, name: str) -> None:
-        ir, depth = scene.render(t, theta)
-        truth = scene.field(t, theta)[ref_mask].mean(axis=0).astype(np.float64)
-        frames.append(Frame(ir, depth, truth, truth * scene.mm_per_px(), theta, name))
-
-    magnitudes = (1.0, 3.0) if quick else (0.5, 1.0, 2.0, 4.0)
-    for k in range(8):
+    Shear builds up over frames in a real grasp, so every motion is a ramp from rest,
+    sampled at ``RAMP_STEP_MM`` (about 1.7 px per frame here: a 15 mm/s pull at 30 fps).
+    """
+    steps = 4 if quick else 8
+    out: list[tuple[str, list[tuple[tuple[float, float], float]]]] = []
+    for k in range(0, 8, 2 if quick else 1):
         angle = k * math.pi / 4
-        for m in magnitudes:
-            add((m * math.cos(angle), m * math.sin(angle)), 0.0, "translate")
-    for deg in (-4.0, 2.0) if quick else (-4.0, -2.0, -1.0, 1.0, 2.0, 4.0):
-        add((0.0, 0.0), math.radians(deg), "twist")
-    for k in range(0, 8, 4 if quick else 1):
+        unit = (math.cos(angle), math.sin(angle))
+        out.append(
+            (
+                "translate",
+                [
+                    ((RAMP_STEP_MM * i * unit[0], RAMP_STEP_MM * i * unit[1]), 0.0)
+                    for i in range(1, steps + 1)
+                ],
+            )
+        )
+    for sign in (1.0, -1.0):
+        out.append(
+            ("twist", [((0.0, 0.0), sign * math.radians(1.0 * i)) for i in range(1, steps - 1)])
+        )
+    for k in range(0, 8, 4 if quick else 2):
         angle = k * math.pi / 4 + 0.3
-        add((2.0 * math.cos(angle), 2.0 * math.sin(angle)), math.radians(2.0), "mixture")
-    pull = math.radians(200.0)
-    for i in range(1, 5 if quick else 13):
-        m = 0.4 * i
-        add((m * math.cos(pull), m * math.sin(pull)), math.radians(0.1 * i), "handover")
-    return scene, ref, frames
+        unit = (math.cos(angle), math.sin(angle))
+        out.append(
+            (
+                "mixture",
+                [
+                    ((0.4 * i * unit[0], 0.4 * i * unit[1]), math.radians(0.6 * i))
+                    for i in range(1, steps // 2 + 2)
+                ],
+            )
+        )
+    return out
+
+
+def grasp_sequences(quick: bool) -> list[Sequence]:
+    """Ramps of translations in 8 directions, twists and mixtures of a held mug."""
+    grasp = SimGrasp()
+    reference = grasp.instant(index=0)
+    out: list[Sequence] = []
+    index = 0
+    for name, moves in ramps(quick):
+        frames: dict[str, list[Frame]] = {s: [] for s in SIDES}
+        for shift, twist in moves:
+            index += 1
+            current = grasp.instant(shift, twist, index)
+            for sensor in SIDES:
+                px, mm, torsion = truth(grasp.geometry, grasp.camera, reference, current, sensor)
+                frames[sensor].append(
+                    Frame(current.images[sensor], px, mm, torsion if twist else 0.0, name)
+                )
+        out += [Sequence(name, s, reference.images[s], frames[s]) for s in SIDES]
+    return out
+
+
+def handover_sequences(quick: bool) -> list[Sequence]:
+    """The handover scene: reference at the grasp monitor's stable event, then the pull.
+
+    Frames run from the reference to the release command (every 3rd frame with
+    ``quick``); the truth is against the reference frame.
+    """
+    scene = sim.load_scene(HANDOVER_SCENE)
+    simulator = sim.Simulator(scene)
+    geometry = scene.gripper_geometry()
+    camera = scene.camera.intrinsics()
+    monitor = GraspMonitor()
+    release_secs = min(
+        (c.t_secs for c in scene.gripper.commands if c.command == "release"),
+        default=scene.duration_secs,
+    )
+    reference: sim.Instant | None = None
+    frames: dict[str, list[Frame]] = {s: [] for s in SIDES}
+    step = 3 if quick else 1
+    while not simulator.world.done:
+        snap = simulator.world.step()
+        if snap.time_secs >= release_secs:
+            break
+        stamp = sim.stamp_of(snap)
+        for sensor in SIDES:
+            monitor.update_pressure(sensor, snap.pressure_pa[sensor], stamp)
+        status = monitor.update_gripper(snap.speed_m_per_s, stamp)
+        if reference is None:
+            if status.stable:
+                reference = simulator.render_snapshot(snap)
+            continue
+        if snap.frame_index % step:
+            continue
+        current = simulator.render_snapshot(snap)
+        for sensor in SIDES:
+            px, mm, _ = truth(geometry, camera, reference, current, sensor)
+            frames[sensor].append(Frame(current.images[sensor], px, mm, 0.0, "handover"))
+    if reference is None:
+        raise RuntimeError(f"{HANDOVER_SCENE}: the grasp monitor never reported a stable grasp")
+    return [
+        Sequence("handover", sensor, reference.images[sensor], frames[sensor]) for sensor in SIDES
+    ]
+
+
+def sequences(quick: bool) -> list[Sequence]:
+    """Every scored sequence, identical for every setting."""
+    return grasp_sequences(quick) + handover_sequences(quick)
 
 
 def settings(quick: bool) -> list[tuple[str, ShearParams]]:
-    """The sweep: (setting name, parameters)."""
-    fb = FarnebackParams
+    """The sweep: (setting name, parameters). "half" = half-resolution input; "warm" =
+    each frame's flow starts from the previous frame's (same reference)."""
+    fb, dis = FarnebackParams, DisParams
+    p7 = {"poly_n": 7, "poly_sigma": 1.5}
     out = [
         ("fb L3 w15 (OpenCV sample)", ShearParams(farneback=fb())),
         ("fb L3 w45 (FACTS)", ShearParams(farneback=fb(winsize=45))),
-        ("fb L1 w15", ShearParams(farneback=fb(levels=1))),
-        ("fb L2 w25", ShearParams(farneback=fb(levels=2, winsize=25))),
+        ("fb L3 w31 p7", ShearParams(farneback=fb(winsize=31, **p7))),
+        ("warm fb L3 w15", ShearParams(warm_start=True, farneback=fb())),
         ("half fb L3 w15", ShearParams(scale=0.5, farneback=fb())),
-        ("half fb L2 w15", ShearParams(scale=0.5, farneback=fb(levels=2))),
-        ("half fb L1 w9", ShearParams(scale=0.5, farneback=fb(levels=1, winsize=9))),
+        ("half fb L3 w15 p7", ShearParams(scale=0.5, farneback=fb(**p7))),
+        ("warm half fb L3 w15 p7", ShearParams(scale=0.5, warm_start=True, farneback=fb(**p7))),
         (
-            "half fb L2 w9 it2",
-            ShearParams(scale=0.5, farneback=fb(levels=2, winsize=9, iterations=2)),
+            "warm half fb L1 w9",
+            ShearParams(scale=0.5, warm_start=True, farneback=fb(levels=1, winsize=9)),
         ),
-        ("dis ultrafast", ShearParams(method="dis", dis=DisParams(preset="ultrafast"))),
-        ("dis fast", ShearParams(method="dis", dis=DisParams(preset="fast"))),
-        ("dis medium", ShearParams(method="dis", dis=DisParams(preset="medium"))),
-        ("half dis fast", ShearParams(method="dis", scale=0.5, dis=DisParams(preset="fast"))),
-        ("half dis medium", ShearParams(method="dis", scale=0.5, dis=DisParams(preset="medium"))),
+        ("dis ultrafast", ShearParams(method="dis", dis=dis(preset="ultrafast"))),
+        ("dis fast", ShearParams(method="dis", dis=dis(preset="fast"))),
+        ("dis medium", ShearParams(method="dis", dis=dis(preset="medium"))),
+        ("warm dis fast", ShearParams(method="dis", warm_start=True, dis=dis(preset="fast"))),
+        ("half dis fast", ShearParams(method="dis", scale=0.5, dis=dis(preset="fast"))),
+        ("half dis medium", ShearParams(method="dis", scale=0.5, dis=dis(preset="medium"))),
+        (
+            "warm half dis ultrafast",
+            ShearParams(method="dis", scale=0.5, warm_start=True, dis=dis(preset="ultrafast")),
+        ),
+        (
+            "warm half dis fast fs1",
+            ShearParams(
+                method="dis", scale=0.5, warm_start=True, dis=dis(preset="fast", finest_scale=1)
+            ),
+        ),
+        (
+            "warm half dis medium",
+            ShearParams(method="dis", scale=0.5, warm_start=True, dis=dis(preset="medium")),
+        ),
     ]
     if quick:
-        keep = {"fb L3 w15 (OpenCV sample)", "half fb L2 w15", "dis fast"}
+        keep = {"fb L3 w15 (OpenCV sample)", "half fb L3 w15", "dis fast", "warm half dis medium"}
         out = [s for s in out if s[0] in keep]
     return out
 
@@ -196,38 +369,63 @@ def angle_error_deg(estimate: np.ndarray, truth: np.ndarray) -> float:
     return abs(math.degrees((diff + math.pi) % (2 * math.pi) - math.pi))
 
 
-def evaluate(
-    name: str, params: ShearParams, scene: DotPlane, ref: Frame, frames: list[Frame]
-) -> Row:
-    """One row: errors and time per frame of one setting over all frames."""
-    tracker = ShearTracker(params)
-    tracker.set_reference(ref.ir, ref.depth_m, scene.camera)
-    tracker.update(frames[0].ir, frames[0].depth_m)  # warm caches and allocations
-    dir_err, mag_err, mm_err, torsion_err, cpu, wall, undefined = [], [], [], [], [], [], 0
-    for frame in frames:
-        start_wall, start_cpu = time.perf_counter_ns(), time.thread_time_ns()
-        result = tracker.update(frame.ir, frame.depth_m)
-        cpu.append((time.thread_time_ns() - start_cpu) * 1e-6)
-        wall.append((time.perf_counter_ns() - start_wall) * 1e-6)
-        true_mag = float(np.hypot(*frame.truth_px))
-        mag_err.append(abs(result.magnitude_px - true_mag))
-        mm_err.append(float(np.hypot(*(result.shear_mm - frame.truth_mm))))
-        if true_mag >= DIR_MIN_TRUTH_PX:
-            if result.direction_defined:
-                dir_err.append(angle_error_deg(result.direction, frame.truth_px))
-            else:
-                undefined += 1
-                dir_err.append(180.0)  # an undefined direction where one exists is a miss
-        if frame.torsion_rad != 0.0:
-            torsion_err.append(abs(math.degrees(result.torsion_rad - frame.torsion_rad)))
+def camera_of(image: ToFImage) -> PinholeCamera:
+    """The full-resolution camera of a ToF frame."""
+    h, w = image.ir.shape
+    return PinholeCamera(
+        width_px=int(w),
+        height_px=int(h),
+        fx_px=image.fx_px,
+        fy_px=image.fy_px,
+        cx_px=image.cx_px,
+        cy_px=image.cy_px,
+    )
+
+
+def evaluate(name: str, params: ShearParams, sequences: list[Sequence]) -> Row:
+    """One row: errors and time per frame of one setting over every sequence."""
+    dir_err_mm, dir_err_px, mag_err, mm_err, torsion_err = [], [], [], [], []
+    cpu, wall, undefined = [], [], 0
+    for seq in sequences:
+        tracker = ShearTracker(params)
+        basis = tool_basis_in_sensor(seq.sensor)
+        ref = seq.reference
+        tracker.set_reference(ref.ir, ref.depth_m, camera_of(ref), basis)
+        tracker.update(ref.ir, ref.depth_m)  # warm caches and allocations
+        for frame in seq.frames:
+            image = frame.image
+            start_wall, start_cpu = time.perf_counter_ns(), time.thread_time_ns()
+            result = tracker.update(image.ir, image.depth_m)
+            cpu.append((time.thread_time_ns() - start_cpu) * 1e-6)
+            wall.append((time.perf_counter_ns() - start_wall) * 1e-6)
+            mag_err.append(abs(result.magnitude_px - float(np.hypot(*frame.truth_px))))
+            mm_err.append(float(np.hypot(*(result.shear_mm - frame.truth_mm))))
+            # An undefined direction where one exists is a miss (180 degrees).
+            if float(np.hypot(*frame.truth_mm)) >= DIR_MIN_TRUTH_MM:
+                defined = result.direction_defined and result.mm_defined
+                undefined += not defined
+                dir_err_mm.append(
+                    angle_error_deg(result.shear_mm, frame.truth_mm) if defined else 180.0
+                )
+            if float(np.hypot(*frame.truth_px)) >= DIR_MIN_TRUTH_PX:
+                dir_err_px.append(
+                    angle_error_deg(result.direction, frame.truth_px)
+                    if result.direction_defined
+                    else 180.0
+                )
+            if frame.torsion_rad != 0.0:
+                torsion_err.append(abs(math.degrees(result.torsion_rad - frame.torsion_rad)))
     ms = median(cpu)
     return {
         "method": params.method,
         "setting": name,
         "scale": params.scale,
-        "frames": len(frames),
-        "dir_err_deg_median": median(dir_err),
-        "dir_err_deg_p95": percentile(dir_err, 95),
+        "warm_start": params.warm_start,
+        "frames": len(cpu),
+        "dir_err_deg_median": median(dir_err_px),
+        "dir_err_deg_p95": percentile(dir_err_px, 95),
+        "dir_err_mm_deg_median": median(dir_err_mm),
+        "dir_err_mm_deg_p95": percentile(dir_err_mm, 95),
         "dir_undefined": undefined,
         "mag_err_px_median": median(mag_err),
         "mag_err_px_p95": percentile(mag_err, 95),
@@ -242,8 +440,8 @@ def evaluate(
 def run(quick: bool) -> list[Row]:
     """Every setting on the same sequences."""
     one_core()
-    scene, ref, frames = sequences(quick)
-    return [evaluate(name, params, scene, ref, frames) for name, params in settings(quick)]
+    seqs = sequences(quick)
+    return [evaluate(name, params, seqs) for name, params in settings(quick)]
 
 
 def plot(rows: list[Row], path: Path) -> None:
@@ -273,6 +471,8 @@ COLUMNS = [
     "setting",
     "dir_err_deg_median",
     "dir_err_deg_p95",
+    "dir_err_mm_deg_median",
+    "dir_err_mm_deg_p95",
     "dir_undefined",
     "mag_err_px_median",
     "shear_err_mm_median",

@@ -20,11 +20,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from geometry.camera import PinholeCamera
-from geometry.gripper import tool_from_sensor
 from messages.base import Header
 from messages.shear import ShearReset
 from messages.types import GraspState, OverlayImage, ShearEstimate, ToFImage
-from perception.shear import ShearParams, ShearResult, ShearTracker, draw_overlay
+from perception.shear import (
+    ShearParams,
+    ShearResult,
+    ShearTracker,
+    draw_overlay,
+    tool_basis_in_sensor,
+)
 from runtime.node import Node
 from runtime.registry import register
 
@@ -87,13 +92,6 @@ class DisTrackerParams(ShearTrackerParams):
         super().__post_init__()
         if self.method != "dis":
             raise ValueError(f"`method` must be 'dis' for this node, got {self.method!r}")
-
-
-def tool_basis_in_sensor(sensor: str) -> np.ndarray:
-    """Rows: the tool's y, z and x axes in ``sensor``'s camera frame (t1, t2, n)."""
-    # The mount's rotation does not depend on the opening; any width will do.
-    tool_from_sensor_rot = tool_from_sensor(sensor, 0.05)[:3, :3]
-    return tool_from_sensor_rot[[1, 2, 0], :]
 
 
 def _camera(msg: ToFImage) -> PinholeCamera:

@@ -46,6 +46,7 @@ import cv2
 import numpy as np
 
 from geometry.camera import PinholeCamera
+from geometry.gripper import DEFAULT_GRIPPER, GripperGeometry
 
 DIS_PRESETS = {
     "ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
@@ -470,6 +471,18 @@ def tangent_basis(points: np.ndarray) -> np.ndarray:
     t1 /= norm
     t2 = np.cross(n, t1)
     return np.stack([t1, t2, n])
+
+
+def tool_basis_in_sensor(sensor: str, gripper: GripperGeometry = DEFAULT_GRIPPER) -> np.ndarray:
+    """Rows: the tool's y, z and x axes in ``sensor``'s camera frame (``t1, t2, n``).
+
+    With this basis ``shear_mm`` lies in the plane orthogonal to the grip force (the
+    tool's y, z, as the simulator's ground truth) and the torsion is about tool x, for
+    both bubbles alike.
+    """
+    # The mount's rotation does not depend on the opening; any width will do.
+    tool_from_sensor_rot = gripper.tool_from_sensor(sensor, 0.05)[:3, :3]
+    return np.array(tool_from_sensor_rot[[1, 2, 0], :])
 
 
 @dataclass

@@ -9,15 +9,12 @@ import pytest
 
 import nodes.grasp_monitor  # noqa: F401  (registers the implementations)
 import nodes.shear_tracker  # noqa: F401
-from bench.shear import DotPlane, angle_error_deg
-from geometry.camera import PinholeCamera
+from bench.shear import SimGrasp, angle_error_deg, truth
 from messages.base import Header
 from messages.shear import ShearReset
 from messages.types import GraspState, GripperState, Pressure, ToFImage
 from runtime.registry import resolve
 from runtime.testing import feed, make_node
-
-CAMERA = PinholeCamera.from_fov()
 
 
 def stamp(secs: float) -> Header:
@@ -25,22 +22,15 @@ def stamp(secs: float) -> Header:
 
 
 @pytest.fixture(scope="module")
-def scene() -> DotPlane:
-    return DotPlane(CAMERA, seed=5)
+def scene() -> SimGrasp:
+    return SimGrasp()
 
 
-def image(scene: DotPlane, sensor: str, secs: float, t_px=(0.0, 0.0)) -> ToFImage:
-    ir, depth = scene.render(t_px)
-    return ToFImage(
-        header=stamp(secs),
-        sensor=sensor,
-        depth_m=depth,
-        ir=ir,
-        fx_px=CAMERA.fx_px,
-        fy_px=CAMERA.fy_px,
-        cx_px=CAMERA.cx_px,
-        cy_px=CAMERA.cy_px,
-    )
+def image(scene: SimGrasp, sensor: str, secs: float, shift_mm=(0.0, 0.0)) -> ToFImage:
+    """A simulated frame of the held mug moved by ``shift_mm`` (tool y, z), restamped."""
+    msg = scene.instant(shift_mm, 0.0, index=int(secs * 30)).images[sensor]
+    msg.header = stamp(secs)
+    return msg
 
 
 def grasp_state(secs: float, stable: bool, event: str = "") -> GraspState:
@@ -100,13 +90,17 @@ def test_shear_tracker_reference_follows_the_grasp(scene, impl):
     feed(node, "right", image(scene, "right", 1.0))
     assert io.published["shear"][-1].sensor == "right"
 
-    pull = (-1.5, 1.5)
+    pull = (-0.8, 0.8)
     feed(node, "left", image(scene, "left", 1.1, pull))
     moved = io.published["shear"][-1]
+    truth_px, truth_mm, _ = truth(
+        scene.geometry, scene.camera, scene.instant(), scene.instant(pull, 0.0, 33), "left"
+    )
     assert moved.direction_defined
-    assert angle_error_deg(moved.direction, np.array(pull)) < 5.0
-    assert moved.magnitude_px == pytest.approx(math.hypot(*pull), rel=0.1)
-    assert np.all(np.isfinite(moved.shear_mm)) and np.linalg.norm(moved.shear_mm) > 0.5
+    assert angle_error_deg(moved.direction, truth_px) < 3.0
+    assert moved.magnitude_px == pytest.approx(math.hypot(*truth_px), rel=0.15)
+    # shear_mm is along the tool's y and z (the default shear_frame), like the truth.
+    assert angle_error_deg(moved.shear_mm, truth_mm) < 5.0
 
     feed(node, "grasp", grasp_state(2.0, False, "released"))
     feed(node, "left", image(scene, "left", 2.1, pull))
@@ -114,7 +108,7 @@ def test_shear_tracker_reference_follows_the_grasp(scene, impl):
 
     overlays = io.published["overlay"]
     assert overlays, "an overlay every second frame per bubble"
-    assert overlays[0].image.shape == (CAMERA.height_px, CAMERA.width_px, 3)
+    assert overlays[0].image.shape == (*scene.camera.shape, 3)
     assert overlays[0].image.dtype == np.uint8
 
 

@@ -1,16 +1,23 @@
-"""Shear from the dot pattern against known membrane motion (perception/shear.py)."""
+"""Shear from the dot pattern against the simulator's ground truth (perception/shear.py).
+
+The frames come from ``sim`` (a mug held in ``scenes/mug_grasp.yaml`` and moved in the
+hand, with the ``shear`` and ``dot_pattern`` effects); the truth follows the material
+(``bench.shear.truth``). Analytic checks of the pieces are at the end.
+"""
 
 from __future__ import annotations
 
 import math
+from functools import cache
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.shear import DotPlane, angle_error_deg
+from bench.shear import SimGrasp, angle_error_deg, camera_of, truth
 from geometry.camera import PinholeCamera
+from geometry.gripper import SIDES
 from perception.shear import (
     DisParams,
     FarnebackParams,
@@ -21,27 +28,36 @@ from perception.shear import (
     rotation_about_centroid,
     stretch_ir,
     tangent_basis,
+    tool_basis_in_sensor,
 )
 
-CAMERA = PinholeCamera.from_fov()
+
+@cache
+def grasp() -> SimGrasp:
+    return SimGrasp()
 
 
-@pytest.fixture(scope="module")
-def scene() -> DotPlane:
-    return DotPlane(CAMERA, seed=3)
+@cache
+def instant(shift_mm: tuple[float, float] = (0.0, 0.0), twist_deg: float = 0.0, index: int = 0):
+    return grasp().instant(shift_mm, math.radians(twist_deg), index)
 
 
-@pytest.fixture(scope="module")
-def reference(scene: DotPlane) -> tuple[np.ndarray, np.ndarray]:
-    return scene.render()
+@cache
+def expected(shift_mm: tuple[float, float], twist_deg: float, index: int, sensor: str):
+    g = grasp()
+    return truth(g.geometry, g.camera, instant(), instant(shift_mm, twist_deg, index), sensor)
 
 
-def tracker_for(
-    reference: tuple[np.ndarray, np.ndarray], params: ShearParams | None = None
-) -> ShearTracker:
+def tracker_for(sensor: str, params: ShearParams | None = None) -> ShearTracker:
     tracker = ShearTracker(params or ShearParams())
-    tracker.set_reference(reference[0], reference[1], CAMERA)
+    ref = instant().images[sensor]
+    tracker.set_reference(ref.ir, ref.depth_m, camera_of(ref), tool_basis_in_sensor(sensor))
     return tracker
+
+
+def frame(shift_mm=(0.0, 0.0), twist_deg=0.0, index=1, sensor="left"):
+    image = instant(tuple(shift_mm), twist_deg, index).images[sensor]
+    return image.ir, image.depth_m
 
 
 def assert_finite(result) -> None:
@@ -50,90 +66,111 @@ def assert_finite(result) -> None:
     assert math.isfinite(result.magnitude_px) and math.isfinite(result.torsion_rad)
 
 
+EIGHT = [
+    (round(math.cos(k * math.pi / 4), 6), round(math.sin(k * math.pi / 4), 6)) for k in range(8)
+]
+
+
 @pytest.mark.parametrize(
     "params",
     [
         ShearParams(),
-        ShearParams(scale=0.5, farneback=FarnebackParams(levels=2)),
-        ShearParams(method="dis", dis=DisParams(preset="medium")),
+        ShearParams(scale=0.5),
+        ShearParams(method="dis", dis=DisParams(preset="fast")),
     ],
-    ids=["farneback", "farneback-half", "dis-medium"],
+    ids=["farneback", "farneback-half", "dis-fast"],
 )
-def test_translations_in_eight_directions(scene, reference, params):
-    tracker = tracker_for(reference, params)
-    errors = []
-    for k in range(8):
-        angle = k * math.pi / 4
-        t = (2.0 * math.cos(angle), 2.0 * math.sin(angle))
-        result = tracker.update(*scene.render(t))
-        assert result.direction_defined
+@pytest.mark.parametrize("sensor", SIDES)
+def test_translations_in_eight_directions(params, sensor):
+    tracker = tracker_for(sensor, params)
+    px_errors, mm_errors = [], []
+    for k, shift in enumerate(EIGHT):
+        result = tracker.update(*frame(shift, 0.0, 10 + k, sensor))
+        truth_px, truth_mm, _ = expected(shift, 0.0, 10 + k, sensor)
+        assert result.direction_defined and result.mm_defined
         assert_finite(result)
-        errors.append(angle_error_deg(result.direction, np.array(t)))
+        px_errors.append(angle_error_deg(result.direction, truth_px))
+        mm_errors.append(angle_error_deg(result.shear_mm, truth_mm))
         # Reported in full-resolution pixels whatever the working scale.
-        assert result.magnitude_px == pytest.approx(2.0, abs=0.1)
-        # Face-on plane: mm = px * depth / fx.
-        np.testing.assert_allclose(result.shear_mm, np.array(t) * scene.mm_per_px(), atol=0.05)
-        assert abs(result.torsion_rad) < math.radians(0.3)
-    assert max(errors) < 3.0
-    assert float(np.median(errors)) < 1.5
+        # Flow smooths the sharp edge of the moving patch: a few percent short.
+        assert result.magnitude_px == pytest.approx(np.hypot(*truth_px), rel=0.15)
+        assert np.hypot(*result.shear_mm) == pytest.approx(np.hypot(*truth_mm), rel=0.2)
+    assert max(px_errors) < 3.0
+    assert float(np.median(mm_errors)) < 3.0 and max(mm_errors) < 6.0
 
 
-def test_twist_gives_torsion_and_no_direction(scene, reference):
-    tracker = tracker_for(reference)
-    for deg in (-3.0, 1.5, 3.0):
-        result = tracker.update(*scene.render((0.0, 0.0), math.radians(deg)))
+@pytest.mark.parametrize("sensor", SIDES)
+def test_twist_gives_the_torsion(sensor):
+    tracker = tracker_for(sensor)
+    for twist in (-4.0, 4.0):
+        result = tracker.update(*frame((0.0, 0.0), twist, 20, sensor))
+        _, _, torsion = expected((0.0, 0.0), twist, 20, sensor)
         assert_finite(result)
-        # A twist about the middle of the membrane has no net tangential shear.
-        assert not result.direction_defined
-        assert math.degrees(result.torsion_rad) == pytest.approx(deg, abs=0.3)
+        assert math.copysign(1.0, result.torsion_rad) == math.copysign(1.0, twist)
+        # The membrane outside the contact does not turn: the truth is the same fit.
+        assert math.degrees(result.torsion_rad) == pytest.approx(math.degrees(torsion), abs=0.3)
 
 
-def test_twist_without_depth_is_measured_in_the_image(scene, reference):
+@pytest.mark.parametrize("sensor", SIDES)
+def test_twist_without_depth_is_measured_in_the_image(sensor):
     tracker = ShearTracker(ShearParams())
-    tracker.set_reference(reference[0])
-    result = tracker.update(scene.render((0.0, 0.0), math.radians(2.0))[0])
-    assert math.degrees(result.torsion_rad) == pytest.approx(2.0, abs=0.3)
-    assert np.all(result.shear_mm == 0.0)
+    tracker.set_reference(instant().images[sensor].ir)
+    result = tracker.update(frame((0.0, 0.0), 4.0, 20, sensor)[0])
+    assert not result.mm_defined and np.all(result.shear_mm == 0.0)
+    # In the image the rotation is about the optical axis: the left camera looks along
+    # tool -x, so a twist about tool +x turns its image the other way.
+    facing = math.copysign(1.0, tool_basis_in_sensor(sensor)[2, 2])
+    assert facing * result.torsion_rad > math.radians(0.5)
 
 
-def test_mixture_of_translation_and_twist(scene, reference):
-    tracker = tracker_for(reference)
-    t = (1.5 * math.cos(2.2), 1.5 * math.sin(2.2))
-    result = tracker.update(*scene.render(t, math.radians(2.0)))
-    assert result.direction_defined
-    assert angle_error_deg(result.direction, np.array(t)) < 3.0
-    assert math.degrees(result.torsion_rad) == pytest.approx(2.0, abs=0.3)
+@pytest.mark.parametrize("sensor", SIDES)
+def test_mixture_of_translation_and_twist(sensor):
+    tracker = tracker_for(sensor)
+    shift = (-1.2, 0.8)
+    result = tracker.update(*frame(shift, 3.0, 30, sensor))
+    truth_px, truth_mm, torsion = expected(shift, 3.0, 30, sensor)
+    assert angle_error_deg(result.direction, truth_px) < 3.0
+    assert angle_error_deg(result.shear_mm, truth_mm) < 5.0
+    # With a concurrent translation the flow smooths the moving patch's sharp edge more,
+    # and the fitted rotation comes out short (bench/shear.py measures by how much).
+    assert result.torsion_rad == pytest.approx(torsion, rel=0.4)
 
 
-def test_zero_shear_is_undefined_not_nan(scene, reference):
-    tracker = tracker_for(reference)
-    for frame in (reference, scene.render()):  # the same image, and fresh noise
-        result = tracker.update(*frame)
-        assert not result.direction_defined
+def test_zero_shear_is_undefined_not_nan():
+    tracker = tracker_for("left")
+    for ir, depth in (frame(index=0), frame(index=1), frame(index=2)):  # same image, new noise
+        result = tracker.update(ir, depth)
+        assert result.has_reference and not result.direction_defined
         assert np.all(result.direction == 0.0)
         assert result.magnitude_px < 0.05
+        assert np.hypot(*result.shear_mm) < 0.05
         assert_finite(result)
 
 
-def test_nan_depth_pixels_are_masked(scene, reference):
-    ir, depth = scene.render((1.0, -1.0))
+def test_nan_depth_pixels_are_masked():
+    ir, depth = frame((1.0, 0.0), 0.0, 40)
     depth = depth.copy()
     depth[40:90, 60:120] = np.nan
     depth[::7, :] = np.nan
-    ref_depth = reference[1].copy()
-    ref_depth[100:140, 10:50] = np.nan
-    tracker = ShearTracker(ShearParams())
-    tracker.set_reference(reference[0], ref_depth, CAMERA)
+    tracker = tracker_for("left")
     result = tracker.update(ir, depth, keep_fields=True)
     assert_finite(result)
-    assert result.valid_fraction < 0.8
-    assert not result.mask[60, 80] and not result.mask[120, 30]
-    assert angle_error_deg(result.direction, np.array([1.0, -1.0])) < 3.0
+    assert result.valid_fraction < 0.7
+    assert not result.mask[60, 80] and not result.mask[14, 100]
+    truth_px, truth_mm, _ = expected((1.0, 0.0), 0.0, 40, "left")
+    assert angle_error_deg(result.direction, truth_px) < 3.0
+    assert angle_error_deg(result.shear_mm, truth_mm) < 5.0
 
 
-def test_all_nan_depth_and_saturated_ir_give_finite_zero(scene, reference):
-    tracker = tracker_for(reference)
-    ir, depth = scene.render((1.0, 0.0))
+def test_nan_in_the_reference_and_all_invalid_frames_give_finite_zero():
+    ir_ref, depth_ref = frame(index=0)
+    tracker = ShearTracker(ShearParams())
+    tracker.set_reference(
+        ir_ref, np.full_like(depth_ref, np.nan), camera_of(instant().images["left"])
+    )
+    assert_finite(tracker.update(*frame((1.0, 0.0), 0.0, 40)))
+    tracker = tracker_for("left")
+    ir, depth = frame((1.0, 0.0), 0.0, 40)
     for bad_ir, bad_depth in (
         (ir, np.full_like(depth, np.nan)),
         (np.full_like(ir, 65535), depth),
@@ -146,45 +183,50 @@ def test_all_nan_depth_and_saturated_ir_give_finite_zero(scene, reference):
         assert result.valid_fraction == 0.0
 
 
-def test_partly_saturated_ir_keeps_the_direction(scene, reference):
-    tracker = tracker_for(reference)
-    ir, depth = scene.render((0.0, 2.0))
+def test_partly_saturated_ir_keeps_the_direction():
+    tracker = tracker_for("left")
+    ir, depth = frame((0.0, 1.0), 0.0, 41)
     ir = ir.copy()
     ir[30:80, 30:100] = 65535
     result = tracker.update(ir, depth)
     assert_finite(result)
-    assert angle_error_deg(result.direction, np.array([0.0, 2.0])) < 3.0
+    truth_px, _, _ = expected((0.0, 1.0), 0.0, 41, "left")
+    assert angle_error_deg(result.direction, truth_px) < 3.0
 
 
-def test_reference_drop_and_reset(scene, reference):
-    tracker = tracker_for(reference)
-    shifted = scene.render((2.0, 0.0))
+def test_reference_drop_and_reset():
+    tracker = tracker_for("left")
+    shifted = frame((1.0, 0.0), 0.0, 40)
     assert tracker.update(*shifted).direction_defined
     tracker.drop_reference()
     result = tracker.update(*shifted)
     assert not result.has_reference and not result.direction_defined
     assert_finite(result)
-    tracker.set_reference(shifted[0], shifted[1], CAMERA)
+    tracker.set_reference(*shifted)
     assert tracker.update(*shifted).magnitude_px < 0.05
-    back = tracker.update(*reference)
-    assert angle_error_deg(back.direction, np.array([-1.0, 0.0])) < 3.0
+    back = tracker.update(*frame(index=3))
+    truth_px, _, _ = expected((1.0, 0.0), 0.0, 40, "left")
+    assert angle_error_deg(back.direction, -truth_px) < 5.0
 
 
-def test_warm_start_tracks_a_ramp(scene, reference):
-    tracker = tracker_for(
-        reference, ShearParams(warm_start=True, farneback=FarnebackParams(levels=1))
-    )
+def test_warm_start_tracks_a_ramp_a_single_level_cannot_jump():
+    params = {"levels": 1, "winsize": 9}
+    cold = tracker_for("left", ShearParams(farneback=FarnebackParams(**params)))
+    warm = tracker_for("left", ShearParams(warm_start=True, farneback=FarnebackParams(**params)))
     for step in range(1, 9):
-        result = tracker.update(*scene.render((0.0, -0.5 * step)))
-    # One pyramid level alone cannot jump 4 px; warm starts get there frame by frame.
-    assert result.magnitude_px == pytest.approx(4.0, abs=0.2)
-    assert angle_error_deg(result.direction, np.array([0.0, -1.0])) < 2.0
+        ir_depth = frame((0.5 * step, 0.0), 0.0, 50 + step)
+        result_cold = cold.update(*ir_depth)
+        result_warm = warm.update(*ir_depth)
+    truth_px, truth_mm, _ = expected((4.0, 0.0), 0.0, 58, "left")
+    assert result_cold.magnitude_px < 0.3 * np.hypot(*truth_px)
+    assert result_warm.magnitude_px == pytest.approx(np.hypot(*truth_px), rel=0.2)
+    assert angle_error_deg(result_warm.direction, truth_px) < 2.0
 
 
-def test_shape_mismatch_is_an_error(reference):
-    tracker = tracker_for(reference)
+def test_shape_mismatch_is_an_error():
+    tracker = tracker_for("left")
     with pytest.raises(ValueError, match="shape"):
-        tracker.update(reference[0][:-2])
+        tracker.update(frame()[0][:-2])
 
 
 @pytest.mark.parametrize(
