@@ -167,7 +167,7 @@ class BubbleSpec:
     dead_volume_m3: float = 10e-6
     compliance_m3_per_pa: float = 5e-9
     max_shear_m: float = 0.006
-    shear_blur_px: float = 10.0
+    shear_blur_px: float = 20.0
     sample_spacing_m: float = 0.003
 
     def __post_init__(self) -> None:
