@@ -431,7 +431,8 @@ def build_replay_graph(
     # it live would make the world live too, so the replay stays open-loop there and that
     # node's topics come from the bag. Name it in --replace to run it live anyway.
     live = set(replace) | (downstream - upstream)
-    for name in sorted(downstream & upstream):
+    direct = set().union(*(feeds[n] for n in replace)) - set(replace)
+    for name in sorted(downstream & upstream & direct):
         log.warning(
             "replay: %s is downstream of %s but feeds back into its inputs; "
             "replayed from the bag (add --replace %s to run it live)",
