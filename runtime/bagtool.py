@@ -82,7 +82,7 @@ def _stamp(nanos: int) -> str:
 
 def info_text(path: Path, *, show_graph: bool = False) -> str:
     """What ``bag info`` prints: file, duration, per-topic counts, rates, drops, the graph."""
-    with BagReader(path) as reader:
+    with BagReader(path, warn=lambda _: None) as reader:  # problems are listed below
         stats = reader.stats()
         drops = reader.drops()
         run = reader.run_info()
@@ -100,9 +100,11 @@ def info_text(path: Path, *, show_graph: bool = False) -> str:
             lines.append(f"end:       {_stamp(end)}")
             lines.append(f"duration:  {(end - start) / 1e9:.3f} s")
         lines.append(f"messages:  {total}")
-        if reader.lost_messages or reader.lost_unknown:
-            lost = f"{reader.lost_messages}" + (" or more" if reader.lost_unknown else "")
-            lines.append(f"LOST:      {lost} message(s) in corrupt or truncated chunks")
+        if reader.lost_messages:
+            more = ", and more in a cut or unreadable record" if reader.lost_unknown else ""
+            lines.append(f"LOST:      {reader.lost_messages} message(s) in corrupt chunks{more}")
+        elif reader.lost_unknown:
+            lines.append("LOST:      the messages of a cut or unreadable record (count unknown)")
         if run:
             lines.append(f"recorded:  {run.get('command_line', '')}")
             if run.get("graph_source"):
