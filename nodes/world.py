@@ -84,7 +84,12 @@ class WorldNode(Node):
 
     def on_command(self, msg: GripperCommand) -> None:
         try:
-            self.world.command(msg.command, msg.width_m, msg.speed_m_per_s, msg.force_n)
+            self.world.command(
+                msg.command,
+                width_m=msg.width_m,
+                speed_m_per_s=msg.speed_m_per_s,
+                force_n=msg.force_n,
+            )
         except ValueError as err:
             self.io.log.warning("%s: ignored gripper command: %s", self.name, err)
 

@@ -184,7 +184,7 @@ def render_grasp(
     shear: dict[str, np.ndarray] = {}
     anchors: dict[str, np.ndarray | None] = {}
     for side in SIDES:
-        state = world.contact(side, width_m, pose, anchor_tool_from_object)
+        state = world.contact(side, width_m, pose, anchor=anchor_tool_from_object)
         in_contact[side] = state.in_contact
         pressures[side] = world.pressure_pa(state)
         shear[side] = state.shear_in_tool_m

@@ -41,7 +41,9 @@ class GripperDynamics:
         self._speed = 0.0
         self._force = 0.0
 
-    def command(self, command: str, width_m: float, speed_m_per_s: float, force_n: float) -> None:
+    def command(
+        self, command: str, *, width_m: float, speed_m_per_s: float, force_n: float
+    ) -> None:
         """Accept a command; unknown names raise ``ValueError`` listing the valid ones."""
         if command not in GRIPPER_COMMANDS:
             raise ValueError(

@@ -164,11 +164,11 @@ def march_to_surface(
     field: object,
     origins: np.ndarray,
     directions: np.ndarray,
+    *,
     t_rest: np.ndarray,
     phi_rest: np.ndarray,
     grad_rest: np.ndarray,
     t_min: np.ndarray,
-    *,
     steps: int,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Move from rest points inside the object back along their rays to its surface.

@@ -184,10 +184,10 @@ class BubbleRenderer:
                     self.field,
                     origins,
                     dirs,
-                    self._lr_rest[idx],
-                    phi[inside],
-                    grad[inside],
-                    self._lr_plate[idx],
+                    t_rest=self._lr_rest[idx],
+                    phi_rest=phi[inside],
+                    grad_rest=grad[inside],
+                    t_min=self._lr_plate[idx],
                     steps=self.scene.membrane.march_steps,
                 )
                 pix = self._lr_valid[idx]

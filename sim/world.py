@@ -78,15 +78,20 @@ class World:
         """True once the last frame of the scene has been produced."""
         return self.frame_index >= self.scene.frame_count - 1
 
-    def command(self, command: str, width_m: float, speed_m_per_s: float, force_n: float) -> None:
+    def command(
+        self, command: str, *, width_m: float, speed_m_per_s: float, force_n: float
+    ) -> None:
         """A gripper command from outside (a supervisor); applies from the next step."""
-        self.dynamics.command(command, width_m, speed_m_per_s, force_n)
+        self.dynamics.command(
+            command, width_m=width_m, speed_m_per_s=speed_m_per_s, force_n=force_n
+        )
 
     def contact(
         self,
         side: str,
         width_m: float,
         tool_from_object: np.ndarray,
+        *,
         anchor: np.ndarray | None = None,
     ) -> ContactState:
         """One bubble's contact at a given opening and object pose."""
@@ -132,7 +137,9 @@ class World:
             and self._script[self._next_command].t_secs <= t + 1e-9
         ):
             c = self._script[self._next_command]
-            self.dynamics.command(c.command, c.width_m, c.speed_m_per_s, c.force_n)
+            self.dynamics.command(
+                c.command, width_m=c.width_m, speed_m_per_s=c.speed_m_per_s, force_n=c.force_n
+            )
             self._next_command += 1
         dt = self.scene.frame_period_secs if self.frame_index > 0 else 0.0
         # One contact evaluation per side and opening within a step: the gripper's force
@@ -143,7 +150,7 @@ class World:
         def contacts(w: float) -> dict[str, ContactState]:
             if w not in memo:
                 anchors = self._anchors if self.tracks_anchors else {}
-                memo[w] = {s: self.contact(s, w, pose, anchors.get(s)) for s in SIDES}
+                memo[w] = {s: self.contact(s, w, pose, anchor=anchors.get(s)) for s in SIDES}
             return memo[w]
 
         force_at = None

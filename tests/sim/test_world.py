@@ -87,12 +87,12 @@ def test_external_command_moves_the_jaws() -> None:
     scene = make_scene(effects=["gripper"], duration_secs=1.0)
     world = sim.World(scene)
     world.step()
-    world.command("move", 0.09, 0.1, 20.0)
+    world.command("move", width_m=0.09, speed_m_per_s=0.1, force_n=20.0)
     for _ in range(10):
         snap = world.step()
     assert snap.width_m == pytest.approx(0.09)
     with pytest.raises(ValueError, match="unknown gripper command"):
-        world.command("wave", 0.0, 0.1, 1.0)
+        world.command("wave", width_m=0.0, speed_m_per_s=0.1, force_n=1.0)
 
 
 def test_run_to_and_frame_count() -> None:
