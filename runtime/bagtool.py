@@ -456,13 +456,13 @@ def build_replay_graph(
         if not missing:
             break
         for topic, reader_node in missing:
-            producer = providers.get(topic)
-            if producer is None or producer in recorders:
+            maker = providers.get(topic)
+            if maker is None or maker in recorders:
                 raise GraphError(
                     f"{bag_path}: topic {topic!r} (read by {reader_node!r}) is neither in the "
                     f"bag nor published by a node of the graph"
                 )
-            live.add(producer)
+            live.add(maker)
     replayed = {t: available[t] for n in live for t in inputs[n] if providers.get(t) not in live}
     if not live:
         replayed = dict(available)
