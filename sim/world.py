@@ -171,7 +171,8 @@ class World:
                     elif not state.in_contact:
                         self._anchors[side] = None
                 in_contact[side] = state.in_contact
-                pressure[side] = self.pressure_pa(state)
+                if "pressure" in self.effects:
+                    pressure[side] = self.pressure_pa(state)
                 shear[side] = state.shear_in_tool_m
         self.snapshot = WorldSnapshot(
             frame_index=self.frame_index,

@@ -88,3 +88,52 @@ def test_still_object_reuses_the_membrane_and_stays_identical() -> None:
     assert not np.array_equal(
         first.images["left"].depth_m, second.images["left"].depth_m, equal_nan=True
     )
+
+
+def _without(effect: str) -> list[str]:
+    """All effects but ``effect`` and those that need it."""
+    return [e for e in ALL_EFFECTS if effect not in resolve([e])]
+
+
+@pytest.mark.parametrize("effect", ["ir", "shear", "dot_pattern", "tof_noise"])
+def test_each_camera_effect_off_is_absent_and_unpaid(
+    effect: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setitem(render_module._STEPS, effect, _explode)
+    scene = make_scene(effects=_without(effect), duration_secs=0.2)
+    simulator = sim.Simulator(scene)
+    for _ in range(3):
+        inst = simulator.step()
+    arrays = inst.frames["left"].arrays
+    for added in EFFECTS[effect].adds:
+        if added not in ("depth_m", "amplitude") or effect == "ir":
+            assert added not in arrays, added
+    assert effect not in simulator.renderers["left"].calls
+    if effect == "ir":
+        assert inst.images["left"].ir.shape == (0, 0)
+    if effect == "tof_noise":
+        assert not np.isnan(inst.images["left"].depth_m).any()
+
+
+def test_world_effects_off_are_absent() -> None:
+    commands = [
+        {"t_secs": 0.0, "command": "grasp", "width_m": 0.065, "speed_m_per_s": 0.1, "force_n": 5.0}
+    ]
+    simulator = sim.Simulator(
+        make_scene(effects=_without("pressure"), duration_secs=0.3, gripper={"commands": commands})
+    )
+    for _ in range(5):
+        inst = simulator.step()
+    assert inst.pressures == {}
+    assert inst.snapshot.speed_m_per_s == 0.0 and inst.snapshot.width_m == 0.065  # no dynamics
+    simulator = sim.Simulator(make_scene(effects=_without("ground_truth"), duration_secs=0.3))
+    inst = simulator.step()
+    assert inst.ground_truth is None and inst.masks == {}
+
+
+def test_pressure_off_computes_no_gas_law(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(sim.World, "pressure_pa", _explode)
+    world = sim.World(make_scene(effects=_without("pressure"), duration_secs=0.3))
+    for _ in range(5):
+        snap = world.step()
+    assert snap.pressure_pa == {"left": 0.0, "right": 0.0}
