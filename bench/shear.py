@@ -296,7 +296,7 @@ def handover_sequences(quick: bool) -> list[Sequence]:
         stamp = sim.stamp_of(snap)
         for sensor in SIDES:
             monitor.update_pressure(sensor, snap.pressure_pa[sensor], stamp)
-        status = monitor.update_gripper(snap.speed_m_per_s, stamp)
+        status = monitor.update_gripper(snap.speed_m_per_s, snap.width_m, stamp)
         if reference is None:
             if status.stable:
                 reference = simulator.render_snapshot(snap)

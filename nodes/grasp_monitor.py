@@ -36,7 +36,8 @@ class GraspMonitorNode(Node):
         self._pressure("right", msg)
 
     def on_gripper(self, msg: GripperState) -> None:
-        self._publish(self.monitor.update_gripper(msg.speed_m_per_s, msg.header.stamp_nanos))
+        status = self.monitor.update_gripper(msg.speed_m_per_s, msg.width_m, msg.header.stamp_nanos)
+        self._publish(status)
 
     def _pressure(self, port: str, msg: Pressure) -> None:
         if msg.sensor and msg.sensor != port:

@@ -13,9 +13,11 @@ tasks all key off that moment. This module is the detector, with no sockets:
   stays in contact until the rise falls under ``release_rise_pa`` (hysteresis);
 - the grasp is *stable* once both bubbles are in contact and the finger speed has stayed
   under ``still_speed_m_per_s`` for ``dwell_secs``;
-- a stable grasp is *released* when either bubble leaves contact or the fingers move
-  faster than ``moving_speed_m_per_s`` (opening, or a regrasp); becoming stable again
-  takes a full dwell.
+- a stable grasp is *released* when either bubble leaves contact or the fingers open by
+  more than ``release_opening_m`` from the tightest width seen while stable; becoming
+  stable again takes a full dwell. A force-controlled gripper that squeezes a little
+  further (an object slipping, a person pulling in a handover) keeps the grasp: ending
+  it there would drop the shear reference exactly when the shear matters.
 
 Times are the messages' stamps (nanoseconds), so replayed bags give the same events.
 """
@@ -39,8 +41,7 @@ class GraspParams:
         contact_rise_pa: rise over the free baseline that starts contact.
         release_rise_pa: rise under which contact ends (< ``contact_rise_pa``).
         still_speed_m_per_s: finger speed under which the fingers count as still.
-        moving_speed_m_per_s: finger speed over which a stable grasp is lost
-            (>= ``still_speed_m_per_s``).
+        release_opening_m: opening beyond the tightest stable width that ends the grasp.
         dwell_secs: how long contact and stillness must last before the grasp is stable.
         filter_secs: time constant of the pressure low-pass filter (0: none).
         baseline_secs: time constant of the free-baseline tracker.
@@ -51,7 +52,7 @@ class GraspParams:
     contact_rise_pa: float = 30.0
     release_rise_pa: float = 15.0
     still_speed_m_per_s: float = 0.002
-    moving_speed_m_per_s: float = 0.005
+    release_opening_m: float = 0.002
     dwell_secs: float = 0.3
     filter_secs: float = 0.05
     baseline_secs: float = 2.0
@@ -75,9 +76,9 @@ class GraspParams:
         )
         check(self.still_speed_m_per_s > 0, "still_speed_m_per_s", "> 0")
         check(
-            self.moving_speed_m_per_s >= self.still_speed_m_per_s,
-            "moving_speed_m_per_s",
-            f">= still_speed_m_per_s ({self.still_speed_m_per_s})",
+            math.isfinite(self.release_opening_m) and self.release_opening_m > 0,
+            "release_opening_m",
+            "> 0",
         )
         check(math.isfinite(self.dwell_secs) and self.dwell_secs >= 0, "dwell_secs", ">= 0")
         check(math.isfinite(self.filter_secs) and self.filter_secs >= 0, "filter_secs", ">= 0")
@@ -100,6 +101,7 @@ class GraspStatus:
         contact_left, contact_right: each bubble's contact state (with hysteresis).
         pressure_rise_left_pa, pressure_rise_right_pa: filtered rise over each baseline.
         finger_speed_m_per_s: the last finger speed (absolute).
+        width_m: the last jaw opening (NaN before the first gripper sample).
         stamp_nanos: the stamp of the sample.
     """
 
@@ -110,6 +112,7 @@ class GraspStatus:
     pressure_rise_left_pa: float
     pressure_rise_right_pa: float
     finger_speed_m_per_s: float
+    width_m: float
     stamp_nanos: int
 
 
@@ -161,6 +164,8 @@ class GraspMonitor:
         self.params = params or GraspParams()
         self._bubbles = {sensor: _Bubble(self.params) for sensor in SENSORS}
         self._speed: float | None = None
+        self._width: float = math.nan
+        self._tightest: float = math.nan
         self._still_since: int | None = None
         self._now: int | None = None
         self.stable = False
@@ -176,10 +181,12 @@ class GraspMonitor:
         self._bubbles[sensor].update(pressure_pa, stamp_nanos)
         return self._step(stamp_nanos)
 
-    def update_gripper(self, speed_m_per_s: float, stamp_nanos: int) -> GraspStatus:
-        """A finger speed sample (sign ignored; a non-finite speed counts as moving)."""
-        speed = abs(speed_m_per_s) if math.isfinite(speed_m_per_s) else math.inf
-        self._speed = speed
+    def update_gripper(self, speed_m_per_s: float, width_m: float, stamp_nanos: int) -> GraspStatus:
+        """A gripper sample: finger speed (sign ignored; non-finite counts as moving) and
+        jaw opening (non-finite is ignored)."""
+        self._speed = abs(speed_m_per_s) if math.isfinite(speed_m_per_s) else math.inf
+        if math.isfinite(width_m):
+            self._width = width_m
         return self._step(stamp_nanos)
 
     def status(self, event: str = "") -> GraspStatus:
@@ -193,6 +200,7 @@ class GraspMonitor:
             pressure_rise_left_pa=left.rise_pa,
             pressure_rise_right_pa=right.rise_pa,
             finger_speed_m_per_s=0.0 if self._speed is None else min(self._speed, 1e9),
+            width_m=self._width,
             stamp_nanos=self._now or 0,
         )
 
@@ -205,8 +213,11 @@ class GraspMonitor:
         still = speed is not None and speed < p.still_speed_m_per_s
         event = ""
         if self.stable:
-            moving = speed is not None and speed > p.moving_speed_m_per_s
-            if not contact or moving:
+            if not math.isfinite(self._tightest) or self._width < self._tightest:
+                self._tightest = self._width
+            # NaN compares False: without a width no opening is seen.
+            opened = self._width > self._tightest + p.release_opening_m
+            if not contact or opened:
                 self.stable = False
                 self._still_since = None
                 event = "released"
@@ -216,6 +227,7 @@ class GraspMonitor:
                     self._still_since = now
                 if (now - self._still_since) * 1e-9 >= p.dwell_secs:
                     self.stable = True
+                    self._tightest = self._width
                     event = "stable"
             else:
                 self._still_since = None

@@ -42,8 +42,11 @@ def test_grasp_monitor_node_publishes_events():
     events = []
     for i in range(300):
         t = i / 100.0
-        squeeze = 1.0 if 0.5 <= t < 2.0 else 0.0
+        # Squeezed from 0.5 s; the jaws open at 20 mm/s from 2.0 s, the bubbles let go
+        # at 2.2 s.
+        squeeze = 1.0 if 0.5 <= t < 2.2 else 0.0
         speed = 0.02 if 2.0 <= t < 2.3 else 0.0
+        width = 0.05 + 0.02 * min(max(t - 2.0, 0.0), 0.3)
         feed(
             node, "left", Pressure(header=stamp(t), sensor="left", pressure_pa=1000 + 60 * squeeze)
         )
@@ -55,13 +58,15 @@ def test_grasp_monitor_node_publishes_events():
         feed(
             node,
             "gripper",
-            GripperState(header=stamp(t), width_m=0.05, speed_m_per_s=speed, force_n=0),
+            GripperState(header=stamp(t), width_m=width, speed_m_per_s=speed, force_n=0),
         )
     published = io.published["grasp"]
     events = [(m.header.stamp_nanos * 1e-9, m.event) for m in published if m.event]
     assert [e for _, e in events] == ["stable", "released"]
-    assert events[0][0] == pytest.approx(0.5 + 0.05 * 0 + 0.2, abs=0.1)
-    assert events[1][0] == pytest.approx(2.0, abs=0.02)
+    # Contact once the filtered rise passes 30 Pa (~35 ms), then a 0.2 s dwell.
+    assert events[0][0] == pytest.approx(0.5 + 0.035 + 0.2, abs=0.03)
+    # 2 mm of opening (the default release_opening_m) at 20 mm/s.
+    assert events[1][0] == pytest.approx(2.1, abs=0.02)
     # One state per gripper sample, plus the events raised by pressure samples.
     assert len(published) >= 300
     stable_msgs = [m for m in published if m.stable]
