@@ -12,7 +12,9 @@ Frames are published verbatim, as recorded (``header.seq`` and ``stamp_nanos`` i
 so downstream nodes that use message stamps behave exactly as they did live. Pacing:
 
 - ``rate`` (default 1.0): the recorded receive times, scaled (2.0 = twice as fast);
-- ``fast``: as fast as the graph takes them;
+- ``fast``: as fast as the graph takes them: at most ``window`` (256) messages in flight,
+  then wait for the graph to be idle, so no queue overflows at its high-water mark (0 =
+  unbounded; needs the launcher's idle tracking, which ``launch.py replay`` turns on);
 - ``lockstep``: before each message, wait until every node downstream has handled every
   message published so far (``io.wait_idle``), so the same bag through the same nodes gives
   the same outputs whatever the load; implies ``fast`` pacing. The launcher must run the
@@ -55,6 +57,7 @@ class ReplayParams:
     tick_secs: float = 0.001
     batch_secs: float = 0.02
     stop_when_done: bool = True
+    window: int = 256
 
     def __post_init__(self) -> None:
         if not self.path:
@@ -67,6 +70,8 @@ class ReplayParams:
             raise ValueError(
                 f"end_secs must be > start_secs ({self.start_secs}), got {self.end_secs}"
             )
+        if self.window < 0:
+            raise ValueError(f"window must be >= 0 (0: unbounded), got {self.window}")
         for name in ("idle_timeout_secs", "tick_secs", "batch_secs"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
@@ -145,6 +150,7 @@ class Replay(Node):
         self.end_nanos = None if p.end_secs is None else first + int(p.end_secs * 1e9)
         self.fast = p.fast or p.lockstep
         self.published = 0
+        self._in_flight = 0
         self.passes = 0
         self.done = False
         self._restart()
@@ -180,11 +186,19 @@ class Replay(Node):
                 return
             if not self._due(msg, self.io.now_nanos()):
                 return
-            if self.params.lockstep and not self._wait_idle(msg):
-                return
+            if self.params.lockstep:
+                if not self._wait_idle(msg):
+                    return
+            elif self.params.fast and self.params.window and self._in_flight >= self.params.window:
+                # Bound what is in flight so a slow consumer's queue never overflows at the
+                # high-water mark: "as fast as the graph takes them", not faster.
+                if not self.io.wait_idle(self.params.idle_timeout_secs):
+                    self.io.log.warning("graph not idle after %s s", self.params.idle_timeout_secs)
+                self._in_flight = 0
             topic = self.topic_map[msg.topic]
             self.io.publish_raw(topic, msg.wire_frames(topic))
             self.published += 1
+            self._in_flight += 1
             self._pending = next(self._iter, None)
 
     def _wait_idle(self, msg: BagMessage) -> bool:

@@ -227,3 +227,16 @@ def test_pack_frames_matches_recorder_payload(bag: Path) -> None:
     with BagReader(bag) as r:
         m = next(iter(r.messages(["a/tick"])))
         assert bytes(m.payload) == pack_frames(encode("a/tick", tick(0))[1:])
+
+
+def test_replay_fast_bounds_messages_in_flight(bag: Path) -> None:
+    node, io = make_node(Replay, {"path": str(bag), "fast": True, "window": 4})
+    calls: list[int] = []
+
+    def wait_idle(timeout_secs: float) -> bool:
+        calls.append(sum(len(v) for v in io.published.values()))
+        return True
+
+    io.wait_idle = wait_idle  # type: ignore[method-assign]
+    io.advance(0.001)
+    assert calls == [4, 8, 12, 14]  # every 4 messages, and once more before stopping
