@@ -8,7 +8,8 @@ Ports:
 
 Wire format in the bag: see :mod:`runtime.bag` (one channel per topic, the frames as
 received). The bag is flushed every ``flush_period_secs``, so killing the recorder, even
-with SIGKILL, loses at most that much. Per-topic drops (reported by the runtime) and
+with SIGKILL, loses at most that much; a restarted recorder that finds its interrupted
+bag keeps it and records to ``NAME.1.mcap`` (``.2``, ...) instead. Per-topic drops (reported by the runtime) and
 sequence gaps are written to the bag, and a recording that dropped says so when it stops.
 """
 
@@ -18,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from runtime.bag import BagWriter
+from runtime.bag import MAGIC, BagWriter
 from runtime.node import Node
 from runtime.registry import register
 
@@ -52,6 +53,27 @@ class RecorderParams:
             raise ValueError(f"chunk_size_bytes must be > 0, got {self.chunk_size_bytes}")
 
 
+def _interrupted(path: Path) -> bool:
+    """True for a non-empty file that does not end like a complete MCAP file."""
+    try:
+        size = path.stat().st_size
+        if size == 0:
+            return False
+        with open(path, "rb") as f:
+            f.seek(max(0, size - len(MAGIC)))
+            return f.read() != MAGIC
+    except FileNotFoundError:
+        return False
+
+
+def _next_free(path: Path) -> Path:
+    """``out.1.mcap``, ``out.2.mcap``, ...: the first that does not exist."""
+    n = 1
+    while (candidate := path.with_name(f"{path.stem}.{n}{path.suffix}")).exists():
+        n += 1
+    return candidate
+
+
 @register("recorder")
 class Recorder(Node):
     """Records every input topic to ``path`` (MCAP); see the module docstring."""
@@ -61,9 +83,18 @@ class Recorder(Node):
 
     def setup(self) -> None:
         p = self.params
-        Path(p.path).parent.mkdir(parents=True, exist_ok=True)
+        path = Path(p.path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if _interrupted(path):
+            # Most likely this recorder's previous incarnation (restarted after a crash) or a
+            # killed run: never overwrite what it saved.
+            path = _next_free(path)
+            self.io.log.warning(
+                "%s holds an interrupted recording; keeping it and recording to %s", p.path, path
+            )
+        self.path = path
         self.writer = BagWriter(
-            p.path,
+            path,
             chunk_size_bytes=p.chunk_size_bytes,
             compression=p.compression,
             flush_period_secs=p.flush_period_secs,
@@ -95,7 +126,7 @@ class Recorder(Node):
             "recorded %d messages on %d topics to %s",
             total,
             len(self.writer.counts),
-            self.params.path,
+            self.path,
         )
         for topic, d in sorted(lost.items()):
             self.io.log.warning(

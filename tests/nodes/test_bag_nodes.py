@@ -240,3 +240,20 @@ def test_replay_fast_bounds_messages_in_flight(bag: Path) -> None:
     io.wait_idle = wait_idle  # type: ignore[method-assign]
     io.advance(0.001)
     assert calls == [4, 8, 12, 14]  # every 4 messages, and once more before stopping
+
+
+def test_restarted_recorder_keeps_the_interrupted_bag(tmp_path: Path) -> None:
+    path = tmp_path / "rec.mcap"
+    with BagWriter(path) as w:
+        w.write_message("a/tick", tick(0), log_time_nanos=0)
+    complete = path.read_bytes()
+    path.write_bytes(complete[:-30])  # the first incarnation was killed
+    node, io = make_node(Recorder, {"path": str(path)})
+    node.on_raw("a/tick", encode("a/tick", tick(1)))
+    node.teardown()
+    assert path.read_bytes() == complete[:-30]
+    with BagReader(tmp_path / "rec.1.mcap") as r:
+        assert [m.sequence for m in r.messages()] == [1]
+    node, io = make_node(Recorder, {"path": str(tmp_path / "rec.1.mcap")})  # complete: reused
+    node.teardown()
+    assert not (tmp_path / "rec.1.1.mcap").exists() and not (tmp_path / "rec.2.mcap").exists()
