@@ -915,6 +915,14 @@ class BagReader:
                 continue
             if end_nanos is not None and ref.start_nanos >= end_nanos:
                 continue
+            if (
+                wanted is not None
+                and ref.index_counts
+                and set(ref.index_counts) <= set(self.channels)
+            ):
+                # Its message index says no wanted topic is inside: skip the decompression.
+                if not any(self.channels[c].topic in wanted for c in ref.index_counts):
+                    continue
             records = self._chunk_records(ref)
             if records is None:
                 continue

@@ -465,3 +465,22 @@ def test_damaged_bags_never_raise_anything_but_bag_error(
             r.stats()
     except BagError:
         pass
+
+
+def test_chunks_without_wanted_topics_are_not_read(tmp_path: Path) -> None:
+    path = tmp_path / "a.mcap"
+    with BagWriter(path) as w:
+        for i in range(3):
+            w.write_message("a/tick", tick(i), log_time_nanos=i)
+        w.flush()
+        for i in range(3):
+            w.write_message("b/tick", tick(i), log_time_nanos=10 + i)
+        w.flush()
+    with BagReader(path) as r:
+        second = r.chunks[1]
+    _flip(path, second.offset + second.length - 5)  # b/tick's chunk is broken
+    problems: list[str] = []
+    with BagReader(path, warn=problems.append) as r:
+        assert [m.sequence for m in r.messages(["a/tick"])] == [0, 1, 2]
+        assert problems == []  # never opened
+        assert list(r.messages(["b/tick"])) == [] and len(problems) == 1
