@@ -29,6 +29,7 @@ from __future__ import annotations
 import ctypes
 import json
 import logging
+import math
 import os
 import signal
 import sys
@@ -316,11 +317,13 @@ class Runner:
         poller.register(io.pub, zmq.POLLIN)
         by_socket = {inp.socket: inp for inp in io.inputs}
         while not io.stop_requested:
-            timeout_ms = 200.0
+            timeout_ms = 200
             if io.timers:
                 due = min(t.due_nanos for t in io.timers)
-                timeout_ms = max(0.0, min(timeout_ms, (due - time.monotonic_ns()) / 1e6))
-            events = dict(poller.poll(int(timeout_ms)))
+                # Round up: rounding down would poll(0) through the last millisecond
+                # before every timer, a busy spin that steals the CPU from peers.
+                timeout_ms = max(0, min(timeout_ms, math.ceil((due - time.monotonic_ns()) / 1e6)))
+            events = dict(poller.poll(timeout_ms))
             if io.control in events:
                 self._on_control()
             if io.pub in events:
