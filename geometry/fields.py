@@ -94,6 +94,11 @@ class Field(ABC):
     def sample_surface(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """``n`` points drawn uniformly by area on the surface, (n, 3)."""
 
+    @property
+    def revolves_about_z(self) -> bool:
+        """True for a body of revolution about the frame's z axis (yaw is invisible)."""
+        return False
+
 
 class SlabField(Field):
     """A primitive whose field is the paper's slab combination of ``delta``."""
@@ -177,6 +182,10 @@ class CappedCylinder(SlabField):
     ``delta = |[||p_xy||, z]| - [r, h/2]`` and the slab combination (paper, eq. of
     the cylinder proximity field).
     """
+
+    @property
+    def revolves_about_z(self) -> bool:
+        return True
 
     def __init__(self, radius_m: float, height_m: float) -> None:
         self.radius_m = _positive("radius_m", radius_m)
@@ -275,6 +284,10 @@ class Frustum(SlabField):
     proximity for modest slopes.
     """
 
+    @property
+    def revolves_about_z(self) -> bool:
+        return True
+
     def __init__(self, radius_bottom_m: float, radius_top_m: float, height_m: float) -> None:
         self.radius_bottom_m = _positive("radius_bottom_m", radius_bottom_m)
         self.radius_top_m = _positive("radius_top_m", radius_top_m)
@@ -342,6 +355,10 @@ class Frustum(SlabField):
 class Sphere(Field):
     """A sphere at the origin: the exact signed distance ``||p|| - r``."""
 
+    @property
+    def revolves_about_z(self) -> bool:
+        return True
+
     def __init__(self, radius_m: float) -> None:
         self.radius_m = _positive("radius_m", radius_m)
 
@@ -368,6 +385,10 @@ class Sphere(Field):
 
 class Capsule(Field):
     """A capsule on z: the segment ``z in [-L/2, L/2]`` swept by a ball of radius r."""
+
+    @property
+    def revolves_about_z(self) -> bool:
+        return True
 
     def __init__(self, radius_m: float, length_m: float) -> None:
         self.radius_m = _positive("radius_m", radius_m)
@@ -418,6 +439,12 @@ class Transformed(Field):
         self._rot_cp = rot.T  # child_from_parent rotation
         self._trans_cp = -rot.T @ pose[:3, 3]
 
+    @property
+    def revolves_about_z(self) -> bool:
+        pose = self.parent_from_child
+        on_axis = np.allclose(pose[:2, 3], 0.0) and np.allclose(pose[:3, 2], [0.0, 0.0, 1.0])
+        return bool(on_axis and self.child.revolves_about_z)
+
     def value_and_grad(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         pts = _points(points)
         value, grad_child = self.child.value_and_grad(pts @ self._rot_cp.T + self._trans_cp)
@@ -449,6 +476,10 @@ class Union(Field):
         if len(children) == 0:
             raise ValueError("children must hold at least one field, got 0")
         self.children = list(children)
+
+    @property
+    def revolves_about_z(self) -> bool:
+        return all(c.revolves_about_z for c in self.children)
 
     def value_and_grad(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         pts = _points(points)

@@ -1,0 +1,139 @@
+"""``contact_patch``: both bubbles' depth images to one grasp cloud in the tool frame.
+
+Ports:
+    inputs: ``left``, ``right`` (ToFImage), ``gripper`` (GripperState).
+    outputs: ``patch`` (ContactPatch: ``points_in_tool`` float32 (N, 3), ``bubble`` uint8
+        (N,), 0 left / 1 right; header frame_id ``tool``, stamp of the newer image),
+        ``mask`` (MaskImage, one per bubble per patch, 255 = contact; ``sensor`` says which).
+
+A patch is published once both bubbles have sent a new frame since the last one
+(the newest frame of each). The free-bubble reference is (re)captured whenever the
+gripper is open (``width_m >= reference_min_width_m``) and still (speed under
+``reference_max_speed_m_per_s``): on entering that state the old reference is dropped
+and the next ``reference_frames`` frames of each bubble are averaged into a new one.
+Until a bubble has a reference it contributes no points. The logic lives in
+:mod:`perception.contact`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from geometry.camera import PinholeCamera
+from messages.base import Header
+from messages.types import ContactPatch, GripperState, MaskImage, ToFImage
+from perception.contact import ContactParams, ContactPatcher
+from runtime.node import Node
+from runtime.registry import register
+
+
+@dataclass(frozen=True, kw_only=True)
+class ContactPatchParams(ContactParams):
+    """The contact filter's knobs plus when to take the free-bubble reference."""
+
+    reference_min_width_m: float = 0.1
+    reference_max_speed_m_per_s: float = 0.001
+    reference_frames: int = 5
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not (self.reference_min_width_m >= 0.0):
+            raise ValueError(
+                f"reference_min_width_m must be >= 0, got {self.reference_min_width_m}"
+            )
+        if not (self.reference_max_speed_m_per_s >= 0.0):
+            raise ValueError(
+                f"reference_max_speed_m_per_s must be >= 0, got {self.reference_max_speed_m_per_s}"
+            )
+        if self.reference_frames < 1:
+            raise ValueError(f"reference_frames must be >= 1, got {self.reference_frames}")
+
+
+def camera_of(msg: ToFImage) -> PinholeCamera:
+    """The pinhole intrinsics a ToF frame carries."""
+    h, w = msg.depth_m.shape
+    return PinholeCamera(
+        width_px=int(w),
+        height_px=int(h),
+        fx_px=msg.fx_px,
+        fy_px=msg.fy_px,
+        cx_px=msg.cx_px,
+        cy_px=msg.cy_px,
+    )
+
+
+@register("contact_patch")
+class ContactPatchNode(Node):
+    """Difference-image contact patch of both bubbles (paper's naive filter)."""
+
+    Params = ContactPatchParams
+    inputs = {"left": ToFImage, "right": ToFImage, "gripper": GripperState}
+    outputs = {"patch": ContactPatch, "mask": MaskImage}
+
+    def setup(self) -> None:
+        prm = self.params
+        self.patcher = ContactPatcher(
+            ContactParams(
+                threshold_m=prm.threshold_m,
+                min_component_px=prm.min_component_px,
+                opening_px=prm.opening_px,
+                max_points=prm.max_points,
+            )
+        )
+        self.latest: dict[str, ToFImage] = {}
+        self.fresh: dict[str, bool] = {"left": False, "right": False}
+        self.width_m: float | None = None
+        self.open_still = False
+        self.ref_frames = {"left": 0, "right": 0}
+
+    def on_gripper(self, msg: GripperState) -> None:
+        prm = self.params
+        self.width_m = float(msg.width_m)
+        open_still = (
+            msg.width_m >= prm.reference_min_width_m
+            and abs(msg.speed_m_per_s) <= prm.reference_max_speed_m_per_s
+        )
+        if open_still and not self.open_still:
+            self.patcher.clear_reference()
+            self.ref_frames = {"left": 0, "right": 0}
+        self.open_still = open_still
+
+    def on_left(self, msg: ToFImage) -> None:
+        self._image("left", msg)
+
+    def on_right(self, msg: ToFImage) -> None:
+        self._image("right", msg)
+
+    def _image(self, side: str, msg: ToFImage) -> None:
+        if self.open_still and self.ref_frames[side] < self.params.reference_frames:
+            self.patcher.update_reference(side, msg.depth_m)
+            self.ref_frames[side] += 1
+        self.latest[side] = msg
+        self.fresh[side] = True
+        if all(self.fresh.values()) and self.width_m is not None:
+            self._publish()
+
+    def _publish(self) -> None:
+        self.fresh = {"left": False, "right": False}
+        frames = {s: (m.depth_m, camera_of(m)) for s, m in self.latest.items()}
+        cloud = self.patcher.extract(frames, self.width_m or 0.0)
+        stamp = max(m.header.stamp_nanos for m in self.latest.values())
+        self.io.publish(
+            "patch",
+            ContactPatch(
+                header=Header(stamp_nanos=stamp, frame_id="tool"),
+                points_in_tool=np.ascontiguousarray(cloud.points_in_tool, dtype=np.float32),
+                bubble=np.ascontiguousarray(cloud.bubble, dtype=np.uint8),
+            ),
+        )
+        for side, mask in cloud.masks.items():
+            self.io.publish(
+                "mask",
+                MaskImage(
+                    header=Header(stamp_nanos=stamp, frame_id=f"{side}_sensor"),
+                    sensor=side,
+                    mask=np.where(mask, 255, 0).astype(np.uint8),
+                ),
+            )
