@@ -22,6 +22,7 @@ check: $(VENV_STAMP)
 lint: $(VENV_STAMP)
 	$(PY) -m ruff check .
 	$(PY) -m ruff format --check .
+	$(PY) -m mypy messages runtime
 
 format: $(VENV_STAMP)
 	$(PY) -m ruff format .
