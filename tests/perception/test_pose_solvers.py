@@ -1,0 +1,115 @@
+"""IPOPT (with and without jit, both Hessians) and ICP against the same synthetic clouds."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+from geometry import fields, se3
+from geometry.objects import ObjectModel
+from perception.pose import common, synthetic
+from perception.pose.icp import IcpSolver, kabsch
+from perception.pose.ipopt import IpoptParams, IpoptSolver, _bucket, _theta_jacobian, jit_available
+from perception.pose.lm import LMSolver
+
+CYL = ObjectModel(
+    name="cylinder",
+    class_label="mug",
+    field=fields.CappedCylinder(0.04, 0.095),
+    symmetric_about_z=True,
+)
+
+
+def _case(seed: int, n: int = 600):
+    rng = np.random.default_rng(seed)
+    truth = synthetic.random_grasp_pose(CYL, rng)
+    pts, _ = synthetic.grasp_cloud(CYL, truth, n_points=n, noise_m=0.001, rng=rng)
+    start = synthetic.tilted_seed(truth, 15.0, rng, offset_m=0.004)
+    return truth, pts, se3.invert(start)
+
+
+def _axis_err(result: common.FitResult, truth: np.ndarray) -> float:
+    return common.axis_error_deg(result.tool_from_object, truth, flip_symmetric=True)
+
+
+@pytest.mark.parametrize("hessian", ["gauss_newton", "exact"])
+def test_ipopt_without_jit_recovers_pose_and_matches_lm(hessian: str) -> None:
+    truth, pts, seed = _case(1)
+    result = IpoptSolver(CYL.field, IpoptParams(jit="off", hessian=hessian)).solve(pts, seed)
+    assert result.status == "ok" and result.solver == "ipopt"
+    assert _axis_err(result, truth) < 1.0
+    assert common.offaxis_error_m(result.tool_from_object, truth) < 0.001
+    lm = LMSolver(CYL.field).solve(pts, seed)
+    # Same problem, same minimum (observable part): the costs agree closely.
+    assert result.cost == pytest.approx(lm.cost, rel=1e-4)
+
+
+def test_jit_fallback_without_a_compiler() -> None:
+    assert not jit_available("no-such-cc-for-this-test")
+    solver = IpoptSolver(CYL.field, IpoptParams(jit="auto", compiler="no-such-cc-for-this-test"))
+    assert solver.use_jit is False
+    truth, pts, seed = _case(2)
+    assert _axis_err(solver.solve(pts, seed), truth) < 1.0
+    with pytest.raises(RuntimeError, match="compiler"):
+        IpoptSolver(CYL.field, IpoptParams(jit="on", compiler="no-such-cc-for-this-test"))
+
+
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="no C compiler for CasADi jit")
+def test_jit_gives_the_same_answer() -> None:
+    truth, pts, seed = _case(3, n=250)
+    plain = IpoptSolver(CYL.field, IpoptParams(jit="off")).solve(pts, seed)
+    compiled = IpoptSolver(CYL.field, IpoptParams(jit="on")).solve(pts, seed)
+    np.testing.assert_allclose(compiled.object_from_tool, plain.object_from_tool, atol=1e-9)
+
+
+def test_ipopt_gauge_holds_unobservable_directions() -> None:
+    rng = np.random.default_rng(4)
+    side = CYL.field.sample_surface(4000, rng)
+    side = side[np.abs(side[:, 2]) < 0.03][:500]
+    truth = synthetic.random_grasp_pose(CYL, rng)
+    pts = se3.transform_points(truth, side)
+    start = truth @ se3.make_pose(se3.rotation_about(np.array([0, 0, 1.0]), 0.4), [0, 0, 0.01])
+    result = IpoptSolver(CYL.field, IpoptParams(jit="off")).solve(pts, se3.invert(start))
+    assert result.observable == (True, True, False, True, True, False)
+    rel = se3.invert(start) @ result.tool_from_object
+    np.testing.assert_allclose(rel, np.eye(4), atol=1e-5)
+    assert result.iterations < 30  # no crawl along null directions
+
+
+def test_theta_jacobian_matches_finite_differences() -> None:
+    rng = np.random.default_rng(5)
+    pose = se3.make_pose(se3.random_rotation(rng), rng.normal(size=3) * 0.1)
+    q0 = se3.quat_from_matrix(pose[:3, :3])
+    theta0 = np.concatenate([pose[:3, 3], q0])
+    jac = _theta_jacobian(pose)
+    h = 1e-7
+    for k in range(7):
+        d = np.zeros(7)
+        d[k] = h
+        th = theta0 + d
+        # Normalizing q removes only the radial part of dq, which the map sends to zero.
+        moved = se3.make_pose(se3.matrix_from_quat(th[3:]), th[:3])
+        xi = se3.log_se3(moved @ se3.invert(pose)) / h
+        np.testing.assert_allclose(xi, jac[:, k], atol=1e-5)
+    np.testing.assert_allclose(jac[:, 3:] @ q0, 0.0, atol=1e-12)
+
+
+def test_bucket_sizes() -> None:
+    assert _bucket(3, 256) == 256
+    assert _bucket(10000, 256, frozenset({10000})) == 10000
+    assert _bucket(9500, 256, frozenset({10000})) == 10000
+    size = _bucket(10000, 256)
+    assert 10000 <= size <= 1.2 * 10000 + 256
+
+
+def test_icp_recovers_pose_and_kabsch_is_exact() -> None:
+    rng = np.random.default_rng(6)
+    truth_t = se3.make_pose(se3.random_rotation(rng), rng.normal(size=3))
+    src = rng.normal(size=(50, 3))
+    np.testing.assert_allclose(kabsch(src, se3.transform_points(truth_t, src)), truth_t, atol=1e-9)
+    truth, pts, _ = _case(7)
+    seed = se3.invert(synthetic.tilted_seed(truth, 5.0, rng, offset_m=0.001))
+    result = IcpSolver(CYL.field).solve(pts, seed)
+    assert result.solver == "icp" and _axis_err(result, truth) < 2.0
