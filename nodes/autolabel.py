@@ -1,0 +1,445 @@
+"""Auto-labelling (paper, tactile classification): random grasps, and a world that takes them.
+
+``supervisor.autolabel`` commands the run, grasp after grasp:
+
+    place (random object and pose, after a random drop) -> settle -> close -> wait for a
+    stable grasp -> hold ``hold_secs`` (the dataset writer keeps those frames) -> release
+
+Ports:
+    inputs: ``grasp`` (GraspState) from the grasp monitor, which also paces the run
+        (its stamps are the world's clock); ``progress`` (TaskEvent, optional) from the
+        dataset writer, counted for the progress line.
+    outputs: ``place`` (messages.classify.GraspRequest) to the world, ``command``
+        (GripperCommand) to the gripper, ``event`` (TaskEvent, task ``autolabel``):
+        ``run_start`` (detail: JSON of the seeds and scene parameters), ``grasp_start``
+        (detail: JSON of the grasp's parameters), ``grasp_end``, ``grasp_failed`` (no
+        stable grasp in ``stable_timeout_secs``), ``run_end``.
+
+Grasp ``i`` is ``perception.classify.autolabel.GraspGenerator(seed).sample(i)``, so a
+run is deterministic per seed; with ``resume`` the grasps the dataset's manifest already
+holds are skipped. A line per grasp shows progress (done, frames, rate, time left).
+
+``world.autolabel`` is the simulated world of this graph: ``world.sim``'s world
+(``sim.World``) whose object and pose are set by each ``GraspRequest`` (the scene file
+of that object gives the bubbles, cameras and noise) instead of a scripted trajectory.
+
+Ports:
+    inputs: ``place`` (GraspRequest), ``command`` (GripperCommand).
+    outputs: ``state`` (messages.sim.WorldState) per camera frame, which the standard
+        ``bubble_camera.sim``, ``pressure.sim`` and ``gripper.sim`` nodes render;
+        ``ground_truth`` (GroundTruth): the object's class, the labels' source.
+
+A hardware graph drops ``world.autolabel`` and routes ``place`` to the arm.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from messages.base import Header
+from messages.classify import GraspRequest
+from messages.sim import WorldState
+from messages.types import GraspState, GripperCommand, GroundTruth, TaskEvent
+from perception.classify.autolabel import DEFAULT_OBJECTS, GraspGenerator, GraspGeneratorParams
+from perception.classify.dataset import DatasetError, read_manifest
+from runtime.node import Node
+from runtime.registry import register
+from sim import World, ground_truth, load_scene, stamp_of
+from sim.effects import resolve
+from sim.scene import Keyframe, Scene, SceneError
+from sim.wire import to_message
+
+TASK = "autolabel"
+
+
+@dataclass(frozen=True, kw_only=True)
+class AutolabelParams:
+    """Parameters of the auto-labelling supervisor.
+
+    Attributes:
+        seed: the run's seed (grasp ``i`` depends only on ``(seed, i)``).
+        grasps: how many grasps the run makes (ids ``0 .. grasps - 1``).
+        dataset: the dataset directory the writer fills; with ``resume`` its manifest
+            says which grasps are done.
+        resume: skip grasps already in the dataset.
+        objects: object names to grasp.
+        open_width_m: opening before each grasp and after each release.
+        close_speed_m_per_s: finger speed of the grasp.
+        settle_secs: wait after placing an object before closing.
+        stable_timeout_secs: give up on a grasp not stable this long after closing.
+        hold_secs: how long a stable grasp is held (frames recorded meanwhile).
+        release_secs: wait after opening, before the next drop.
+        approach_tilt_deg, skew_deg, offset_m: ranges of the random pose
+            (``GraspGeneratorParams``).
+        start_delay_secs: wall time before the first grasp (lets the graph settle).
+    """
+
+    seed: int = 0
+    grasps: int = 200
+    dataset: str = "out/datasets/autolabel"
+    resume: bool = True
+    objects: tuple[str, ...] = DEFAULT_OBJECTS
+    open_width_m: float = 0.11
+    close_speed_m_per_s: float = 0.1
+    settle_secs: float = 0.2
+    stable_timeout_secs: float = 3.0
+    hold_secs: float = 1.0
+    release_secs: float = 0.3
+    approach_tilt_deg: float = 40.0
+    skew_deg: float = 8.0
+    offset_m: float = 0.006
+    start_delay_secs: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.grasps < 1:
+            raise ValueError(f"`grasps` must be >= 1, got {self.grasps!r}")
+        if not self.dataset:
+            raise ValueError("`dataset` must be a directory path, got ''")
+        if not 0 < self.open_width_m <= 0.11:
+            raise ValueError(f"`open_width_m` must be in (0, 0.11], got {self.open_width_m!r}")
+        for name in (
+            "close_speed_m_per_s",
+            "stable_timeout_secs",
+            "hold_secs",
+        ):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"`{name}` must be > 0, got {getattr(self, name)!r}")
+        for name in ("settle_secs", "release_secs", "start_delay_secs"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"`{name}` must be >= 0, got {getattr(self, name)!r}")
+        self.generator_params()  # checks the object names and ranges
+
+    def generator_params(self) -> GraspGeneratorParams:
+        return GraspGeneratorParams(
+            objects=tuple(self.objects),
+            seed=self.seed,
+            approach_tilt_deg=self.approach_tilt_deg,
+            skew_deg=self.skew_deg,
+            offset_m=self.offset_m,
+        )
+
+
+@register("supervisor.autolabel")
+class AutolabelSupervisor(Node):
+    """Random grasps, one after the other (see the module docstring)."""
+
+    Params = AutolabelParams
+    inputs = {"grasp": GraspState, "progress": TaskEvent}
+    optional_inputs = frozenset({"progress"})
+    outputs = {"place": GraspRequest, "command": GripperCommand, "event": TaskEvent}
+
+    def setup(self) -> None:
+        self.generator = GraspGenerator(self.params.generator_params())
+        done: set[int] = set()
+        if self.params.resume and Path(self.params.dataset, "manifest.json").exists():
+            try:
+                manifest = read_manifest(self.params.dataset)
+            except DatasetError as err:
+                raise ValueError(f"{self.name}: params.dataset: {err}") from err
+            done = {int(g["grasp_id"]) for g in manifest["grasps"]}
+        self.todo = [i for i in range(self.params.grasps) if i not in done]
+        self.skipped = self.params.grasps - len(self.todo)
+        self.phase = "idle"
+        self.current = None
+        self.phase_start_nanos: int | None = None
+        self.finished = 0
+        self.failed = 0
+        self.frames_written = 0
+        self.writer_acked: set[int] = set()
+        self.ended: set[int] = set()
+        self.wall_start = time.monotonic()
+        self.end_wait_start: float | None = None
+        self.io.add_timer(self.params.start_delay_secs or 0.01, self._tick)
+
+    # -- the run ----------------------------------------------------------------------
+
+    def _event(self, event: str, detail: dict | None = None, stamp: int = 0) -> None:
+        self.io.publish(
+            "event",
+            TaskEvent(
+                header=Header(stamp_nanos=stamp),
+                task=TASK,
+                event=event,
+                detail=json.dumps(detail or {}, sort_keys=True),
+            ),
+        )
+
+    def _tick(self) -> None:
+        """Wall-clock timer: starts the run, and ends it once the writer caught up."""
+        if self.phase == "idle":
+            gen = self.generator.params
+            self._event(
+                "run_start",
+                {
+                    "seeds": {"autolabel": self.params.seed},
+                    "scene": {
+                        "generator": {
+                            k: (list(v) if isinstance(v, tuple) else v)
+                            for k, v in dataclasses.asdict(gen).items()
+                        },
+                        "grasps": self.params.grasps,
+                        "open_width_m": self.params.open_width_m,
+                        "close_speed_m_per_s": self.params.close_speed_m_per_s,
+                        "hold_secs": self.params.hold_secs,
+                    },
+                },
+            )
+            self.io.log.info(
+                "%s: %d grasps to make (%d already in %s)",
+                self.name,
+                len(self.todo),
+                self.skipped,
+                self.params.dataset,
+            )
+            self._next_grasp(0)
+        elif self.phase == "done":
+            waited = time.monotonic() - (self.end_wait_start or time.monotonic())
+            pending = {g for g in self.ended if g not in self.writer_acked}
+            if not pending or waited > 5.0:
+                self.phase = "stopped"
+                self.io.request_stop(
+                    f"autolabel: {self.finished} grasps recorded, {self.failed} failed, "
+                    f"{self.frames_written} frames written to {self.params.dataset}"
+                )
+
+    def _next_grasp(self, stamp: int) -> None:
+        if not self.todo:
+            self._event("run_end", {"finished": self.finished, "failed": self.failed}, stamp)
+            self.phase = "done"
+            self.end_wait_start = time.monotonic()
+            return
+        grasp_id = self.todo.pop(0)
+        sample = self.generator.sample(grasp_id)
+        self.current = sample
+        self._event("grasp_start", sample.to_params(), stamp)
+        self.io.publish(
+            "place",
+            GraspRequest(
+                header=Header(stamp_nanos=stamp, frame_id="tool"),
+                grasp_id=grasp_id,
+                object_name=sample.object_name,
+                class_label=sample.class_label,
+                tool_from_object=sample.tool_from_object,
+                open_width_m=self.params.open_width_m,
+                grasp_width_m=sample.grasp_width_m,
+                force_n=sample.force_n,
+            ),
+        )
+        self.phase = "settle"
+        self.phase_start_nanos = None
+
+    def on_grasp(self, msg: GraspState) -> None:
+        """The grasp monitor's state paces the run (its stamps are the world's clock)."""
+        if self.phase in ("idle", "done", "stopped") or self.current is None:
+            return
+        now = msg.header.stamp_nanos
+        if self.phase_start_nanos is None:
+            self.phase_start_nanos = now
+        elapsed = (now - self.phase_start_nanos) * 1e-9
+        p = self.params
+        if self.phase == "settle" and elapsed >= p.settle_secs and not msg.stable:
+            self._command("grasp", self.current.grasp_width_m, self.current.force_n, now)
+            self._enter("closing", now)
+        elif self.phase == "closing":
+            if msg.stable:
+                self._enter("holding", now)
+            elif elapsed > p.stable_timeout_secs:
+                self.failed += 1
+                self._event("grasp_failed", {"grasp_id": self.current.grasp_id}, now)
+                self._release(now)
+        elif self.phase == "holding" and (elapsed >= p.hold_secs or not msg.stable):
+            self.ended.add(self.current.grasp_id)
+            self._event("grasp_end", {"grasp_id": self.current.grasp_id}, now)
+            self.finished += 1
+            self._progress()
+            self._release(now)
+        elif self.phase == "releasing" and elapsed >= p.release_secs and not msg.stable:
+            self._next_grasp(now)  # the object drops; the next grasp finds it elsewhere
+
+    def on_progress(self, msg: TaskEvent) -> None:
+        if msg.event == "grasp_written":
+            detail = json.loads(msg.detail or "{}")
+            self.writer_acked.add(int(detail.get("grasp_id", -1)))
+            self.frames_written += int(detail.get("frames", 0))
+        elif msg.event == "grasp_skipped":
+            detail = json.loads(msg.detail or "{}")
+            self.writer_acked.add(int(detail.get("grasp_id", -1)))
+
+    def _enter(self, phase: str, now: int) -> None:
+        self.phase = phase
+        self.phase_start_nanos = now
+
+    def _release(self, now: int) -> None:
+        self._command("release", self.params.open_width_m, 0.0, now)
+        self._enter("releasing", now)
+
+    def _command(self, command: str, width_m: float, force_n: float, stamp: int) -> None:
+        self.io.publish(
+            "command",
+            GripperCommand(
+                header=Header(stamp_nanos=stamp, frame_id="tool"),
+                command=command,
+                width_m=float(width_m),
+                speed_m_per_s=self.params.close_speed_m_per_s,
+                force_n=float(force_n),
+            ),
+        )
+
+    def _progress(self) -> None:
+        done = self.finished + self.failed
+        total = done + len(self.todo)
+        rate = (time.monotonic() - self.wall_start) / max(done, 1)
+        self.io.log.info(
+            "%s: grasp %d/%d (%s) held; %d failed, %d frames written, %.1f s/grasp, ~%.0f s left",
+            self.name,
+            done,
+            total,
+            self.current.object_name if self.current else "?",
+            self.failed,
+            self.frames_written,
+            rate,
+            rate * len(self.todo),
+        )
+
+
+def rpy_deg_from_rotation(rot: np.ndarray) -> tuple[float, float, float]:
+    """Roll, pitch, yaw (degrees) with ``rot = Rz(yaw) Ry(pitch) Rx(roll)`` (sim scenes)."""
+    pitch = math.asin(max(-1.0, min(1.0, -rot[2, 0])))
+    if math.cos(pitch) > 1e-9:
+        roll = math.atan2(rot[2, 1], rot[2, 2])
+        yaw = math.atan2(rot[1, 0], rot[0, 0])
+    else:  # gimbal lock: only roll -+ yaw is defined; put it all in yaw
+        roll = 0.0
+        yaw = math.atan2(-rot[0, 1], rot[1, 1])
+    return math.degrees(roll), math.degrees(pitch), math.degrees(yaw)
+
+
+DEFAULT_SCENES = {
+    "mug": "scenes/mug_grasp.yaml",
+    "pet_bottle": "scenes/pet_bottle.yaml",
+    "square_bottle": "scenes/square_bottle.yaml",
+    "wine_glass": "scenes/wine_glass.yaml",
+}
+DEFAULT_EFFECTS = ("membrane", "depth", "ir", "tof_noise", "pressure", "gripper", "ground_truth")
+
+
+@dataclass(frozen=True, kw_only=True)
+class AutolabelWorldParams:
+    """``scenes``: object name -> scene file (bubbles, cameras, noise; its object must be
+    that one); ``effects`` and ``seed`` replace the scenes'; ``rate_scale`` > 1 runs
+    faster than real time."""
+
+    scenes: dict[str, str] = field(default_factory=lambda: dict(DEFAULT_SCENES))
+    effects: tuple[str, ...] = DEFAULT_EFFECTS
+    seed: int = 0
+    rate_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not self.rate_scale > 0:
+            raise ValueError(f"`rate_scale` must be > 0, got {self.rate_scale!r}")
+        try:
+            resolve(self.effects)
+        except ValueError as err:
+            raise ValueError(f"`effects`: {err}") from err
+        if "ground_truth" not in self.effects:
+            raise ValueError("`effects` must include 'ground_truth' (the labels come from it)")
+        for name, path in self.scenes.items():
+            try:
+                scene = load_scene(path)
+            except SceneError as err:
+                raise ValueError(f"`scenes`: {err}") from err
+            if scene.object.name != name:
+                raise ValueError(
+                    f"`scenes`: {path} holds a {scene.object.name!r}, listed for {name!r}"
+                )
+
+    def scene_for(self, request: GraspRequest) -> Scene:
+        """The object's scene, holding it still at the requested pose, jaws open."""
+        if request.object_name not in self.scenes:
+            raise ValueError(f"no scene for object {request.object_name!r}: {sorted(self.scenes)}")
+        base = load_scene(self.scenes[request.object_name])
+        pose = np.asarray(request.tool_from_object, dtype=np.float64)
+        keyframe = Keyframe(
+            t_secs=0.0,
+            xyz_m=tuple(float(v) for v in pose[:3, 3]),
+            rpy_deg=rpy_deg_from_rotation(pose[:3, :3]),
+        )
+        gripper = dataclasses.replace(
+            base.gripper, initial_width_m=float(request.open_width_m), commands=()
+        )
+        scene = dataclasses.replace(
+            base,
+            effects=tuple(self.effects),
+            seed=self.seed,
+            trajectory=(keyframe,),
+            mount_rpy_deg=(0.0, 0.0, 0.0),
+            gripper=gripper,
+            duration_secs=1e6,  # the supervisor decides when a grasp ends
+        )
+        if not np.allclose(scene.tool_from_object(0.0), pose, atol=1e-9):
+            raise ValueError("pose does not survive the roll-pitch-yaw round trip")
+        return scene
+
+
+@register("world.autolabel")
+class AutolabelWorld(Node):
+    """The simulated world, with objects placed by ``GraspRequest`` (module docstring)."""
+
+    Params = AutolabelWorldParams
+    inputs = {"place": GraspRequest, "command": GripperCommand}
+    optional_inputs = frozenset({"command"})
+    outputs = {"state": WorldState, "ground_truth": GroundTruth}
+
+    def setup(self) -> None:
+        self.world: World | None = None
+        self.frames = 0
+        self.start_nanos: int | None = None
+        self.period_secs = (
+            1.0 / load_scene(next(iter(self.params.scenes.values()))).camera.frame_rate_hz
+        )
+        self.io.add_timer(self.period_secs / self.params.rate_scale, self.tick)
+
+    def on_place(self, msg: GraspRequest) -> None:
+        try:
+            scene = self.params.scene_for(msg)
+        except ValueError as err:
+            self.io.log.error("%s: cannot place grasp %d: %s", self.name, msg.grasp_id, err)
+            return
+        self.world = World(scene)
+
+    def on_command(self, msg: GripperCommand) -> None:
+        if self.world is None:
+            return
+        try:
+            self.world.command(
+                msg.command,
+                width_m=msg.width_m,
+                speed_m_per_s=msg.speed_m_per_s,
+                force_n=msg.force_n,
+            )
+        except ValueError as err:
+            self.io.log.warning("%s: ignored gripper command: %s", self.name, err)
+
+    def tick(self) -> None:
+        """Advance the placed object's world one frame; nothing until the first place."""
+        if self.world is None:
+            return
+        if self.start_nanos is None:
+            self.start_nanos = self.io.now_nanos()
+        snap = self.world.step()
+        # One clock over all grasps (each grasp's world starts at 0): stamps and the
+        # frame index (which draws the sensor noise) keep counting.
+        snap = dataclasses.replace(
+            snap, frame_index=self.frames, time_secs=self.frames * self.period_secs
+        )
+        self.frames += 1
+        stamp = stamp_of(snap, self.start_nanos)
+        self.io.publish("state", to_message(snap, self.world.scene, stamp))
+        self.io.publish("ground_truth", ground_truth(snap, self.world.model.class_label, stamp))
