@@ -331,6 +331,7 @@ def settings(quick: bool) -> list[tuple[str, ShearParams]]:
         ("warm fb L3 w15", ShearParams(warm_start=True, farneback=fb())),
         ("half fb L3 w15", ShearParams(scale=0.5, farneback=fb())),
         ("half fb L3 w15 p7", ShearParams(scale=0.5, farneback=fb(**p7))),
+        ("warm half fb L3 w15", ShearParams(scale=0.5, warm_start=True, farneback=fb())),
         ("warm half fb L3 w15 p7", ShearParams(scale=0.5, warm_start=True, farneback=fb(**p7))),
         (
             "warm half fb L1 w9",
@@ -347,18 +348,12 @@ def settings(quick: bool) -> list[tuple[str, ShearParams]]:
             ShearParams(method="dis", scale=0.5, warm_start=True, dis=dis(preset="ultrafast")),
         ),
         (
-            "warm half dis fast fs1",
-            ShearParams(
-                method="dis", scale=0.5, warm_start=True, dis=dis(preset="fast", finest_scale=1)
-            ),
-        ),
-        (
             "warm half dis medium",
             ShearParams(method="dis", scale=0.5, warm_start=True, dis=dis(preset="medium")),
         ),
     ]
     if quick:
-        keep = {"fb L3 w15 (OpenCV sample)", "half fb L3 w15", "dis fast", "warm half dis medium"}
+        keep = {"fb L3 w15 (OpenCV sample)", "warm half fb L3 w15 p7", "dis fast"}
         out = [s for s in out if s[0] in keep]
     return out
 
@@ -385,6 +380,7 @@ def camera_of(image: ToFImage) -> PinholeCamera:
 def evaluate(name: str, params: ShearParams, sequences: list[Sequence]) -> Row:
     """One row: errors and time per frame of one setting over every sequence."""
     dir_err_mm, dir_err_px, mag_err, mm_err, torsion_err = [], [], [], [], []
+    dir_err_family: dict[str, list[float]] = {"in_hand": [], "handover": []}
     cpu, wall, undefined = [], [], 0
     for seq in sequences:
         tracker = ShearTracker(params)
@@ -408,11 +404,14 @@ def evaluate(name: str, params: ShearParams, sequences: list[Sequence]) -> Row:
                     angle_error_deg(result.shear_mm, frame.truth_mm) if defined else 180.0
                 )
             if float(np.hypot(*frame.truth_px)) >= DIR_MIN_TRUTH_PX:
-                dir_err_px.append(
+                error = (
                     angle_error_deg(result.direction, frame.truth_px)
                     if result.direction_defined
                     else 180.0
                 )
+                dir_err_px.append(error)
+                family = "handover" if seq.name == "handover" else "in_hand"
+                dir_err_family[family].append(error)
             if frame.torsion_rad != 0.0:
                 torsion_err.append(abs(math.degrees(result.torsion_rad - frame.torsion_rad)))
     ms = median(cpu)
@@ -424,6 +423,8 @@ def evaluate(name: str, params: ShearParams, sequences: list[Sequence]) -> Row:
         "frames": len(cpu),
         "dir_err_deg_median": median(dir_err_px),
         "dir_err_deg_p95": percentile(dir_err_px, 95),
+        "dir_err_deg_p95_in_hand": percentile(dir_err_family["in_hand"], 95),
+        "dir_err_deg_p95_handover": percentile(dir_err_family["handover"], 95),
         "dir_err_mm_deg_median": median(dir_err_mm),
         "dir_err_mm_deg_p95": percentile(dir_err_mm, 95),
         "dir_undefined": undefined,
