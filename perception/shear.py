@@ -10,8 +10,8 @@ This module does that, and what the paper leaves as future work:
   (:class:`DisParams`), optionally on half-resolution input and warm-started from the
   previous frame's flow;
 - only pixels of the membrane count: a mask drops the image border (where flow is
-  biased), pixels whose depth is invalid (NaN) or outside the working range, and IR
-  pixels that are dark (invalid) or saturated, in the reference or the current frame;
+  biased), pixels whose depth is invalid (NaN) or outside loose bounds, and IR pixels
+  that are dark (invalid) or saturated, in the reference or the current frame;
 - ``shear_px`` is the paper's sum divided by the number of masked pixels, i.e. the mean
   displacement in pixels, so that thresholds do not depend on the image size or the
   mask; ``sum_px`` keeps the paper's sum;
@@ -19,8 +19,9 @@ This module does that, and what the paper leaves as future work:
   ``min_magnitude_px``; below it, ``direction`` is ``(0, 0)`` and ``direction_defined``
   is ``False`` (never NaN, never an arbitrary unit vector);
 - with the depth channel, every tracked dot is back-projected before and after, and its
-  3D displacement is projected onto the membrane's tangent plane (fitted to the
-  reference points) to give ``shear_mm``;
+  3D displacement is projected onto a tangent plane to give ``shear_mm``: the plane
+  fitted to the reference membrane, or a given basis such as the tool's y and z axes
+  (:func:`tool_basis_in_sensor`, what the node uses);
 - the torsion (rotation about the contact normal) is the least-squares rotation of the
   displacement field about its centroid, ``sin(theta) = sum(r x d) / sum(|r|^2)``. For
   an affine field ``d = t + A r`` over a region with isotropic second moments this is
@@ -29,11 +30,14 @@ This module does that, and what the paper leaves as future work:
   flow or depth (a finite-difference curl is available as :func:`flow_curl`).
 
 Conventions: image axes ``x`` right (columns) and ``y`` down (rows); flow ``(dx, dy)``
-in pixels maps a reference pixel to where its dot is now. The tangent basis is
+in pixels maps a reference pixel to where its dot is now. The fitted tangent basis is
 ``t1`` = the sensor's x axis projected onto the tangent plane, ``n`` = the plane normal
 pointing away from the camera, ``t2 = n x t1``; for a camera looking straight at the
-membrane this is the image's x and y. Positive torsion is a right-handed rotation about
-``n`` (in the image: from +x towards +y). Depth is z-depth in metres along the optical
+membrane this is the image's x and y. A given basis is any right-handed ``t1, t2, n``.
+Positive torsion is a right-handed rotation about ``n`` (without depth: about the
+optical axis, in the image from +x towards +y). All values are means over the visible
+membrane: the part outside the contact does not move, so they are smaller than the
+object's own shift and twist. Depth is z-depth in metres along the optical
 axis, NaN where invalid (DESIGN.md).
 """
 
