@@ -117,6 +117,7 @@ class _ShearTrackerNode(Node):
         self.stable_since_nanos = 0
         self.want_reference = {sensor: False for sensor in SENSORS}
         self.frames = {sensor: 0 for sensor in SENSORS}
+        self.warned_no_ir: set[str] = set()
 
     def on_grasp(self, msg: GraspState) -> None:
         became_stable = msg.stable and (not self.stable or msg.event == "stable")
@@ -147,6 +148,12 @@ class _ShearTrackerNode(Node):
         self._image("right", msg)
 
     def _image(self, sensor: str, msg: ToFImage) -> None:
+        if msg.ir.size == 0:
+            # A camera without the IR channel (the scene's ``ir`` effect off): nothing to track.
+            if sensor not in self.warned_no_ir:
+                self.io.log.warning("%s: %s frames carry no IR image; skipped", self.name, sensor)
+                self.warned_no_ir.add(sensor)
+            return
         tracker = self.trackers[sensor]
         depth = msg.depth_m if msg.depth_m.shape == msg.ir.shape else None
         if self.want_reference[sensor] and msg.header.stamp_nanos >= self.stable_since_nanos:

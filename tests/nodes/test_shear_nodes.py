@@ -147,3 +147,14 @@ def test_shear_tracker_params_check_their_method():
         make_node(resolve("shear_tracker.dis"), {"method": "farneback"})
     with pytest.raises(ValueError, match="overlay_every_n"):
         make_node(resolve("shear_tracker.farneback"), {"overlay_every_n": -1})
+
+
+def test_shear_tracker_skips_frames_without_ir(scene):
+    node, io = make_node(resolve("shear_tracker.farneback"))
+    msg = image(scene, "left", 0.1)
+    msg.ir = np.zeros((0, 0), np.uint16)
+    feed(node, "grasp", grasp_state(0.0, True, "stable"))
+    feed(node, "left", msg)
+    assert "shear" not in io.published
+    feed(node, "left", image(scene, "left", 0.2))
+    assert io.published["shear"][-1].has_reference
