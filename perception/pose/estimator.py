@@ -11,9 +11,10 @@ asks for around it:
   residual RMS exceeds ``accept_ratio * noise_m`` is rejected, and the solve is re-run
   from the estimate turned 90 degrees about each of its object axes, turned over, and
   from the data and cardinal seeds; the lowest cost wins. A cold start (no prior)
-  always checks its first minimum against the turns. ``status`` says ``ok`` (first solve
-  accepted), ``recovered`` (a re-seed won and fits within ``accept_rms_m``) or
-  ``suspect`` (nothing fits that well; the best is returned).
+  always checks its first minimum against the turns. ``status`` says ``ok`` (the first
+  solve fit within the threshold), ``recovered`` (it did not; a re-seed did) or
+  ``suspect`` (nothing fits that well; the lowest cost is returned). Every
+  result reports ``seeds_tried``.
 - Degenerate input: fewer than ``min_points`` finite points gives ``no_patch`` with the
   prior pose (seed, last estimate, or identity), residual 0 and nothing observable;
   a solver error or a non-finite pose gives ``failed`` with the seed pose. Never an
@@ -173,6 +174,7 @@ class PoseEstimator:
         turned = False
         cold = prior is None
         checks = 0  # turns still to solve before a good minimum may end the search
+        first_good: bool | None = None
         while queue and tried < prm.max_seeds:
             seed = queue.pop(0)
             tried += 1
@@ -181,6 +183,8 @@ class PoseEstimator:
             if best is None or result.cost < best.cost:
                 best = result
             good = best.status == "ok" and best.residual_rms_m <= prm.accept_rms_m
+            if first_good is None:
+                first_good = good
             if not turned and best.status == "ok" and (cold or not good):
                 # The usual wrong minimum is the axis about 90 degrees off: try turns
                 # first. Without a prior every turn is solved (a wrong minimum can fit
@@ -201,7 +205,7 @@ class PoseEstimator:
             status = best.status  # every solve failed: the first seed, with its fit
         elif best.residual_rms_m > prm.accept_rms_m:
             status = "suspect"
-        elif tried > 1:
+        elif not first_good:
             status = "recovered"
         else:
             status = "ok"

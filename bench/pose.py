@@ -1,0 +1,350 @@
+"""Pose estimation: accuracy against time for each solver, point count, tolerance, start;
+and the basin of convergence (success against initial tilt).
+
+One run builds one set of cases and every row uses the same ones:
+
+- ``synthetic``: the mug's body (the paper's cylinder, r 40 mm, h 95 mm) at random side
+  grasps, two-bubble clouds sampled from the surface with 1 mm noise along the camera
+  rays (``perception.pose.synthetic``);
+- ``sim``: the same poses rendered by the simulator (``sim.render_grasp``: membrane,
+  depth and ToF noise), turned into grasp clouds by the real contact filter against a
+  free-bubble reference (``perception.contact``). Skipped, and said so, if ``sim`` is
+  missing.
+
+Each cloud is subsampled to the kept point count (1k, 3k, 10k, 30k). ``warm`` starts
+from the truth tilted 3 degrees and moved 2 mm (tracking); ``cold`` has no prior (data
+and cardinal seeds, turns checked). Success: axis error under 2 degrees and off-axis
+error under 2 mm. The axis error ignores the flip of the axis (a plain cylinder's two
+ends look alike). Basin rows: seeds tilted by ``tilt_deg`` about a random direction
+perpendicular to the axis (and moved 5 mm), solved once (``success_rate_local``) and
+through the estimator's wrong-minimum recovery (``success_rate``), 3k points.
+
+Timing: wall time of the whole estimate (all seeds), one process pinned to one thread.
+The IPOPT solvers are built (and jit-compiled) for each point count before timing.
+
+    python -m bench.pose [--quick] [--json]
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench.common import Row, main, median, one_core, percentile
+from geometry import objects, se3
+from geometry.camera import PinholeCamera
+from geometry.fields import Field
+from perception.contact import ContactParams, ContactPatcher
+from perception.pose import common, synthetic
+from perception.pose.estimator import EstimatorParams, PoseEstimator
+from perception.pose.icp import IcpParams, IcpSolver
+from perception.pose.ipopt import IpoptParams, IpoptSolver, jit_available
+from perception.pose.lm import LMParams, LMSolver
+
+NOISE_M = 0.001
+AXIS_OK_DEG = 2.0
+OFFAXIS_OK_M = 0.002
+DEPTH_M = 0.005  # indentation of the synthetic and simulated grasps
+
+Case = dict[str, Any]
+
+
+def _model() -> tuple[objects.ObjectModel, Field]:
+    mug = objects.make("mug")
+    return mug, mug.field.children[0]  # the body: the paper fits a cylinder
+
+
+def _cloud_from_sim(truth: np.ndarray, width_m: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    import sim
+
+    effects = ("membrane", "depth", "tof_noise")
+    far = truth.copy()
+    far[:3, 3] += [0.0, 0.0, 1.0]  # the object out of reach: free bubbles
+    free = sim.render_grasp("mug", far, 0.11, effects=effects, seed=seed)
+    held = sim.render_grasp("mug", truth, width_m, effects=effects, seed=seed, frame_index=1)
+    patcher = ContactPatcher(ContactParams(threshold_m=0.003, max_points=10**6))
+    frames = {}
+    for side, msg in held.images.items():
+        patcher.update_reference(side, free.images[side].depth_m)
+        h, w = msg.depth_m.shape
+        cam = PinholeCamera(
+            width_px=w,
+            height_px=h,
+            fx_px=msg.fx_px,
+            fy_px=msg.fy_px,
+            cx_px=msg.cx_px,
+            cy_px=msg.cy_px,
+        )
+        frames[side] = (msg.depth_m, cam)
+    cloud = patcher.extract(frames, width_m)
+    return cloud.points_in_tool.astype(np.float64), cloud.bubble
+
+
+def make_cases(n_cases: int, max_points: int, with_sim: bool) -> tuple[list[Case], str]:
+    """Poses, and a synthetic (and simulated) cloud for each."""
+    mug, body = _model()
+    body_model = objects.ObjectModel(
+        name="mug_body", class_label="mug", field=body, symmetric_about_z=True
+    )
+    rng = np.random.default_rng(2026)
+    cases: list[Case] = []
+    sim_note = "sim: used"
+    if with_sim:
+        try:
+            import sim  # noqa: F401
+        except ImportError as err:
+            with_sim = False
+            sim_note = f"sim: unavailable ({err})"
+    else:
+        sim_note = "sim: off"
+    radius = mug.dims_m["radius_m"]
+    gripper_cap = 0.025 - 0.02  # cap height minus plate outset (geometry.gripper defaults)
+    for k in range(n_cases):
+        truth = synthetic.random_grasp_pose(mug, rng)
+        pts, bubble = synthetic.grasp_cloud(
+            body_model, truth, n_points=max_points, noise_m=NOISE_M, rng=rng, depth_m=DEPTH_M
+        )
+        cases.append(
+            {"source": "synthetic", "truth": truth, "points": pts, "bubble": bubble, "k": k}
+        )
+        if with_sim:
+            width = 2.0 * radius + 2.0 * gripper_cap - 2.0 * DEPTH_M
+            spts, sbub = _cloud_from_sim(truth, width, seed=k)
+            if len(spts) >= 100:
+                cases.append(
+                    {"source": "sim", "truth": truth, "points": spts, "bubble": sbub, "k": k}
+                )
+    return cases, sim_note
+
+
+def _subsample(case: Case, n: int) -> tuple[np.ndarray, np.ndarray]:
+    pts, bub = case["points"], case["bubble"]
+    if len(pts) > n:
+        idx = np.sort(np.random.default_rng(case["k"]).choice(len(pts), n, replace=False))
+        pts, bub = pts[idx], bub[idx]
+    return pts, bub
+
+
+def _solvers(body: Field, tol: str, use_jit: bool) -> dict[str, Callable[[], Any]]:
+    loose = tol == "loose"
+    return {
+        "lm": lambda: LMSolver(body, LMParams(cost_tol=1e-4 if loose else 1e-8)),
+        "ipopt": lambda: IpoptSolver(
+            body, IpoptParams(tol=1e-4 if loose else 1e-8, jit="on" if use_jit else "off")
+        ),
+        "icp": lambda: IcpSolver(body, IcpParams(rms_tol_m=1e-5 if loose else 1e-7)),
+    }
+
+
+def _score(result: common.FitResult, truth: np.ndarray) -> tuple[float, float]:
+    return (
+        common.axis_error_deg(result.tool_from_object, truth, flip_symmetric=True),
+        common.offaxis_error_m(result.tool_from_object, truth),
+    )
+
+
+def _warm_seed(truth: np.ndarray, k: int) -> np.ndarray:
+    return synthetic.tilted_seed(truth, 3.0, np.random.default_rng(1000 + k), offset_m=0.002)
+
+
+def accuracy_rows(
+    cases: list[Case],
+    points: list[int],
+    tols: dict[int, list[str]],
+    solvers: list[str],
+    use_jit: bool,
+    starts: tuple[str, ...] = ("warm", "cold"),
+) -> list[Row]:
+    _, body = _model()
+    rows: list[Row] = []
+    for n in points:
+        for tol in tols.get(n, ["tight"]):
+            makers = _solvers(body, tol, use_jit)
+            for name in solvers:
+                solver = makers[name]()
+                if isinstance(solver, IpoptSolver):
+                    solver.prepare(n)
+                    # One untimed solve: the first call of a jit-compiled solver loads it.
+                    warm_pts, _ = _subsample(cases[0], n)
+                    solver.solve(warm_pts, se3.invert(cases[0]["truth"]))
+                for start in starts:
+                    for source in sorted({c["source"] for c in cases}):
+                        errs, offs, secs, seeds = [], [], [], []
+                        est = PoseEstimator(
+                            solver, EstimatorParams(noise_m=NOISE_M, track=False, max_points=n)
+                        )
+                        for case in (c for c in cases if c["source"] == source):
+                            pts, bub = _subsample(case, n)
+                            seed = _warm_seed(case["truth"], case["k"]) if start == "warm" else None
+                            t0 = time.perf_counter()
+                            result = est.estimate(pts, bub, seed_tool_from_object=seed)
+                            secs.append(time.perf_counter() - t0)
+                            a, o = _score(result, case["truth"])
+                            errs.append(a)
+                            offs.append(o)
+                            seeds.append(result.seeds_tried)
+                        ok = [
+                            a < AXIS_OK_DEG and o < OFFAXIS_OK_M
+                            for a, o in zip(errs, offs, strict=True)
+                        ]
+                        rows.append(
+                            {
+                                "kind": "accuracy",
+                                "source": source,
+                                "solver": name,
+                                "points": n,
+                                "tol": tol,
+                                "start": start,
+                                "cases": len(errs),
+                                "axis_err_deg_median": median(errs),
+                                "axis_err_deg_p95": percentile(errs, 95),
+                                "offaxis_err_mm_median": 1e3 * median(offs),
+                                "offaxis_err_mm_p95": 1e3 * percentile(offs, 95),
+                                "success_rate": float(np.mean(ok)),
+                                "solve_ms_median": 1e3 * median(secs),
+                                "rate_hz_median": 1.0 / max(median(secs), 1e-9),
+                                "seeds_mean": float(np.mean(seeds)),
+                            }
+                        )
+    return rows
+
+
+def basin_rows(
+    cases: list[Case], tilts: list[float], n: int, solvers: list[str], use_jit: bool
+) -> list[Row]:
+    _, body = _model()
+    makers = _solvers(body, "tight", use_jit)
+    synth = [c for c in cases if c["source"] == "synthetic"]
+    rows: list[Row] = []
+    for name in solvers:
+        solver = makers[name]()
+        if isinstance(solver, IpoptSolver):
+            solver.prepare(n)
+        est = PoseEstimator(solver, EstimatorParams(noise_m=NOISE_M, track=False, max_points=n))
+        for tilt in tilts:
+            local_ok, robust_ok = [], []
+            for case in synth:
+                pts, bub = _subsample(case, n)
+                rng = np.random.default_rng(int(tilt * 1000) + case["k"])
+                seed = synthetic.tilted_seed(case["truth"], tilt, rng, offset_m=0.005)
+                a, o = _score(solver.solve(pts, se3.invert(seed)), case["truth"])
+                local_ok.append(a < AXIS_OK_DEG and o < OFFAXIS_OK_M)
+                a, o = _score(est.estimate(pts, bub, seed_tool_from_object=seed), case["truth"])
+                robust_ok.append(a < AXIS_OK_DEG and o < OFFAXIS_OK_M)
+            rows.append(
+                {
+                    "kind": "basin",
+                    "source": "synthetic",
+                    "solver": name,
+                    "points": n,
+                    "tilt_deg": tilt,
+                    "cases": len(synth),
+                    "success_rate": float(np.mean(robust_ok)),
+                    "success_rate_local": float(np.mean(local_ok)),
+                }
+            )
+    return rows
+
+
+def run(quick: bool) -> list[Row]:
+    one_core()
+    use_jit = jit_available("gcc")
+    if quick:
+        cases, note = make_cases(3, 3000, with_sim=True)
+        rows = accuracy_rows(cases, [1000], {}, ["lm", "ipopt", "icp"], use_jit=False)
+        rows += basin_rows(cases, [0.0, 45.0, 90.0], 1000, ["lm"], use_jit=False)
+    else:
+        cases, note = make_cases(20, 30000, with_sim=True)
+        points = [1000, 3000, 10000, 30000]
+        tols = {10000: ["tight", "loose"]}
+        rows = accuracy_rows(cases, points, tols, ["lm", "ipopt"], use_jit)
+        # ICP is slow (k-d tree queries, many iterations): cold only on small clouds.
+        rows += accuracy_rows(cases, [1000, 3000], {}, ["icp"], use_jit)
+        rows += accuracy_rows(cases, [10000], {}, ["icp"], use_jit, starts=("warm",))
+        tilts = [0.0, 15.0, 30.0, 45.0, 60.0, 75.0, 90.0]
+        basin_cases = make_cases(100, 3000, with_sim=False)[0]
+        rows += basin_rows(basin_cases, tilts, 3000, ["lm", "ipopt"], use_jit)
+        rows += basin_rows(basin_cases[:30], tilts, 3000, ["icp"], use_jit)
+    for row in rows:
+        row["note"] = f"{note}; ipopt jit: {'on' if use_jit and not quick else 'off'}"
+    return rows
+
+
+def plot(rows: list[Row], path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    colors = {"lm": "C0", "ipopt": "C1", "icp": "C2"}
+    for row in rows:
+        if row["kind"] != "accuracy" or row["tol"] != "tight":
+            continue
+        marker = "o" if row["start"] == "warm" else "s"
+        face = colors[row["solver"]] if row["source"] == "synthetic" else "none"
+        ax1.scatter(
+            row["solve_ms_median"],
+            max(row["axis_err_deg_median"], 1e-3),
+            marker=marker,
+            facecolors=face,
+            edgecolors=colors[row["solver"]],
+        )
+        ax1.annotate(
+            str(row["points"]),
+            (row["solve_ms_median"], max(row["axis_err_deg_median"], 1e-3)),
+            fontsize=6,
+        )
+    ax1.set_xscale("log")
+    ax1.set_yscale("log")
+    ax1.set_xlabel("solve time, median (ms, one core)")
+    ax1.set_ylabel("axis error, median (deg)")
+    ax1.set_title("accuracy vs time (o warm, s cold; hollow: sim)")
+    for name, color in colors.items():
+        basin = [r for r in rows if r["kind"] == "basin" and r["solver"] == name]
+        if basin:
+            ax2.plot(
+                [r["tilt_deg"] for r in basin],
+                [r["success_rate"] for r in basin],
+                "-o",
+                color=color,
+                label=f"{name} + recovery",
+            )
+            ax2.plot(
+                [r["tilt_deg"] for r in basin],
+                [r["success_rate_local"] for r in basin],
+                "--",
+                color=color,
+                label=f"{name} local",
+            )
+    ax2.set_xlabel("initial tilt (deg)")
+    ax2.set_ylabel("success rate")
+    ax2.set_ylim(0, 1.05)
+    ax2.legend(fontsize=7)
+    ax2.set_title("basin of convergence")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+COLUMNS = [
+    "kind",
+    "source",
+    "solver",
+    "points",
+    "tol",
+    "start",
+    "tilt_deg",
+    "axis_err_deg_median",
+    "axis_err_deg_p95",
+    "offaxis_err_mm_median",
+    "offaxis_err_mm_p95",
+    "success_rate",
+    "success_rate_local",
+    "solve_ms_median",
+    "rate_hz_median",
+    "seeds_mean",
+]
+
+if __name__ == "__main__":
+    main("pose", run, columns=COLUMNS, plot=plot)
