@@ -17,15 +17,17 @@ which is the Euclidean distance to the nearest edge or corner outside (the corne
 correction) and the distance to the nearest face inside. Sphere and capsule are exact
 signed distances.
 
-Finite everywhere, by construction, for values and gradients: every square root is
-taken of ``max(s, EPS2)`` and a norm that is exactly zero has a zero gradient. This
-matters for the outer norm ``||max(delta, 0)||``: it is ``sqrt(0)`` for every point
-inside the surface (half of a noisy patch), and the plain derivative there is NaN; an
-epsilon only inside the radial norm ``||p_xy||`` does not cure it. Both the numpy and
-the CasADi forms use ``if_else(s > EPS2, sqrt(max(s, EPS2)), 0)``, whose branches are
-finite with finite derivatives, so values agree to the last bit and no NaN leaks into
-a Jacobian or a Hessian. On the cylinder axis the radial gradient is zero (the field
-is not differentiable there; zero is its minimum-norm subgradient).
+Finite everywhere, by construction, for values and gradients. The outer norm
+``||max(delta, 0)||`` is ``sqrt(0)`` for every point inside the surface (half of a
+noisy patch) and its plain derivative there is NaN; an epsilon only inside the radial
+norm ``||p_xy||`` does not cure it. So every gradient of a norm is written
+``v / max(||v||, 1e-15)`` in numpy (exactly ``v / ||v||`` above 1e-15 m, zero at
+``v = 0``), and every CasADi norm is ``if_else(s > EPS2, sqrt(max(s, EPS2)), 0)``, whose
+branches are both finite with finite derivatives, so no NaN leaks into a Jacobian or a
+Hessian. Values agree between the two to 1e-15 m. On the cylinder axis the radial
+gradient is zero (the field is not differentiable there; zero is its minimum-norm
+subgradient). Gradients have unit length outside right-angled slabs (Eikonal); at a
+frustum's slanted rim they reach ``1/sin`` of the rim angle.
 """
 
 from __future__ import annotations
