@@ -437,7 +437,7 @@ def build_replay_graph(
     for name in sorted(downstream & upstream & direct):
         log.warning(
             "replay: %s is downstream of %s but feeds back into its inputs; "
-            "replayed from the bag (add --replace %s to run it live)",
+            "it does not rerun, its recorded topics stand (add --replace %s to run it live)",
             name,
             ", ".join(sorted(replace)),
             name,
