@@ -116,3 +116,218 @@ def test_bad_params_are_refused() -> None:
         make_node(ResNet18ClassifierNode, {"modality": "rgb"})
     with pytest.raises(ValueError, match="classes"):
         make_node(ResNet18ClassifierNode, {"classes": ["mug"]})
+
+
+# -- auto-labelling: supervisor, world and dataset writer --------------------------------
+
+import json  # noqa: E402
+
+from messages.classify import GraspRequest  # noqa: E402
+from messages.types import GripperCommand, GroundTruth, TaskEvent  # noqa: E402
+from nodes.autolabel import (  # noqa: E402
+    AutolabelSupervisor,
+    AutolabelWorld,
+    rpy_deg_from_rotation,
+)
+from nodes.dataset_writer import DatasetWriterNode  # noqa: E402
+from perception.classify.dataset import read_manifest  # noqa: E402
+from sim.scene import rotation_from_rpy_deg  # noqa: E402
+
+
+def _states(io, port: str) -> list:
+    return io.published[port]
+
+
+def _drive_supervisor(node, io, *, stable_after_close: bool, steps: int = 400) -> None:
+    """Play the grasp monitor: stable some time after each grasp command, until released."""
+    t_ms = 0
+    closed_at = None
+    for _ in range(steps):
+        commands = _states(io, "command")
+        last = commands[-1].command if commands else None
+        if last == "grasp" and closed_at is None:
+            closed_at = t_ms
+        if last == "release":
+            closed_at = None
+        stable = stable_after_close and closed_at is not None and t_ms - closed_at >= 300
+        feed(node, "grasp", _grasp(stable, t_ms))
+        t_ms += 33
+        if io.stop_reason:
+            break
+        io.advance(0.0)
+
+
+def test_supervisor_runs_grasps_in_order(tmp_path: Path) -> None:
+    params = {"seed": 2, "grasps": 3, "dataset": str(tmp_path / "d"), "hold_secs": 0.5}
+    node, io = make_node(AutolabelSupervisor, params, name="supervisor")
+    io.advance(1.0)  # the start timer: run_start, first placement
+    events = [e.event for e in _states(io, "event")]
+    assert events == ["run_start", "grasp_start"]
+    run = json.loads(_states(io, "event")[0].detail)
+    assert run["seeds"] == {"autolabel": 2}
+    assert run["scene"]["generator"]["seed"] == 2
+    _drive_supervisor(node, io, stable_after_close=True)
+    events = [e.event for e in _states(io, "event")]
+    assert events.count("grasp_start") == 3 and events.count("grasp_end") == 3
+    assert events[-1] == "run_end"
+    places = _states(io, "place")
+    assert [p.grasp_id for p in places] == [0, 1, 2]
+    assert [c.command for c in _states(io, "command")] == ["grasp", "release"] * 3
+    # Deterministic per seed: the same run places the same objects at the same poses.
+    again, io2 = make_node(AutolabelSupervisor, params, name="supervisor")
+    io2.advance(1.0)
+    assert np.array_equal(io2.published["place"][0].tool_from_object, places[0].tool_from_object)
+    # The run ends once the writer acknowledged every grasp (or after a grace period).
+    for i in range(3):
+        detail = json.dumps({"grasp_id": i, "frames": 4})
+        feed(
+            node,
+            "progress",
+            TaskEvent(header=Header(), task="autolabel", event="grasp_written", detail=detail),
+        )
+    io.advance(1.0)
+    assert (
+        io.stop_reason and "3 grasps recorded" in io.stop_reason and "12 frames" in io.stop_reason
+    )
+
+
+def test_supervisor_gives_up_on_unstable_grasps(tmp_path: Path) -> None:
+    params = {"seed": 2, "grasps": 2, "dataset": str(tmp_path / "d"), "stable_timeout_secs": 1.0}
+    node, io = make_node(AutolabelSupervisor, params, name="supervisor")
+    io.advance(1.0)
+    _drive_supervisor(node, io, stable_after_close=False)
+    events = [e.event for e in _states(io, "event")]
+    assert events.count("grasp_failed") == 2 and "grasp_end" not in events
+
+
+def _request(grasp_id: int = 0, seed: int = 3) -> GraspRequest:
+    from perception.classify.autolabel import GraspGenerator, GraspGeneratorParams
+
+    sample = GraspGenerator(GraspGeneratorParams(seed=seed)).sample(grasp_id)
+    return GraspRequest(
+        header=Header(),
+        grasp_id=grasp_id,
+        object_name=sample.object_name,
+        class_label=sample.class_label,
+        tool_from_object=sample.tool_from_object,
+        open_width_m=0.11,
+        grasp_width_m=sample.grasp_width_m,
+        force_n=sample.force_n,
+    )
+
+
+def test_rpy_round_trip_including_gimbal_lock() -> None:
+    rng = np.random.default_rng(0)
+    for rpy in [*rng.uniform(-180, 180, (20, 3)), (30.0, 90.0, 10.0), (0.0, -90.0, 45.0)]:
+        rot = rotation_from_rpy_deg(tuple(rpy))
+        assert np.allclose(rotation_from_rpy_deg(rpy_deg_from_rotation(rot)), rot, atol=1e-9)
+
+
+def test_world_places_the_requested_object_and_closes_on_it() -> None:
+    node, io = make_node(AutolabelWorld, {"seed": 0}, name="world")
+    io.advance(0.2)
+    assert io.published["state"] == []  # nothing until an object is placed
+    request = _request()
+    feed(node, "place", request)
+    io.advance(0.1)
+    first = io.published["state"][-1]
+    assert np.allclose(first.tool_from_object, request.tool_from_object)
+    assert first.width_m == pytest.approx(0.11)
+    assert not any(first.in_contact)
+    truth = io.published["ground_truth"][-1]
+    assert truth.object_class == request.class_label
+    command = GripperCommand(
+        header=Header(),
+        command="grasp",
+        width_m=request.grasp_width_m,
+        speed_m_per_s=0.1,
+        force_n=request.force_n,
+    )
+    feed(node, "command", command)
+    io.advance(1.5)
+    last = io.published["state"][-1]
+    assert all(last.in_contact) and last.width_m < 0.11
+    frames = [s.frame_index for s in io.published["state"]]
+    assert frames == list(range(len(frames)))  # one clock across placements
+    feed(node, "place", _request(1))
+    io.advance(0.1)
+    assert io.published["state"][-1].frame_index == frames[-1] + len(io.published["state"]) - len(
+        frames
+    )
+
+
+def _event(event: str, detail: dict, stamp_ms: int = 0) -> TaskEvent:
+    return TaskEvent(
+        header=Header(stamp_nanos=stamp_ms * MS),
+        task="autolabel",
+        event=event,
+        detail=json.dumps(detail),
+    )
+
+
+def _truth(name: str, stamp_ms: int) -> GroundTruth:
+    return GroundTruth(
+        header=Header(stamp_nanos=stamp_ms * MS),
+        tool_from_object=np.eye(4),
+        object_class=name,
+        in_contact=True,
+        shear_left_mm=np.zeros(2),
+        shear_right_mm=np.zeros(2),
+    )
+
+
+def _record_grasp(
+    node, grasp_id: int, name: str, t0: int, frames: int = 8, requested: str | None = None
+) -> None:
+    start = {"grasp_id": grasp_id, "class_label": requested or name}
+    feed(node, "event", _event("grasp_start", start, t0))
+    for k in range(frames):
+        t = t0 + 10 + 33 * k
+        stable = k >= 2  # the first frames come before the grasp is stable
+        feed(node, "grasp", _grasp(stable, t))
+        feed(node, "truth", _truth(name, t))
+        feed(node, "left", _image("left", t))
+        feed(node, "right", _image("right", t))
+    feed(node, "grasp", _grasp(False, t0 + 10 + 33 * frames))
+    feed(node, "event", _event("grasp_end", {"grasp_id": grasp_id}, t0 + 400))
+
+
+def test_writer_keeps_stable_frames_labels_and_resumes(tmp_path: Path) -> None:
+    root = tmp_path / "data"
+    params = {"dataset": str(root), "frame_stride": 2, "max_frames_per_grasp": 10}
+    node, io = make_node(DatasetWriterNode, params, name="writer")
+    run = {"seeds": {"autolabel": 5}, "scene": {"grasps": 3}}
+    feed(node, "event", _event("run_start", run))
+    _record_grasp(node, 0, "mug", 0)
+    _record_grasp(node, 1, "wine_glass", 1000)
+    manifest = read_manifest(root)
+    # 8 frames, the first 2 unstable; of the 6 stable pairs every 2nd is kept: 3.
+    assert [g["frames"] for g in manifest["grasps"]] == [3, 3]
+    assert [g["object_class"] for g in manifest["grasps"]] == ["mug", "wine_glass"]
+    assert manifest["seeds"] == {"autolabel": 5}
+    assert manifest["counts_per_class"]["mug"] == {"grasps": 1, "frames": 3}
+    progress = [json.loads(e.detail) for e in io.published["progress"]]
+    assert progress[0] == {"frames": 3, "grasp_id": 0, "object_class": "mug"}
+    # A new writer on the same directory resumes; the supervisor would skip grasps 0, 1.
+    node2, io2 = make_node(DatasetWriterNode, params, name="writer")
+    feed(node2, "event", _event("run_start", run))
+    _record_grasp(node2, 2, "pet_bottle", 2000)
+    assert len(read_manifest(root)["grasps"]) == 3
+    sup, sup_io = make_node(
+        AutolabelSupervisor, {"seed": 5, "grasps": 4, "dataset": str(root)}, name="supervisor"
+    )
+    sup_io.advance(1.0)
+    assert [p.grasp_id for p in sup_io.published["place"]] == [3]
+
+
+def test_writer_drops_grasps_with_conflicting_labels(tmp_path: Path) -> None:
+    node, io = make_node(DatasetWriterNode, {"dataset": str(tmp_path / "d")}, name="writer")
+    feed(node, "event", _event("run_start", {"seeds": {}, "scene": {}}))
+    _record_grasp(node, 0, "mug", 0)
+    # The simulator says mug, the supervisor asked for a wine glass: not beyond doubt.
+    _record_grasp(node, 1, "mug", 1000, requested="wine_glass")
+    feed(node, "event", _event("grasp_start", {"grasp_id": 2, "class_label": "mug"}, 1900))
+    feed(node, "event", _event("grasp_end", {"grasp_id": 2}, 1950))  # no stable frame
+    events = [e.event for e in io.published["progress"]]
+    assert events == ["grasp_written", "grasp_skipped", "grasp_skipped"]
+    assert [g["grasp_id"] for g in read_manifest(tmp_path / "d")["grasps"]] == [0]
