@@ -94,7 +94,9 @@ def test_translations_in_eight_directions(params, sensor):
         # Reported in full-resolution pixels whatever the working scale.
         # Flow smooths the sharp edge of the moving patch: a few percent short.
         assert result.magnitude_px == pytest.approx(np.hypot(*truth_px), rel=0.15)
-        assert np.hypot(*result.shear_mm) == pytest.approx(np.hypot(*truth_mm), rel=0.2)
+        # Further short in mm: the camera sees the membrane's far side foreshortened
+        # (more mm per px, smaller dots), where the flow falls shortest.
+        assert np.hypot(*result.shear_mm) == pytest.approx(np.hypot(*truth_mm), rel=0.25)
     assert max(px_errors) < 3.0
     assert float(np.median(mm_errors)) < 3.0 and max(mm_errors) < 6.0
 
