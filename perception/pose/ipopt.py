@@ -14,7 +14,9 @@ Made fast without changing the answer:
   ``min_bucket``), and one solver per (field, size, options) is built once and cached,
   so a compiled function serves every patch of that size class.
 - ``jit`` needs a C compiler: ``jit="auto"`` uses one when a trial compile succeeds
-  and otherwise falls back to CasADi's virtual machine (same answer, slower).
+  and otherwise falls back to CasADi's virtual machine (same answer, slower). Only the
+  Gauss-Newton form is compiled: CasADi's exact Hessian of the mapped cost is generated
+  unrolled (about 24 MB of C at 10k points) and is run on the virtual machine.
 - ``hessian="gauss_newton"``: the Hessian of the Lagrangian is handed to IPOPT as
   ``(2/N) sum w_i J_i^T J_i`` (mapped with a sum reduction) plus the gauge term and
   ``2 lam_g I`` on the quaternion block. It matches the exact Hessian near the optimum
@@ -32,6 +34,7 @@ not biased.
 from __future__ import annotations
 
 import functools
+import os
 import shutil
 import tempfile
 import time
@@ -98,12 +101,25 @@ def _jit_dir() -> str:
 
 
 def _jit_options(compiler: str, flags: str) -> dict:
+    # ``jit_name`` is the generated C file's path stem: without a directory in it CasADi
+    # writes ``jit_tmp*.c`` into the working directory.
     return {
         "jit": True,
         "compiler": "shell",
+        "jit_name": "pose",
+        "jit_cleanup": True,
         "jit_options": {"compiler": compiler, "flags": [flags], "directory": _jit_dir()},
         "jit_temp_suffix": True,
     }
+
+
+def _remove_strays() -> None:
+    """Delete the copies of our generated C sources that nlpsol's jit leaves in the
+    working directory (it writes each source there and in ``directory``; only the latter
+    is cleaned). Only files whose unique, suffixed names are in our jit directory go."""
+    for name in os.listdir(_jit_dir()):
+        if name.startswith("pose") and name.endswith(".c") and os.path.isfile(name):
+            os.remove(name)
 
 
 @functools.cache
@@ -174,6 +190,9 @@ class _Compiled:
             "ipopt.sb": "yes",
         }
         jit_opts = _jit_options(prm.compiler, "-O2")
+        # The exact Hessian of the mapped cost comes out unrolled (about 24 MB of C for
+        # 10k points, growing with N): never jit it; the Gauss-Newton one is a 40 kB loop.
+        use_jit = use_jit and prm.hessian == "gauss_newton"
         if use_jit:
             opts.update(jit_opts)
         if prm.hessian == "gauss_newton":
@@ -193,6 +212,8 @@ class _Compiled:
             )
         self.size = size
         self.solver = ca.nlpsol("pose_ipopt", "ipopt", {"x": x, "p": params, "f": f, "g": g}, opts)
+        if use_jit:
+            _remove_strays()
 
 
 @functools.lru_cache(maxsize=16)

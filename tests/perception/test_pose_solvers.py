@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -62,6 +63,8 @@ def test_jit_gives_the_same_answer() -> None:
     plain = IpoptSolver(CYL.field, IpoptParams(jit="off")).solve(pts, seed)
     compiled = IpoptSolver(CYL.field, IpoptParams(jit="on")).solve(pts, seed)
     np.testing.assert_allclose(compiled.object_from_tool, plain.object_from_tool, atol=1e-9)
+    # The generated sources stay out of the working directory.
+    assert not list(Path.cwd().glob("pose*.c")) and not list(Path.cwd().glob("jit_tmp*.c"))
 
 
 def test_ipopt_gauge_holds_unobservable_directions() -> None:
