@@ -26,7 +26,7 @@ from perception.classify.preprocess import check_modality
 from runtime.node import Node
 from runtime.registry import register
 
-DEFAULT_MODEL = "models/tactile_resnet18_depth.pt"
+DEFAULT_MODEL = "models/tactile_resnet18.pt"
 DEFAULT_CLASSES = ("mug", "pet_bottle", "square_bottle", "wine_glass")
 
 
@@ -44,7 +44,7 @@ class ClassifierParams:
     """
 
     model: str = DEFAULT_MODEL
-    modality: str = "depth"
+    modality: str = "both"
     classes: tuple[str, ...] = DEFAULT_CLASSES
     max_skew_secs: float = 0.05
     min_period_secs: float = 0.0

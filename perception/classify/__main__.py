@@ -55,6 +55,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         seed=args.seed,
         shift_px=args.shift_px,
         max_frames_per_grasp=args.max_frames_per_grasp,
+        subtract_mean=not args.no_mean,
     )
     root = Path(args.dataset)
     manifest = read_manifest(root)
@@ -176,6 +177,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--max-frames-per-grasp", type=int, default=None)
     p.add_argument("--threads", type=int, default=0, help="torch threads (0 = torch default)")
     p.add_argument("--log", default=None, help="JSON lines, one per epoch")
+    p.add_argument("--no-mean", action="store_true", help="do not subtract the mean image")
     p.add_argument("--full-precision", action="store_true", help="store float32 weights")
     p.set_defaults(func=_cmd_train)
     e = sub.add_parser("evaluate", help="score a model on a held-out dataset")

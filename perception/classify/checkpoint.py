@@ -78,7 +78,9 @@ class ModelMeta:
 
 def build_model(meta: ModelMeta) -> ResNet18:
     """An untrained network of the shape ``meta`` describes."""
-    return ResNet18(len(meta.classes), in_channels=meta.spec.channels, width=meta.width)
+    return ResNet18(
+        len(meta.classes), in_channels=meta.spec.channels, width=meta.width, input_px=meta.input_px
+    )
 
 
 def save_checkpoint(

@@ -283,6 +283,7 @@ def load_samples(
     *,
     classes: Sequence[str] | None = None,
     max_frames_per_grasp: int | None = None,
+    max_grasps: int | None = None,
 ) -> Samples:
     """Every frame of a dataset turned into network inputs.
 
@@ -293,6 +294,7 @@ def load_samples(
             class the dataset holds frames of must be in it.
         max_frames_per_grasp: keep at most this many frames of each grasp, evenly spread
             (frames of one grasp are nearly alike; fewer of them cost less to train on).
+        max_grasps: use only the first this many grasps of the manifest (smaller runs).
 
     Raises:
         DatasetError: the dataset holds a class not in ``classes``, or holds no frames.
@@ -301,7 +303,9 @@ def load_samples(
     classes = list(classes if classes is not None else manifest["classes"])
     index = {name: i for i, name in enumerate(classes)}
     xs, labels, grasp_ids = [], [], []
-    for entry, arrays in iter_grasps(root):
+    for count, (entry, arrays) in enumerate(iter_grasps(root)):
+        if max_grasps is not None and count >= max_grasps:
+            break
         if entry["object_class"] not in index:
             raise DatasetError(
                 f"{root}: grasp {entry['grasp_id']} is a {entry['object_class']!r}, "

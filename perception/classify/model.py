@@ -56,15 +56,27 @@ class ResNet18(nn.Module):
         num_classes: size of the output logits.
         in_channels: input channels (1 = depth or IR, 2 = both).
         width: multiplier on the channels of every stage (1.0 = the standard network).
+        input_px: if given, the network holds a mean input image ``(in_channels,
+            input_px, input_px)`` (a buffer, zero until training sets it, saved with the
+            weights) and subtracts it first: the bubbles' rest shape and shading are the
+            same in every frame, so what is left is what the object did to them.
     """
 
-    def __init__(self, num_classes: int, in_channels: int = 1, width: float = 1.0) -> None:
+    def __init__(
+        self,
+        num_classes: int,
+        in_channels: int = 1,
+        width: float = 1.0,
+        input_px: int | None = None,
+    ) -> None:
         super().__init__()
         if num_classes < 2:
             raise ValueError(f"num_classes must be >= 2, got {num_classes}")
         if in_channels < 1:
             raise ValueError(f"in_channels must be >= 1, got {in_channels}")
         channels = stage_channels(width)
+        mean_shape = (in_channels, input_px, input_px) if input_px else (in_channels, 1, 1)
+        self.register_buffer("input_mean", torch.zeros(mean_shape))
         self.stem = nn.Sequential(
             nn.Conv2d(in_channels, channels[0], 7, stride=2, padding=3, bias=False),
             nn.BatchNorm2d(channels[0]),
@@ -98,7 +110,7 @@ class ResNet18(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Logits ``(N, num_classes)`` for images ``(N, in_channels, H, W)``."""
-        x = self.stages(self.stem(x))
+        x = self.stages(self.stem(x - self.input_mean))
         return self.fc(torch.flatten(self.pool(x), 1))
 
 

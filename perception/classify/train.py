@@ -42,6 +42,7 @@ class TrainConfig:
     seed: int = 0
     shift_px: int = 4  # random translation (augmentation): grasps land a few px apart
     max_frames_per_grasp: int | None = None
+    subtract_mean: bool = True  # the network subtracts the mean training image first
 
     def __post_init__(self) -> None:
         check_modality(self.modality)
@@ -204,6 +205,12 @@ def train(
     x_val, y_val = samples.x[val_mask], samples.labels[val_mask]
     meta = ModelMeta.for_spec(spec, samples.classes, config.width)
     model = build_model(meta)
+    if config.subtract_mean and len(x_train):
+        # The mean training image, in float64 chunks (the inputs are float16).
+        total = np.zeros(x_train.shape[1:], np.float64)
+        for start in range(0, len(x_train), 256):
+            total += x_train[start : start + 256].astype(np.float64).sum(axis=0)
+        model.input_mean.copy_(torch.from_numpy((total / len(x_train)).astype(np.float32)))
     optimizer = torch.optim.SGD(
         model.parameters(),
         lr=config.lr,

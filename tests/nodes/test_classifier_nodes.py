@@ -46,7 +46,9 @@ def _grasp(stable: bool, stamp_ms: int) -> GraspState:
 @pytest.fixture
 def node(tmp_path: Path):
     path = _checkpoint(tmp_path / "m.pt")
-    return make_node(ResNet18ClassifierNode, {"model": str(path)}, name="classifier")
+    return make_node(
+        ResNet18ClassifierNode, {"model": str(path), "modality": "depth"}, name="classifier"
+    )
 
 
 def test_publishes_for_stable_grasps_only(node) -> None:
@@ -77,7 +79,9 @@ def test_publishes_for_stable_grasps_only(node) -> None:
 def test_pairs_too_far_apart_are_skipped(tmp_path: Path) -> None:
     path = _checkpoint(tmp_path / "m.pt")
     node, io = make_node(
-        ResNet18ClassifierNode, {"model": str(path), "max_skew_secs": 0.01}, name="c"
+        ResNet18ClassifierNode,
+        {"model": str(path), "modality": "depth", "max_skew_secs": 0.01},
+        name="c",
     )
     feed(node, "grasp", _grasp(True, 0))
     feed(node, "left", _image("left", 10))
@@ -90,7 +94,9 @@ def test_pairs_too_far_apart_are_skipped(tmp_path: Path) -> None:
 def test_refuses_checkpoint_of_other_modality(tmp_path: Path) -> None:
     path = _checkpoint(tmp_path / "ir.pt", modality="ir")
     with pytest.raises(NodeError, match=r"classifier: params\.modality is 'depth'.*'ir'"):
-        make_node(ResNet18ClassifierNode, {"model": str(path)}, name="classifier")
+        make_node(
+            ResNet18ClassifierNode, {"model": str(path), "modality": "depth"}, name="classifier"
+        )
     node, _ = make_node(
         ResNet18ClassifierNode, {"model": str(path), "modality": "ir"}, name="classifier"
     )
@@ -100,10 +106,14 @@ def test_refuses_checkpoint_of_other_modality(tmp_path: Path) -> None:
 def test_refuses_checkpoint_of_other_classes(tmp_path: Path) -> None:
     path = _checkpoint(tmp_path / "three.pt", classes=["mug", "pet_bottle", "can"])
     with pytest.raises(NodeError, match=r"classifier: params\.classes .* has classes"):
-        make_node(ResNet18ClassifierNode, {"model": str(path)}, name="classifier")
+        make_node(
+            ResNet18ClassifierNode, {"model": str(path), "modality": "depth"}, name="classifier"
+        )
     swapped = _checkpoint(tmp_path / "swapped.pt", classes=CLASSES[::-1])
     with pytest.raises(NodeError, match=r"params\.classes"):
-        make_node(ResNet18ClassifierNode, {"model": str(swapped)}, name="classifier")
+        make_node(
+            ResNet18ClassifierNode, {"model": str(swapped), "modality": "depth"}, name="classifier"
+        )
 
 
 def test_missing_checkpoint_names_the_field(tmp_path: Path) -> None:
