@@ -204,7 +204,7 @@ class Replay(Node):
     def _wait_idle(self, msg: BagMessage) -> bool:
         if self.io.wait_idle(self.params.idle_timeout_secs):
             return True
-        if getattr(self.io, "stop_requested", False):
+        if self.io.stop_requested:
             self.done = True  # the graph is stopping; not a lockstep failure
             return False
         raise NodeError(

@@ -526,7 +526,7 @@ def _add_stats(base: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
 
 
 def add_recorder(
-    doc: dict[str, Any], path: Path, topics: str | None, command_line: str
+    doc: dict[str, Any], path: Path, topics: str | None, command_line: str, source: str = ""
 ) -> dict[str, Any]:
     """Return ``doc`` with a ``recorder`` node subscribed to every topic matching ``topics``."""
     graph = check(doc)
@@ -543,6 +543,7 @@ def add_recorder(
         "params": {
             "path": str(path),
             "graph_yaml": yaml.safe_dump(graph.document, sort_keys=False),
+            "graph_source": source,
             "command_line": command_line,
         },
         "inputs": {
@@ -568,7 +569,7 @@ def launch(
     """Check and run a graph document; returns the exit code (2 when the check fails)."""
     try:
         if record is not None:
-            graph = add_recorder(graph, record, topics, command_line or " ".join(sys.argv))
+            graph = add_recorder(graph, record, topics, command_line or " ".join(sys.argv), source)
         checked = check(graph, source=source)
     except GraphError as err:
         print(f"graph check failed:\n{err}", file=sys.stderr)

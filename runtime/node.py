@@ -41,6 +41,7 @@ class IO(Protocol):
     """What a node may do to the outside world."""
 
     log: logging.Logger
+    stop_requested: bool  # True once the graph is stopping this node
 
     def publish(self, output: str, msg: Message) -> None:
         """Send ``msg`` on one of the node's declared outputs (the IO sets ``header.seq``)."""

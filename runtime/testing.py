@@ -32,6 +32,7 @@ class FakeIO:
         self.log = logging.getLogger(name)
         self.published: dict[str, list[Message]] = defaultdict(list)
         self.stop_reason: str | None = None
+        self.stop_requested = False
         self._now = now_nanos
         self._timers: list[_Timer] = []
         self._seq: dict[str, int] = defaultdict(int)
@@ -54,6 +55,9 @@ class FakeIO:
 
     def publish_raw(self, topic: str, frames: list[Any]) -> None:
         """Record raw frames (decoded, so tests see messages) under their topic."""
+        topics = {out if "/" in out else f"{self.log.name}/{out}" for out in self.outputs}
+        if topic not in topics:
+            raise KeyError(f"{topic!r} is not one of the output topics {sorted(topics)}")
         _, msg = decode([topic.encode(), *frames[1:]])
         self.published[topic].append(msg)
 

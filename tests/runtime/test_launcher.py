@@ -113,7 +113,7 @@ def test_killed_node_restarts_by_policy(graph_run: GraphRun, tmp_path: Path) -> 
     out = tmp_path / "sink.jsonl"
     graph = graph_run.write(
         {
-            "src": {"impl": "synthetic.source", "params": {"rate_hz": 100, "count": 200}},
+            "src": {"impl": "synthetic.source", "params": {"rate_hz": 100, "count": 800}},
             "relay": {
                 "impl": "synthetic.relay",
                 "params": {"crash_after": 20, "crash_marker": str(tmp_path / "crashed")},
@@ -132,7 +132,8 @@ def test_killed_node_restarts_by_policy(graph_run: GraphRun, tmp_path: Path) -> 
     assert "node 'relay' failed (exit code 3); restart 1/2" in log
     assert "node 'relay' is back" in log
     values = [r["value"] for r in graph_run.rows(out)]
-    assert values[-1] == 199.0  # the restarted relay carried on to the end
+    # The restarted relay carried on (start-up under load may take a few seconds).
+    assert values[-1] == 799.0
     assert values == sorted(values)
 
 
