@@ -75,13 +75,18 @@ def run(quick: bool) -> list[Row]:
     with tempfile.TemporaryDirectory() as tmp:
         if quick or not (TRAIN_DIR.is_dir() and TEST_DIR.is_dir()):
             data = "toy"
-            train_dir = write_toy_dataset(Path(tmp) / "train", grasps_per_class=6, seed=0)
-            test_dir = write_toy_dataset(Path(tmp) / "test", grasps_per_class=3, seed=1)
+            train_dir = write_toy_dataset(
+                Path(tmp) / "train", grasps_per_class=4, frames_per_grasp=3, seed=0
+            )
+            test_dir = write_toy_dataset(
+                Path(tmp) / "test", grasps_per_class=2, frames_per_grasp=3, seed=1
+            )
         else:
             data, train_dir, test_dir = "autolabel", TRAIN_DIR, TEST_DIR
         if quick:
             grid = [(m, 32, w) for m in MODALITIES for w in (0.125, 0.0625)]
-            epochs, frames_per_grasp, grasps, repeats = 6, None, None, 10
+            epochs, frames_per_grasp, grasps, repeats = 4, None, None, 10
+            torch.set_num_threads(1)  # tiny networks: threads cost more than they give
         else:
             # The same small budget for every setting (the 224 px full-width network costs
             # about 2 s per batch here): a fair comparison, not each setting's best.
