@@ -116,7 +116,7 @@ class SimGrasp:
         rot[1:3, 1:3] = [[c, -s], [s, c]]
         pose = rot @ self.anchor
         pose[1:3, 3] += np.asarray(shift_mm) / 1000.0
-        return pose
+        return np.asarray(pose)
 
     def instant(
         self, shift_mm: tuple[float, float] = (0.0, 0.0), twist_rad: float = 0.0, index: int = 0
@@ -325,16 +325,18 @@ def settings(quick: bool) -> list[tuple[str, ShearParams]]:
     """The sweep: (setting name, parameters). "half" = half-resolution input; "warm" =
     each frame's flow starts from the previous frame's (same reference)."""
     fb, dis = FarnebackParams, DisParams
-    p7 = {"poly_n": 7, "poly_sigma": 1.5}
     out = [
         ("fb L3 w15 (OpenCV sample)", ShearParams(farneback=fb())),
         ("fb L3 w45 (FACTS)", ShearParams(farneback=fb(winsize=45))),
-        ("fb L3 w31 p7", ShearParams(farneback=fb(winsize=31, **p7))),
+        ("fb L3 w31 p7", ShearParams(farneback=fb(winsize=31, poly_n=7, poly_sigma=1.5))),
         ("warm fb L3 w15", ShearParams(warm_start=True, farneback=fb())),
         ("half fb L3 w15", ShearParams(scale=0.5, farneback=fb())),
-        ("half fb L3 w15 p7", ShearParams(scale=0.5, farneback=fb(**p7))),
+        ("half fb L3 w15 p7", ShearParams(scale=0.5, farneback=fb(poly_n=7, poly_sigma=1.5))),
         ("warm half fb L3 w15", ShearParams(scale=0.5, warm_start=True, farneback=fb())),
-        ("warm half fb L3 w15 p7", ShearParams(scale=0.5, warm_start=True, farneback=fb(**p7))),
+        (
+            "warm half fb L3 w15 p7",
+            ShearParams(scale=0.5, warm_start=True, farneback=fb(poly_n=7, poly_sigma=1.5)),
+        ),
         (
             "warm half fb L1 w9",
             ShearParams(scale=0.5, warm_start=True, farneback=fb(levels=1, winsize=9)),

@@ -321,7 +321,7 @@ def membrane_mask(
 
 
 def _dis_instance(params: DisParams) -> cv2.DISOpticalFlow:
-    dis = cv2.DISOpticalFlow_create(DIS_PRESETS[params.preset])
+    dis = cv2.DISOpticalFlow.create(DIS_PRESETS[params.preset])
     if params.finest_scale is not None:
         dis.setFinestScale(params.finest_scale)
     if params.patch_size is not None:
@@ -349,18 +349,20 @@ class DenseFlow:
         if self._dis is not None:
             if initial is not None:
                 # DIS refines a flow passed in with the right size and type.
-                return self._dis.calc(ref_u8, cur_u8, initial.copy())
-            return self._dis.calc(ref_u8, cur_u8, None)
+                flow = self._dis.calc(ref_u8, cur_u8, initial.copy())
+            else:
+                flow = self._dis.calc(ref_u8, cur_u8, None)  # type: ignore[call-overload]
+            return np.asarray(flow)
         fb = self.params.farneback
         flags = cv2.OPTFLOW_FARNEBACK_GAUSSIAN if fb.gaussian_window else 0
-        flow = None
+        start: np.ndarray | None = None
         if initial is not None:
             flags |= cv2.OPTFLOW_USE_INITIAL_FLOW
-            flow = initial.copy()
-        return cv2.calcOpticalFlowFarneback(
+            start = initial.copy()
+        result = cv2.calcOpticalFlowFarneback(
             ref_u8,
             cur_u8,
-            flow,
+            start,  # type: ignore[arg-type]
             fb.pyr_scale,
             fb.levels,
             fb.winsize,
@@ -369,6 +371,7 @@ class DenseFlow:
             fb.poly_sigma,
             flags,
         )
+        return np.asarray(result)
 
 
 def _summarize_vectors(
