@@ -12,6 +12,11 @@ Ports:
         JSON ``grasp_id``, ``frames``, ``object_class``) or ``grasp_skipped`` (no
         stable frame).
 
+Everything is decided by stamps, not by arrival order: under load the cameras' frames
+trail the grasp monitor and the supervisor's events by a good fraction of a second, so a
+frame pair waits until the grasp state at its stamp is known, and a grasp is written once
+a frame past its ``grasp_end`` stamp has arrived (or the next grasp starts).
+
 The format is :mod:`perception.classify.dataset` (an ``.npz`` per grasp, a JSON
 manifest); a grasp reaches the manifest only once its file is complete, so a stopped run
 resumes where the manifest ends. Of the stable frames, every ``frame_stride``-th pair is
@@ -20,9 +25,10 @@ kept, at most ``max_frames_per_grasp`` (frames of one held grasp differ little).
 
 from __future__ import annotations
 
+import bisect
 import json
-from collections import Counter, OrderedDict
-from dataclasses import dataclass
+from collections import Counter, OrderedDict, deque
+from dataclasses import dataclass, field
 
 from messages.base import Header
 from messages.errors import NodeError
@@ -63,6 +69,19 @@ class DatasetWriterParams:
             raise ValueError(f"`max_skew_secs` must be >= 0, got {self.max_skew_secs!r}")
 
 
+@dataclass
+class _Grasp:
+    """One grasp of the run, from its ``grasp_start`` to its ``grasp_end`` stamp."""
+
+    grasp_id: int
+    params: dict
+    start_nanos: int
+    end_nanos: int | None = None
+    buffer: GraspBuffer = field(default_factory=GraspBuffer)
+    labels: Counter[str] = field(default_factory=Counter)
+    pairs_seen: int = 0
+
+
 @register("dataset_writer")
 class DatasetWriterNode(Node):
     """Keeps stable-grasp frames, labels them, writes grasps (see the module docstring)."""
@@ -80,14 +99,13 @@ class DatasetWriterNode(Node):
 
     def setup(self) -> None:
         self.writer: DatasetWriter | None = None
-        self.grasp_id: int | None = None
-        self.grasp_params: dict = {}
-        self.buffer = GraspBuffer()
-        self.labels: Counter[str] = Counter()
-        self.stable_since_nanos: int | None = None
-        self.pending: dict[str, ToFImage] = {}
-        self.pairs_seen = 0
-        # The simulator's class at recent stamps (its messages may trail the images).
+        self.current: _Grasp | None = None
+        # The grasp state over time: stamps (increasing) and whether stable from then on.
+        self.state_stamps: list[int] = []
+        self.state_stable: list[bool] = []
+        self.halves: OrderedDict[int, dict[str, ToFImage]] = OrderedDict()
+        self.waiting: deque[tuple[ToFImage, ToFImage]] = deque()
+        # The simulator's class at recent stamps.
         self.truth: OrderedDict[int, str] = OrderedDict()
 
     # -- run and grasp bracketing -------------------------------------------------------
@@ -96,6 +114,7 @@ class DatasetWriterNode(Node):
         if msg.task != TASK:
             return
         detail = json.loads(msg.detail) if msg.detail else {}
+        stamp = msg.header.stamp_nanos
         if msg.event == "run_start":
             try:
                 self.writer = DatasetWriter(
@@ -114,44 +133,50 @@ class DatasetWriterNode(Node):
                 len(self.writer.done_grasp_ids()),
             )
         elif msg.event == "grasp_start":
-            self.grasp_id = int(detail["grasp_id"])
-            self.grasp_params = detail
-            self.buffer = GraspBuffer()
-            self.labels = Counter()
-            self.pairs_seen = 0
+            if self.current is not None:
+                self._finish()
+            self.current = _Grasp(int(detail["grasp_id"]), detail, stamp)
         elif msg.event in ("grasp_end", "grasp_failed"):
-            if self.grasp_id is not None and int(detail.get("grasp_id", -1)) == self.grasp_id:
-                self._finish(msg.header.stamp_nanos)
+            if (
+                self.current is not None
+                and int(detail.get("grasp_id", -1)) == self.current.grasp_id
+            ):
+                self.current.end_nanos = stamp
+                self._decide()
+        elif msg.event == "run_end" and self.current is not None:
+            self._finish()
 
-    def _finish(self, stamp: int) -> None:
-        grasp_id, self.grasp_id = self.grasp_id, None
-        if self.writer is None:
-            raise NodeError(f"{self.name}: grasp {grasp_id} ended before any run_start")
-        if len(self.buffer) == 0:
-            self._progress("grasp_skipped", {"grasp_id": grasp_id}, stamp)
+    def _finish(self) -> None:
+        grasp, self.current = self.current, None
+        if grasp is None:
             return
-        label = self.labels.most_common(1)[0][0]
-        expected = self.grasp_params.get("class_label")
-        if len(self.labels) > 1 or (expected and expected != label):
+        stamp = grasp.end_nanos or grasp.start_nanos
+        if self.writer is None:
+            raise NodeError(f"{self.name}: grasp {grasp.grasp_id} ended before any run_start")
+        if len(grasp.buffer) == 0:
+            self._progress("grasp_skipped", {"grasp_id": grasp.grasp_id}, stamp)
+            return
+        label = grasp.labels.most_common(1)[0][0]
+        expected = grasp.params.get("class_label")
+        if len(grasp.labels) > 1 or (expected and expected != label):
             # Labels must be beyond doubt: a grasp whose frames disagree is dropped.
             self.io.log.error(
                 "%s: grasp %d dropped: labels %s, requested %r",
                 self.name,
-                grasp_id,
-                dict(self.labels),
+                grasp.grasp_id,
+                dict(grasp.labels),
                 expected,
             )
-            self._progress(
-                "grasp_skipped", {"grasp_id": grasp_id, "labels": dict(self.labels)}, stamp
-            )
+            detail = {"grasp_id": grasp.grasp_id, "labels": dict(grasp.labels)}
+            self._progress("grasp_skipped", detail, stamp)
             return
         try:
-            self.writer.write_grasp(grasp_id, label, self.buffer, self.grasp_params)
+            self.writer.write_grasp(grasp.grasp_id, label, grasp.buffer, grasp.params)
         except DatasetError as err:
-            raise NodeError(f"{self.name}: grasp {grasp_id}: {err}") from err
+            raise NodeError(f"{self.name}: grasp {grasp.grasp_id}: {err}") from err
         self._progress(
             "grasp_written",
-            {"grasp_id": grasp_id, "frames": len(self.buffer), "object_class": label},
+            {"grasp_id": grasp.grasp_id, "frames": len(grasp.buffer), "object_class": label},
             stamp,
         )
 
@@ -166,18 +191,28 @@ class DatasetWriterNode(Node):
             ),
         )
 
-    # -- frames ------------------------------------------------------------------------
+    # -- the grasp state, labels and frames, by stamp -------------------------------------
 
     def on_grasp(self, msg: GraspState) -> None:
-        if msg.stable and self.stable_since_nanos is None:
-            self.stable_since_nanos = msg.header.stamp_nanos
-        elif not msg.stable:
-            self.stable_since_nanos = None
-            self.pending.clear()
+        stamp = msg.header.stamp_nanos
+        if self.state_stamps and stamp < self.state_stamps[-1]:
+            return  # out of order: the timeline only moves forward
+        self.state_stamps.append(stamp)
+        self.state_stable.append(bool(msg.stable))
+        if len(self.state_stamps) > 4096:
+            del self.state_stamps[:1024], self.state_stable[:1024]
+        self._decide()
+
+    def _stable_at(self, stamp: int) -> bool | None:
+        """Whether the grasp was stable at ``stamp``; None while that is not known yet."""
+        if not self.state_stamps or self.state_stamps[-1] < stamp:
+            return None
+        index = bisect.bisect_right(self.state_stamps, stamp) - 1
+        return index >= 0 and self.state_stable[index]
 
     def on_truth(self, msg: GroundTruth) -> None:
         self.truth[msg.header.stamp_nanos] = msg.object_class
-        while len(self.truth) > 256:
+        while len(self.truth) > 1024:
             self.truth.popitem(last=False)
 
     def on_left(self, msg: ToFImage) -> None:
@@ -188,36 +223,52 @@ class DatasetWriterNode(Node):
 
     def _image(self, port: str, msg: ToFImage) -> None:
         stamp = msg.header.stamp_nanos
-        if self.grasp_id is None or self.stable_since_nanos is None:
+        skew = self.params.max_skew_secs * 1e9
+        other = "right" if port == "left" else "left"
+        match = next(
+            (s for s, h in self.halves.items() if other in h and abs(s - stamp) <= skew), None
+        )
+        if match is None:
+            self.halves.setdefault(stamp, {})[port] = msg
+            while len(self.halves) > 64:
+                self.halves.popitem(last=False)
             return
-        if stamp < self.stable_since_nanos or len(self.buffer) >= self.params.max_frames_per_grasp:
+        half = self.halves.pop(match)[other]
+        pair = (msg, half) if port == "left" else (half, msg)
+        self.waiting.append(pair)
+        self._decide()
+
+    def _decide(self) -> None:
+        """Settle every waiting pair whose grasp state is known, in stamp order."""
+        while self.waiting:
+            left, right = self.waiting[0]
+            stamp = max(left.header.stamp_nanos, right.header.stamp_nanos)
+            stable = self._stable_at(stamp)
+            if stable is None:
+                return
+            self.waiting.popleft()
+            grasp = self.current
+            if grasp is None or stamp < grasp.start_nanos:
+                continue
+            if grasp.end_nanos is not None and stamp > grasp.end_nanos:
+                self._finish()  # the frames have caught up with the grasp's end
+                continue
+            if stable:
+                self._keep(grasp, left, right, stamp)
+
+    def _keep(self, grasp: _Grasp, left: ToFImage, right: ToFImage, stamp: int) -> None:
+        if len(grasp.buffer) >= self.params.max_frames_per_grasp:
             return
-        self.pending[port] = msg
-        if len(self.pending) < 2:
-            return
-        left, right = self.pending["left"], self.pending["right"]
-        if (
-            abs(left.header.stamp_nanos - right.header.stamp_nanos)
-            > self.params.max_skew_secs * 1e9
-        ):
-            return
-        self.pending.clear()
-        self.pairs_seen += 1
-        if (self.pairs_seen - 1) % self.params.frame_stride:
+        grasp.pairs_seen += 1
+        if (grasp.pairs_seen - 1) % self.params.frame_stride:
             return
         label = self.truth.get(left.header.stamp_nanos) or self.truth.get(right.header.stamp_nanos)
         if label is None:
-            label = self.grasp_params.get("class_label")
+            label = grasp.params.get("class_label")
         if label is None:
             self.io.log.warning("%s: no label for the frame at %d; skipped", self.name, stamp)
             return
         if left.depth_m.size == 0 or left.ir.size == 0:
             raise NodeError(f"{self.name}: frames need depth and IR (enable both sim effects)")
-        self.labels[label] += 1
-        self.buffer.add(
-            left.depth_m,
-            right.depth_m,
-            left.ir,
-            right.ir,
-            max(left.header.stamp_nanos, right.header.stamp_nanos),
-        )
+        grasp.labels[label] += 1
+        grasp.buffer.add(left.depth_m, right.depth_m, left.ir, right.ir, stamp)

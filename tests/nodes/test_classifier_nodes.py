@@ -300,6 +300,10 @@ def _record_grasp(
         feed(node, "right", _image("right", t))
     feed(node, "grasp", _grasp(False, t0 + 10 + 33 * frames))
     feed(node, "event", _event("grasp_end", {"grasp_id": grasp_id}, t0 + 400))
+    # Frames keep coming; the first one past the grasp's end closes it.
+    feed(node, "grasp", _grasp(False, t0 + 410))
+    feed(node, "left", _image("left", t0 + 410))
+    feed(node, "right", _image("right", t0 + 410))
 
 
 def test_writer_keeps_stable_frames_labels_and_resumes(tmp_path: Path) -> None:
@@ -338,6 +342,38 @@ def test_writer_drops_grasps_with_conflicting_labels(tmp_path: Path) -> None:
     _record_grasp(node, 1, "mug", 1000, requested="wine_glass")
     feed(node, "event", _event("grasp_start", {"grasp_id": 2, "class_label": "mug"}, 1900))
     feed(node, "event", _event("grasp_end", {"grasp_id": 2}, 1950))  # no stable frame
+    feed(node, "event", _event("run_end", {}, 1960))
     events = [e.event for e in io.published["progress"]]
     assert events == ["grasp_written", "grasp_skipped", "grasp_skipped"]
     assert [g["grasp_id"] for g in read_manifest(tmp_path / "d")["grasps"]] == [0]
+
+
+def test_writer_waits_for_frames_that_trail_the_grasp_state(tmp_path: Path) -> None:
+    """Under load the images arrive after the grasp ended: they still count, by stamp."""
+    node, io = make_node(
+        DatasetWriterNode, {"dataset": str(tmp_path / "d"), "frame_stride": 1}, name="writer"
+    )
+    feed(node, "event", _event("run_start", {"seeds": {}, "scene": {}}))
+    feed(node, "event", _event("grasp_start", {"grasp_id": 0, "class_label": "mug"}, 0))
+    for t in range(10, 400, 33):
+        feed(node, "grasp", _grasp(100 <= t < 300, t))
+        feed(node, "truth", _truth("mug", t))
+    feed(node, "event", _event("grasp_end", {"grasp_id": 0}, 300))
+    feed(node, "event", _event("grasp_start", {"grasp_id": 1, "class_label": "mug"}, 350))
+    assert [e.event for e in io.published["progress"]] == ["grasp_skipped"]  # nothing yet
+    feed(node, "event", _event("grasp_end", {"grasp_id": 1}, 360))
+    node2, io2 = make_node(
+        DatasetWriterNode, {"dataset": str(tmp_path / "e"), "frame_stride": 1}, name="writer"
+    )
+    feed(node2, "event", _event("run_start", {"seeds": {}, "scene": {}}))
+    feed(node2, "event", _event("grasp_start", {"grasp_id": 0, "class_label": "mug"}, 0))
+    for t in range(10, 400, 33):
+        feed(node2, "grasp", _grasp(100 <= t < 300, t))
+        feed(node2, "truth", _truth("mug", t))
+    feed(node2, "event", _event("grasp_end", {"grasp_id": 0}, 300))
+    for t in range(10, 400, 33):  # the frames, late
+        feed(node2, "right", _image("right", t))
+        feed(node2, "left", _image("left", t))
+    progress = [json.loads(e.detail) for e in io2.published["progress"]]
+    stable_frames = len([t for t in range(10, 400, 33) if 100 <= t < 300])
+    assert progress == [{"frames": stable_frames, "grasp_id": 0, "object_class": "mug"}]
