@@ -3,7 +3,7 @@
 Sweeps the knobs of the classifier (paper, tactile classification): modality (depth,
 IR, both), input size (224 px as in the paper, or 112 px) and network width (full
 ResNet18 or half width). For each, a model is trained on the training dataset for a
-fixed number of epochs (``train_secs``, on the torch default threads), scored on a
+fixed number of epochs (``train_secs``, on one thread), scored on a
 held-out dataset of other grasps (``accuracy``, per frame), and timed at inference on
 one core with batch 1 (``infer_ms_median``: the network; ``preprocess_ms_median``:
 two frames to its input).
@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bench.common import Row, main, median
+from bench.common import Row, main, median, one_core
 from perception.classify.checkpoint import Classifier
 from perception.classify.dataset import load_samples, read_grasp, read_manifest
 from perception.classify.preprocess import MODALITIES, InputSpec, frame_input
@@ -72,6 +72,7 @@ def _first_frame(root: Path) -> dict[str, np.ndarray]:
 
 
 def run(quick: bool) -> list[Row]:
+    one_core()  # training and inference on one thread: the machine is shared, figures compare
     with tempfile.TemporaryDirectory() as tmp:
         if quick or not (TRAIN_DIR.is_dir() and TEST_DIR.is_dir()):
             data = "toy"
@@ -86,7 +87,6 @@ def run(quick: bool) -> list[Row]:
         if quick:
             grid = [(m, 32, w) for m in MODALITIES for w in (0.125, 0.0625)]
             epochs, frames_per_grasp, grasps, repeats = 4, None, None, 10
-            torch.set_num_threads(1)  # tiny networks: threads cost more than they give
         else:
             # The same small budget for every setting (the 224 px full-width network costs
             # about 2 s per batch here): a fair comparison, not each setting's best.
