@@ -472,24 +472,37 @@ def run(quick: bool) -> list[Row]:
 
 
 def plot(rows: list[Row], path: Path) -> None:
-    """Direction error (median and p95) against time per frame, one point per setting."""
+    """Direction error (median and p95, log scale) against time per frame; numbered points,
+    the settings listed beside."""
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(8, 5))
-    for row in rows:
-        x = row["ms_per_frame_median"]
-        color = "tab:blue" if row["method"] == "farneback" else "tab:orange"
-        ax.plot([x, x], [row["dir_err_deg_median"], row["dir_err_deg_p95"]], color=color, lw=1)
-        ax.scatter([x], [row["dir_err_deg_median"]], color=color, s=20)
-        ax.annotate(row["setting"], (x, row["dir_err_deg_median"]), fontsize=7)
-    ax.axvline(1000.0 / 300.0, color="grey", ls="--", lw=1, label="300 frames/s")
-    ax.axhline(2.0, color="grey", ls=":", lw=1, label="2 deg median target")
-    ax.set_xscale("log")
-    ax.set_xlabel("ms per frame (median, one core)")
-    ax.set_ylabel("direction error, deg (dot: median, bar to p95)")
-    ax.set_title("Shear direction error against time (blue Farneback, orange DIS)")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.5), sharex=True)
+    for ax, key, target in (
+        (axes[0], "dir_err_deg_median", 2.0),
+        (axes[1], "dir_err_deg_p95", 5.0),
+    ):
+        for i, row in enumerate(rows, start=1):
+            x, y = row["ms_per_frame_median"], max(row[key], 0.01)
+            color = "tab:blue" if row["method"] == "farneback" else "tab:orange"
+            marker = "o" if row["warm_start"] else "s"
+            face = color if row["scale"] < 1.0 else "none"
+            ax.scatter([x], [y], marker=marker, edgecolors=color, facecolors=face, s=40)
+            ax.annotate(str(i), (x, y), textcoords="offset points", xytext=(4, 3), fontsize=7)
+        ax.axvline(1000.0 / 300.0, color="grey", ls="--", lw=1)
+        ax.axhline(target, color="grey", ls=":", lw=1)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("ms per frame (median, one core)")
+        ax.set_ylabel(f"{key} (deg)")
+        ax.set_title(f"{key}: target {target:g} deg, 300 frames/s (dashed)", fontsize=9)
+    legend = "\n".join(f"{i}: {row['setting']}" for i, row in enumerate(rows, start=1))
+    fig.text(0.80, 0.5, legend, fontsize=7, va="center", family="monospace")
+    fig.suptitle(
+        "Shear direction error vs time (blue Farneback, orange DIS; circle warm start, "
+        "square cold; filled: reduced resolution)",
+        fontsize=9,
+    )
+    fig.tight_layout(rect=(0, 0, 0.79, 0.95))
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
