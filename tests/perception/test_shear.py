@@ -89,6 +89,9 @@ def test_translations_in_eight_directions(params, sensor):
         truth_px, truth_mm, _ = expected(shift, 0.0, 10 + k, sensor)
         assert result.direction_defined and result.mm_defined
         assert_finite(result)
+        # The paper's sum over the working image's masked pixels, in full-resolution px.
+        pixels = result.valid_fraction * (172 * 224) * params.scale**2
+        np.testing.assert_allclose(result.sum_px, result.shear_px * pixels, rtol=0.02)
         px_errors.append(angle_error_deg(result.direction, truth_px))
         mm_errors.append(angle_error_deg(result.shear_mm, truth_mm))
         # Reported in full-resolution pixels whatever the working scale.
