@@ -79,6 +79,8 @@ class AutolabelParams:
         approach_tilt_deg, skew_deg, offset_m: ranges of the random pose
             (``GraspGeneratorParams``).
         start_delay_secs: wall time before the first grasp (lets the graph settle).
+        end_grace_secs: at the end, how long to wait for the writer to confirm the last
+            grasps (its frames may trail under load) before stopping the graph.
     """
 
     seed: int = 0
@@ -96,6 +98,7 @@ class AutolabelParams:
     skew_deg: float = 8.0
     offset_m: float = 0.006
     start_delay_secs: float = 0.5
+    end_grace_secs: float = 30.0
 
     def __post_init__(self) -> None:
         if self.grasps < 1:
@@ -111,7 +114,7 @@ class AutolabelParams:
         ):
             if not getattr(self, name) > 0:
                 raise ValueError(f"`{name}` must be > 0, got {getattr(self, name)!r}")
-        for name in ("settle_secs", "release_secs", "start_delay_secs"):
+        for name in ("settle_secs", "release_secs", "start_delay_secs", "end_grace_secs"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"`{name}` must be >= 0, got {getattr(self, name)!r}")
         self.generator_params()  # checks the object names and ranges
@@ -202,7 +205,7 @@ class AutolabelSupervisor(Node):
         elif self.phase == "done":
             waited = time.monotonic() - (self.end_wait_start or time.monotonic())
             pending = {g for g in self.ended if g not in self.writer_acked}
-            if not pending or waited > 5.0:
+            if not pending or waited > self.params.end_grace_secs:
                 self.phase = "stopped"
                 self.io.request_stop(
                     f"autolabel: {self.finished} grasps recorded, {self.failed} failed, "

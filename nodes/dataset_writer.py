@@ -15,7 +15,8 @@ Ports:
 Everything is decided by stamps, not by arrival order: under load the cameras' frames
 trail the grasp monitor and the supervisor's events by a good fraction of a second, so a
 frame pair waits until the grasp state at its stamp is known, and a grasp is written once
-a frame past its ``grasp_end`` stamp has arrived (or the next grasp starts).
+a frame past its ``grasp_end`` stamp has arrived; several grasps may wait at once (the
+frames can trail by more than a whole grasp). A clean stop writes what is still open.
 
 The format is :mod:`perception.classify.dataset` (an ``.npz`` per grasp, a JSON
 manifest); a grasp reaches the manifest only once its file is complete, so a stopped run
@@ -99,7 +100,7 @@ class DatasetWriterNode(Node):
 
     def setup(self) -> None:
         self.writer: DatasetWriter | None = None
-        self.current: _Grasp | None = None
+        self.grasps: list[_Grasp] = []  # started, not yet written (in start order)
         # The grasp state over time: stamps (increasing) and whether stable from then on.
         self.state_stamps: list[int] = []
         self.state_stable: list[bool] = []
@@ -133,23 +134,22 @@ class DatasetWriterNode(Node):
                 len(self.writer.done_grasp_ids()),
             )
         elif msg.event == "grasp_start":
-            if self.current is not None:
-                self._finish()
-            self.current = _Grasp(int(detail["grasp_id"]), detail, stamp)
+            for grasp in self.grasps:  # a grasp left open (a lost event) ends where this starts
+                if grasp.end_nanos is None:
+                    grasp.end_nanos = stamp
+            self.grasps.append(_Grasp(int(detail["grasp_id"]), detail, stamp))
         elif msg.event in ("grasp_end", "grasp_failed"):
-            if (
-                self.current is not None
-                and int(detail.get("grasp_id", -1)) == self.current.grasp_id
-            ):
-                self.current.end_nanos = stamp
-                self._decide()
-        elif msg.event == "run_end" and self.current is not None:
-            self._finish()
+            for grasp in self.grasps:
+                if grasp.grasp_id == int(detail.get("grasp_id", -1)):
+                    grasp.end_nanos = stamp
+            self._decide()
 
-    def _finish(self) -> None:
-        grasp, self.current = self.current, None
-        if grasp is None:
-            return
+    def teardown(self) -> None:
+        while self.grasps:
+            self._finish(self.grasps[0])
+
+    def _finish(self, grasp: _Grasp) -> None:
+        self.grasps.remove(grasp)
         stamp = grasp.end_nanos or grasp.start_nanos
         if self.writer is None:
             raise NodeError(f"{self.name}: grasp {grasp.grasp_id} ended before any run_start")
@@ -247,14 +247,11 @@ class DatasetWriterNode(Node):
             if stable is None:
                 return
             self.waiting.popleft()
-            grasp = self.current
-            if grasp is None or stamp < grasp.start_nanos:
-                continue
-            if grasp.end_nanos is not None and stamp > grasp.end_nanos:
-                self._finish()  # the frames have caught up with the grasp's end
-                continue
-            if stable:
-                self._keep(grasp, left, right, stamp)
+            for grasp in list(self.grasps):
+                if grasp.end_nanos is not None and stamp > grasp.end_nanos:
+                    self._finish(grasp)  # the frames have caught up with the grasp's end
+                elif grasp.start_nanos <= stamp and stable:
+                    self._keep(grasp, left, right, stamp)
 
     def _keep(self, grasp: _Grasp, left: ToFImage, right: ToFImage, stamp: int) -> None:
         if len(grasp.buffer) >= self.params.max_frames_per_grasp:

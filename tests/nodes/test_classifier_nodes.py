@@ -342,7 +342,7 @@ def test_writer_drops_grasps_with_conflicting_labels(tmp_path: Path) -> None:
     _record_grasp(node, 1, "mug", 1000, requested="wine_glass")
     feed(node, "event", _event("grasp_start", {"grasp_id": 2, "class_label": "mug"}, 1900))
     feed(node, "event", _event("grasp_end", {"grasp_id": 2}, 1950))  # no stable frame
-    feed(node, "event", _event("run_end", {}, 1960))
+    node.teardown()  # a clean stop writes (here: skips) what is still open
     events = [e.event for e in io.published["progress"]]
     assert events == ["grasp_written", "grasp_skipped", "grasp_skipped"]
     assert [g["grasp_id"] for g in read_manifest(tmp_path / "d")["grasps"]] == [0]
@@ -360,8 +360,9 @@ def test_writer_waits_for_frames_that_trail_the_grasp_state(tmp_path: Path) -> N
         feed(node, "truth", _truth("mug", t))
     feed(node, "event", _event("grasp_end", {"grasp_id": 0}, 300))
     feed(node, "event", _event("grasp_start", {"grasp_id": 1, "class_label": "mug"}, 350))
-    assert [e.event for e in io.published["progress"]] == ["grasp_skipped"]  # nothing yet
-    feed(node, "event", _event("grasp_end", {"grasp_id": 1}, 360))
+    assert io.published["progress"] == []  # grasp 0 waits for its frames
+    node.teardown()
+    assert [e.event for e in io.published["progress"]] == ["grasp_skipped"] * 2
     node2, io2 = make_node(
         DatasetWriterNode, {"dataset": str(tmp_path / "e"), "frame_stride": 1}, name="writer"
     )
@@ -371,9 +372,11 @@ def test_writer_waits_for_frames_that_trail_the_grasp_state(tmp_path: Path) -> N
         feed(node2, "grasp", _grasp(100 <= t < 300, t))
         feed(node2, "truth", _truth("mug", t))
     feed(node2, "event", _event("grasp_end", {"grasp_id": 0}, 300))
-    for t in range(10, 400, 33):  # the frames, late
+    feed(node2, "event", _event("grasp_start", {"grasp_id": 1, "class_label": "mug"}, 350))
+    for t in range(10, 400, 33):  # the frames, late: even after the next grasp started
         feed(node2, "right", _image("right", t))
         feed(node2, "left", _image("left", t))
     progress = [json.loads(e.detail) for e in io2.published["progress"]]
+    assert len(node2.grasps) == 1  # grasp 1 is still open
     stable_frames = len([t for t in range(10, 400, 33) if 100 <= t < 300])
     assert progress == [{"frames": stable_frames, "grasp_id": 0, "object_class": "mug"}]
