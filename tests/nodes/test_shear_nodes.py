@@ -158,3 +158,22 @@ def test_shear_tracker_skips_frames_without_ir(scene):
     assert "shear" not in io.published
     feed(node, "left", image(scene, "left", 0.2))
     assert io.published["shear"][-1].has_reference
+
+
+def test_both_bubbles_report_shear_in_the_tool_frame(scene):
+    """The mug moved along tool +y, then +z: both bubbles report it along the same tool
+    axis with the same sign, although the cameras face each other (mirrored images)."""
+    for axis, shift in ((0, (1.0, 0.0)), (1, (0.0, 1.0))):
+        node, io = make_node(resolve("shear_tracker.farneback"), {"overlay_every_n": 0})
+        feed(node, "grasp", grasp_state(1.0, True, "stable"))
+        estimates = {}
+        for sensor in ("left", "right"):
+            feed(node, sensor, image(scene, sensor, 1.0))
+            feed(node, sensor, image(scene, sensor, 1.5, shift))
+            estimates[sensor] = io.published["shear"][-1]
+        for est in estimates.values():
+            assert est.shear_mm[axis] > 0.5 and abs(est.shear_mm[1 - axis]) < 0.1
+        if axis == 0:  # across the fingers: image rows, mirrored between the two cameras
+            assert estimates["left"].shear_px[1] * estimates["right"].shear_px[1] < 0
+        else:  # along the fingers: image columns, the same way in both
+            assert estimates["left"].shear_px[0] * estimates["right"].shear_px[0] > 0
