@@ -91,7 +91,7 @@ def run(quick: bool) -> list[Row]:
             # The same small budget for every setting (the 224 px full-width network costs
             # about 2 s per batch here): a fair comparison, not each setting's best.
             grid = [(m, px, w) for m in MODALITIES for px in (224, 112) for w in (1.0, 0.5)]
-            epochs, frames_per_grasp, grasps, repeats = 4, 2, 240, 30
+            epochs, frames_per_grasp, grasps, repeats = 4, 2, 160, 30
         frame = _first_frame(test_dir)
         rows = []
         for modality, px, width in grid:
