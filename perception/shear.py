@@ -762,6 +762,7 @@ def draw_overlay(
     *,
     step_px: int = 12,
     arrow_gain: float = 10.0,
+    flow_gain: float = 2.0,
 ) -> np.ndarray:
     """IR with the flow field and the summed arrow, as in the paper's handover figure.
 
@@ -771,6 +772,8 @@ def draw_overlay(
             (without fields only the summed arrow is drawn).
         step_px: grid spacing of the small flow arrows (full-resolution pixels).
         arrow_gain: length of the summed arrow per pixel of mean shear.
+        flow_gain: the small arrows are the flow scaled by this (sub-pixel flow is
+            invisible at scale 1).
 
     Returns:
         uint8 BGR ``(h, w, 3)`` image.
@@ -789,7 +792,7 @@ def draw_overlay(
                 dx, dy = result.flow[fy_i, fx_i]
                 if not (math.isfinite(dx) and math.isfinite(dy)):
                     continue
-                end = (int(round(x + dx * sx * 2)), int(round(y + dy * sy * 2)))
+                end = (int(round(x + dx * sx * flow_gain)), int(round(y + dy * sy * flow_gain)))
                 cv2.arrowedLine(bgr, (x, y), end, (0, 255, 0), 1, tipLength=0.3)
     centre = (w // 2, h // 2)
     if result.has_reference:
