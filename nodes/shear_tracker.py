@@ -155,6 +155,18 @@ class _ShearTrackerNode(Node):
                 self.warned_no_ir.add(sensor)
             return
         tracker = self.trackers[sensor]
+        shape = tracker.reference_shape
+        if shape is not None and shape != msg.ir.shape:
+            # The camera changed mode mid-grasp: the old reference cannot be compared.
+            self.io.log.warning(
+                "%s: %s image is %s, its reference %s; retaking the reference",
+                self.name,
+                sensor,
+                msg.ir.shape,
+                shape,
+            )
+            tracker.drop_reference()
+            self.want_reference[sensor] = self.stable
         depth = msg.depth_m if msg.depth_m.shape == msg.ir.shape else None
         if self.want_reference[sensor] and msg.header.stamp_nanos >= self.stable_since_nanos:
             basis = tool_basis_in_sensor(sensor) if self.params.shear_frame == "tool" else None

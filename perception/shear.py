@@ -620,6 +620,11 @@ class ShearTracker:
     def has_reference(self) -> bool:
         return self._ref is not None
 
+    @property
+    def reference_shape(self) -> tuple[int, int] | None:
+        """``(rows, cols)`` of the reference image, or None without a reference."""
+        return None if self._ref is None else self._ref.full_shape
+
     def drop_reference(self) -> None:
         """Forget the reference; :meth:`update` then reports ``has_reference=False``."""
         self._ref = None

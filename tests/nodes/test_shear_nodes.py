@@ -177,3 +177,15 @@ def test_both_bubbles_report_shear_in_the_tool_frame(scene):
             assert estimates["left"].shear_px[1] * estimates["right"].shear_px[1] < 0
         else:  # along the fingers: image columns, the same way in both
             assert estimates["left"].shear_px[0] * estimates["right"].shear_px[0] > 0
+
+
+def test_shear_tracker_retakes_the_reference_when_the_image_size_changes(scene):
+    node, io = make_node(resolve("shear_tracker.farneback"), {"overlay_every_n": 0})
+    feed(node, "grasp", grasp_state(1.0, True, "stable"))
+    feed(node, "left", image(scene, "left", 1.0))
+    small = image(scene, "left", 1.1)
+    small.ir = np.ascontiguousarray(small.ir[::2, ::2])
+    small.depth_m = np.ascontiguousarray(small.depth_m[::2, ::2])
+    feed(node, "left", small)
+    result = io.published["shear"][-1]
+    assert result.has_reference and not result.direction_defined
