@@ -30,29 +30,22 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from messages.base import Message
 from messages.errors import BagError, NodeError
 from runtime.bag import BagMessage, BagReader, topic_filter
+from runtime.bagtool import ReplayOptions
 from runtime.node import Node
 from runtime.registry import register
 
 
 @dataclass(frozen=True, kw_only=True)
-class ReplayParams:
+class ReplayParams(ReplayOptions):
     """What to replay and how fast (see the module docstring)."""
 
     path: str
-    rate: float = 1.0
-    fast: bool = False
-    loop: bool = False
-    start_secs: float = 0.0
-    end_secs: float | None = None
-    topics: str = ""
-    remap: dict[str, str] = field(default_factory=dict)
-    lockstep: bool = False
     idle_timeout_secs: float = 60.0
     tick_secs: float = 0.001
     batch_secs: float = 0.02
@@ -60,24 +53,14 @@ class ReplayParams:
     window: int = 256
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if not self.path:
             raise ValueError("path must name the bag file, got ''")
-        if self.rate <= 0:
-            raise ValueError(f"rate must be > 0, got {self.rate}")
-        if self.start_secs < 0:
-            raise ValueError(f"start_secs must be >= 0, got {self.start_secs}")
-        if self.end_secs is not None and self.end_secs <= self.start_secs:
-            raise ValueError(
-                f"end_secs must be > start_secs ({self.start_secs}), got {self.end_secs}"
-            )
         if self.window < 0:
             raise ValueError(f"window must be >= 0 (0: unbounded), got {self.window}")
         for name in ("idle_timeout_secs", "tick_secs", "batch_secs"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
-        for src, dst in self.remap.items():
-            if "/" not in dst:
-                raise ValueError(f"remap: {src!r} -> {dst!r}: a topic is 'node/output'")
         topic_filter(self.topics)  # raises ValueError on a bad regex
 
 

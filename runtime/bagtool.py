@@ -332,6 +332,19 @@ class ReplayOptions:
     remap: dict[str, str] = field(default_factory=dict)
     lockstep: bool = False
 
+    def __post_init__(self) -> None:
+        if self.rate <= 0:
+            raise ValueError(f"rate must be > 0, got {self.rate}")
+        if self.start_secs < 0:
+            raise ValueError(f"start_secs must be >= 0, got {self.start_secs}")
+        if self.end_secs is not None and self.end_secs <= self.start_secs:
+            raise ValueError(
+                f"end_secs must be > start_secs ({self.start_secs}), got {self.end_secs}"
+            )
+        for src, dst in self.remap.items():
+            if "/" not in dst:
+                raise ValueError(f"remap: {src!r} -> {dst!r}: a topic is 'node/output'")
+
 
 def exact_topics(topics: Sequence[str]) -> str:
     """A ``topics`` pattern that selects exactly these topics."""
