@@ -322,8 +322,8 @@ def sequences(quick: bool) -> list[Sequence]:
 
 
 def settings(quick: bool) -> list[tuple[str, ShearParams]]:
-    """The sweep: (setting name, parameters). "half" = half-resolution input; "warm" =
-    each frame's flow starts from the previous frame's (same reference)."""
+    """The sweep: (setting name, parameters). "half" / "0.6x" = input scaled by 0.5 / 0.6;
+    "warm" = each frame's flow starts from the previous frame's (same reference)."""
     fb, dis = FarnebackParams, DisParams
     out = [
         ("fb L3 w15 (OpenCV sample)", ShearParams(farneback=fb())),
@@ -336,6 +336,11 @@ def settings(quick: bool) -> list[tuple[str, ShearParams]]:
         (
             "warm half fb L3 w15 p7",
             ShearParams(scale=0.5, warm_start=True, farneback=fb(poly_n=7, poly_sigma=1.5)),
+        ),
+        ("warm 0.6x fb L3 w15", ShearParams(scale=0.6, warm_start=True, farneback=fb())),
+        (
+            "warm 0.6x fb L3 w15 p7",
+            ShearParams(scale=0.6, warm_start=True, farneback=fb(poly_n=7, poly_sigma=1.5)),
         ),
         (
             "warm half fb L1 w9",
