@@ -2,8 +2,9 @@
 
 ``supervisor.handover`` (paper, task 3: shear-based release and handover)
     Closes the gripper on the object, waits for the grasp monitor's stable grasp, then
-    watches both bubbles' shear; when the shear magnitude stays above
-    ``release_shear_px`` for ``confirm_frames`` frames (someone pulls the object), it
+    watches both bubbles' shear; when the shear magnitude (the mean displacement per
+    pixel of the membrane against the stable-grasp reference, ``ShearEstimate.magnitude_px``)
+    stays above ``release_shear_px`` for ``confirm_frames`` frames (someone pulls), it
     opens the gripper and reports the pull direction. It ends the graph once the grasp
     is released, or at ``timeout_secs``.
 ``supervisor.sort`` (paper, task 1: dish loading with recycling separation)
