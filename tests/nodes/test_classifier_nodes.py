@@ -380,3 +380,52 @@ def test_writer_waits_for_frames_that_trail_the_grasp_state(tmp_path: Path) -> N
     assert len(node2.grasps) == 1  # grasp 1 is still open
     stable_frames = len([t for t in range(10, 400, 33) if 100 <= t < 300])
     assert progress == [{"frames": stable_frames, "grasp_id": 0, "object_class": "mug"}]
+
+
+# -- the committed model ------------------------------------------------------------------
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_committed_model_fits_the_node_defaults_and_classifies_sim_grasps() -> None:
+    """The default graph classifies out of the box: the model matches the node's defaults,
+    and it names the object of fresh grasps (a seed no dataset used) made the graph's way:
+    the world closes the jaws with force control, the camera nodes render the frames."""
+    from nodes.bubble_camera import SimBubbleCamera
+    from nodes.classifier import DEFAULT_MODEL
+
+    path = REPO / DEFAULT_MODEL
+    assert path.stat().st_size < 25e6
+    node, io = make_node(ResNet18ClassifierNode, {"model": str(path)}, name="classifier")
+    cameras = {
+        side: make_node(SimBubbleCamera, {"sensor": side}, name=f"{side}_camera")
+        for side in ("left", "right")
+    }
+    correct = 0
+    for grasp_id in range(8):
+        request = _request(grasp_id, seed=987654)
+        world, world_io = make_node(
+            AutolabelWorld, {"seed": 5}, name="world", now_nanos=grasp_id * 10**10
+        )
+        feed(world, "place", request)
+        world_io.advance(0.05)
+        command = GripperCommand(
+            header=Header(),
+            command="grasp",
+            width_m=request.grasp_width_m,
+            speed_m_per_s=0.1,
+            force_n=request.force_n,
+        )
+        feed(world, "command", command)
+        world_io.advance(1.2)
+        state = world_io.published["state"][-1]
+        assert all(state.in_contact)
+        stamp_ms = state.header.stamp_nanos // MS
+        feed(node, "grasp", _grasp(True, stamp_ms - 1))
+        for side, (camera, camera_io) in cameras.items():
+            feed(camera, "world", state)
+            feed(node, side, camera_io.published["image"][-1])
+        feed(node, "grasp", _grasp(False, stamp_ms + 1))
+        correct += io.published["probabilities"][-1].best == request.class_label
+    assert len(io.published["probabilities"]) == 8
+    assert correct >= 7
