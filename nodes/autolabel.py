@@ -187,7 +187,6 @@ class AutolabelSupervisor(Node):
                             k: (list(v) if isinstance(v, tuple) else v)
                             for k, v in dataclasses.asdict(gen).items()
                         },
-                        "grasps": self.params.grasps,
                         "open_width_m": self.params.open_width_m,
                         "close_speed_m_per_s": self.params.close_speed_m_per_s,
                         "hold_secs": self.params.hold_secs,
