@@ -48,6 +48,11 @@ def graph_run(tmp_path: Path) -> GraphRun:
     return GraphRun(tmp_path)
 
 
+def sink(out: Path, topic: str) -> dict:
+    """A ``synthetic.sink`` node that writes what it receives on ``topic`` to ``out``."""
+    return {"impl": "synthetic.sink", "params": {"out_path": str(out)}, "inputs": {"tick": topic}}
+
+
 def children_of(pid: int) -> list[int]:
     """Direct children of ``pid`` (Linux /proc)."""
     kids: list[int] = []

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.runtime.conftest import GraphRun, alive, children_of
+from tests.runtime.conftest import GraphRun, alive, children_of, sink
 
 FUZZER = "tests.runtime.nodes_for_tests:Fuzzer"
 
@@ -39,11 +39,7 @@ def test_two_node_graph_delivers_every_message_in_order(
     graph = graph_run.write(
         {
             "src": source,
-            "sink": {
-                "impl": "synthetic.sink",
-                "params": {"out_path": str(out)},
-                "inputs": {"tick": "src/tick"},
-            },
+            "sink": sink(out, "src/tick"),
         }
     )
     code, log = graph_run.run(graph)
@@ -69,11 +65,7 @@ def test_fan_in_keeps_each_source_in_order(graph_run: GraphRun, tmp_path: Path) 
                 "inputs": {"tick": "b/tick"},
             },
             "merge": {"impl": "synthetic.merge", "inputs": {"a": "a/tick", "b": "relay/tick"}},
-            "sink": {
-                "impl": "synthetic.sink",
-                "params": {"out_path": str(out)},
-                "inputs": {"tick": "merge/tick"},
-            },
+            "sink": sink(out, "merge/tick"),
         }
     )
     code, log = graph_run.run(graph)
@@ -120,11 +112,7 @@ def test_killed_node_restarts_by_policy(graph_run: GraphRun, tmp_path: Path) -> 
                 "inputs": {"tick": "src/tick"},
                 "restart": {"policy": "on-failure", "max_restarts": 2, "backoff_secs": 0.1},
             },
-            "sink": {
-                "impl": "synthetic.sink",
-                "params": {"out_path": str(out)},
-                "inputs": {"tick": "relay/tick"},
-            },
+            "sink": sink(out, "relay/tick"),
         }
     )
     code, log = graph_run.run(graph)
@@ -211,11 +199,7 @@ def test_hung_node_is_killed_and_restarted(graph_run: GraphRun, tmp_path: Path) 
                 "required": False,
                 "restart": {"policy": "on-failure", "max_restarts": 1, "backoff_secs": 0.1},
             },
-            "sink": {
-                "impl": "synthetic.sink",
-                "params": {"out_path": str(out)},
-                "inputs": {"tick": "relay/tick"},
-            },
+            "sink": sink(out, "relay/tick"),
         }
     )
     code, log = graph_run.run(graph)
@@ -231,11 +215,7 @@ def test_node_survives_garbage_frames_and_counts_them(graph_run: GraphRun, tmp_p
     graph = graph_run.write(
         {
             "fuzz": {"impl": FUZZER, "params": {"count": 60, "seed": 3}},
-            "sink": {
-                "impl": "synthetic.sink",
-                "params": {"out_path": str(out)},
-                "inputs": {"tick": "fuzz/tick"},
-            },
+            "sink": sink(out, "fuzz/tick"),
         }
     )
     code, log = graph_run.run(graph)
