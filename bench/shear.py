@@ -373,19 +373,6 @@ def angle_error_deg(estimate: np.ndarray, truth: np.ndarray) -> float:
     return abs(math.degrees((diff + math.pi) % (2 * math.pi) - math.pi))
 
 
-def camera_of(image: ToFImage) -> PinholeCamera:
-    """The full-resolution camera of a ToF frame."""
-    h, w = image.ir.shape
-    return PinholeCamera(
-        width_px=int(w),
-        height_px=int(h),
-        fx_px=image.fx_px,
-        fy_px=image.fy_px,
-        cx_px=image.cx_px,
-        cy_px=image.cy_px,
-    )
-
-
 def evaluate(name: str, params: ShearParams, sequences: list[Sequence]) -> Row:
     """One row: errors and time per frame of one setting over every sequence."""
     dir_err_mm, dir_err_px, mag_err, mm_err, torsion_err = [], [], [], [], []
@@ -395,7 +382,7 @@ def evaluate(name: str, params: ShearParams, sequences: list[Sequence]) -> Row:
         tracker = ShearTracker(params)
         basis = tool_basis_in_sensor(seq.sensor)
         ref = seq.reference
-        tracker.set_reference(ref.ir, ref.depth_m, camera_of(ref), basis)
+        tracker.set_reference(ref.ir, ref.depth_m, PinholeCamera.from_frame(ref), basis)
         tracker.update(ref.ir, ref.depth_m)  # warm caches and allocations
         for frame in seq.frames:
             image = frame.image
@@ -459,7 +446,10 @@ def timing_ms(params: ShearParams, sequence: Sequence, repeats: int = TIMING_REP
     for _ in range(repeats):
         tracker = ShearTracker(params)
         tracker.set_reference(
-            ref.ir, ref.depth_m, camera_of(ref), tool_basis_in_sensor(sequence.sensor)
+            ref.ir,
+            ref.depth_m,
+            PinholeCamera.from_frame(ref),
+            tool_basis_in_sensor(sequence.sensor),
         )
         tracker.update(ref.ir, ref.depth_m)
         for i, frame in enumerate(sequence.frames):

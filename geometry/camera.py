@@ -18,6 +18,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -52,6 +53,26 @@ class PinholeCamera:
         for name in ("cx_px", "cy_px"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"`{name}` must be finite, got {getattr(self, name)!r}")
+
+    @classmethod
+    def from_frame(cls, frame: Any) -> PinholeCamera:
+        """The camera a ToF frame message carries (duck-typed, so geometry needs no messages).
+
+        Args:
+            frame: anything with ``fx_px``, ``fy_px``, ``cx_px``, ``cy_px`` and ``depth_m``
+                and ``ir`` images; the size is that of the depth image, or of the IR image
+                when the frame carries no depth.
+        """
+        image = frame.depth_m if frame.depth_m.size else frame.ir
+        height, width = image.shape
+        return cls(
+            width_px=int(width),
+            height_px=int(height),
+            fx_px=float(frame.fx_px),
+            fy_px=float(frame.fy_px),
+            cx_px=float(frame.cx_px),
+            cy_px=float(frame.cy_px),
+        )
 
     @classmethod
     def from_fov(

@@ -51,19 +51,6 @@ class ContactPatchParams(ContactParams):
             raise ValueError(f"reference_frames must be >= 1, got {self.reference_frames}")
 
 
-def camera_of(msg: ToFImage) -> PinholeCamera:
-    """The pinhole intrinsics a ToF frame carries."""
-    h, w = msg.depth_m.shape
-    return PinholeCamera(
-        width_px=int(w),
-        height_px=int(h),
-        fx_px=msg.fx_px,
-        fy_px=msg.fy_px,
-        cx_px=msg.cx_px,
-        cy_px=msg.cy_px,
-    )
-
-
 @register("contact_patch")
 class ContactPatchNode(Node):
     """Difference-image contact patch of both bubbles (paper's naive filter)."""
@@ -117,7 +104,7 @@ class ContactPatchNode(Node):
 
     def _publish(self) -> None:
         self.fresh = {"left": False, "right": False}
-        frames = {s: (m.depth_m, camera_of(m)) for s, m in self.latest.items()}
+        frames = {s: (m.depth_m, PinholeCamera.from_frame(m)) for s, m in self.latest.items()}
         cloud = self.patcher.extract(frames, self.width_m or 0.0)
         stamp = max(m.header.stamp_nanos for m in self.latest.values())
         self.io.publish(

@@ -94,18 +94,6 @@ class DisTrackerParams(ShearTrackerParams):
             raise ValueError(f"`method` must be 'dis' for this node, got {self.method!r}")
 
 
-def _camera(msg: ToFImage) -> PinholeCamera:
-    h, w = msg.ir.shape
-    return PinholeCamera(
-        width_px=int(w),
-        height_px=int(h),
-        fx_px=msg.fx_px,
-        fy_px=msg.fy_px,
-        cx_px=msg.cx_px,
-        cy_px=msg.cy_px,
-    )
-
-
 class _ShearTrackerNode(Node):
     inputs = {"left": ToFImage, "right": ToFImage, "grasp": GraspState, "reset": ShearReset}
     outputs = {"shear": ShearEstimate, "overlay": OverlayImage}
@@ -170,7 +158,7 @@ class _ShearTrackerNode(Node):
         depth = msg.depth_m if msg.depth_m.shape == msg.ir.shape else None
         if self.want_reference[sensor] and msg.header.stamp_nanos >= self.stable_since_nanos:
             basis = tool_basis_in_sensor(sensor) if self.params.shear_frame == "tool" else None
-            tracker.set_reference(msg.ir, depth, _camera(msg), basis)
+            tracker.set_reference(msg.ir, depth, PinholeCamera.from_frame(msg), basis)
             self.want_reference[sensor] = False
         every = self.params.overlay_every_n
         want_overlay = every > 0 and self.frames[sensor] % every == 0

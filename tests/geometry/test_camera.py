@@ -73,3 +73,28 @@ def test_bad_intrinsics_name_the_field(field: str, value: float) -> None:
 def test_wrong_depth_shape_raises() -> None:
     with pytest.raises(ValueError, match="shape"):
         PinholeCamera.from_fov(40, 30).depth_to_points(np.zeros((3, 3)))
+
+
+def test_from_frame_reads_the_message_intrinsics_and_size() -> None:
+    from types import SimpleNamespace
+
+    depth = np.zeros((172, 224), np.float32)
+    frame = SimpleNamespace(
+        depth_m=depth,
+        ir=np.zeros((172, 224), np.uint16),
+        fx_px=190.0,
+        fy_px=200.0,
+        cx_px=111.5,
+        cy_px=85.5,
+    )
+    cam = PinholeCamera.from_frame(frame)
+    assert (cam.width_px, cam.height_px, cam.fx_px, cam.fy_px, cam.cx_px, cam.cy_px) == (
+        224,
+        172,
+        190.0,
+        200.0,
+        111.5,
+        85.5,
+    )
+    frame.depth_m = np.zeros((0, 0), np.float32)  # a scene without the depth effect
+    assert PinholeCamera.from_frame(frame).width_px == 224

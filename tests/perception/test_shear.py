@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.shear import SimGrasp, angle_error_deg, camera_of, truth
+from bench.shear import SimGrasp, angle_error_deg, truth
 from geometry.camera import PinholeCamera
 from geometry.gripper import SIDES
 from perception.shear import (
@@ -51,7 +51,9 @@ def expected(shift_mm: tuple[float, float], twist_deg: float, index: int, sensor
 def tracker_for(sensor: str, params: ShearParams | None = None) -> ShearTracker:
     tracker = ShearTracker(params or ShearParams())
     ref = instant().images[sensor]
-    tracker.set_reference(ref.ir, ref.depth_m, camera_of(ref), tool_basis_in_sensor(sensor))
+    tracker.set_reference(
+        ref.ir, ref.depth_m, PinholeCamera.from_frame(ref), tool_basis_in_sensor(sensor)
+    )
     return tracker
 
 
@@ -171,7 +173,7 @@ def test_nan_in_the_reference_and_all_invalid_frames_give_finite_zero():
     ir_ref, depth_ref = frame(index=0)
     tracker = ShearTracker(ShearParams())
     tracker.set_reference(
-        ir_ref, np.full_like(depth_ref, np.nan), camera_of(instant().images["left"])
+        ir_ref, np.full_like(depth_ref, np.nan), PinholeCamera.from_frame(instant().images["left"])
     )
     assert_finite(tracker.update(*frame((1.0, 0.0), 0.0, 40)))
     tracker = tracker_for("left")
