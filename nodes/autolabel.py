@@ -54,7 +54,7 @@ from runtime.registry import register
 from sim import World, ground_truth, load_scene, stamp_of
 from sim.effects import resolve
 from sim.scene import Keyframe, Scene, SceneError
-from sim.wire import to_message
+from sim.wire import apply_command, to_message
 
 TASK = "autolabel"
 
@@ -419,15 +419,9 @@ class AutolabelWorld(Node):
     def on_command(self, msg: GripperCommand) -> None:
         if self.world is None:
             return
-        try:
-            self.world.command(
-                msg.command,
-                width_m=msg.width_m,
-                speed_m_per_s=msg.speed_m_per_s,
-                force_n=msg.force_n,
-            )
-        except ValueError as err:
-            self.io.log.warning("%s: ignored gripper command: %s", self.name, err)
+        refused = apply_command(self.world, msg)
+        if refused:
+            self.io.log.warning("%s: ignored gripper command: %s", self.name, refused)
 
     def tick(self) -> None:
         """Advance the placed object's world one frame; nothing until the first place."""

@@ -25,7 +25,7 @@ from runtime.registry import register
 from sim import World, ground_truth, load_scene, stamp_of
 from sim.effects import resolve
 from sim.scene import Scene, SceneError
-from sim.wire import to_message
+from sim.wire import apply_command, to_message
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -83,15 +83,9 @@ class WorldNode(Node):
         self.io.add_timer(self.scene.frame_period_secs / self.params.rate_scale, self.tick)
 
     def on_command(self, msg: GripperCommand) -> None:
-        try:
-            self.world.command(
-                msg.command,
-                width_m=msg.width_m,
-                speed_m_per_s=msg.speed_m_per_s,
-                force_n=msg.force_n,
-            )
-        except ValueError as err:
-            self.io.log.warning("%s: ignored gripper command: %s", self.name, err)
+        refused = apply_command(self.world, msg)
+        if refused:
+            self.io.log.warning("%s: ignored gripper command: %s", self.name, refused)
 
     def tick(self) -> None:
         """Advance one frame and publish it; stop the graph after the last one."""

@@ -16,8 +16,9 @@ import numpy as np
 from geometry.gripper import SIDES
 from messages.base import Header
 from messages.sim import WorldState
+from messages.types import GripperCommand
 from sim.scene import Scene, load_scene
-from sim.world import WorldSnapshot
+from sim.world import World, WorldSnapshot
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -88,3 +89,17 @@ def scene_of(msg: WorldState) -> Scene:
 @functools.lru_cache(maxsize=8)
 def _scene(path: str, effects: tuple[str, ...], seed: int) -> Scene:
     return dataclasses.replace(load_scene(path), effects=effects, seed=seed)
+
+
+def apply_command(world: World, msg: GripperCommand) -> str | None:
+    """Apply a gripper command to the world; return why it was refused, or None."""
+    try:
+        world.command(
+            msg.command,
+            width_m=msg.width_m,
+            speed_m_per_s=msg.speed_m_per_s,
+            force_n=msg.force_n,
+        )
+    except ValueError as err:
+        return str(err)
+    return None
