@@ -16,16 +16,23 @@ left and right cameras. Rows (``mode``):
                       camera's fastest mode) into two sinks, recorded with
                       ``launch(record=...)``; ``dropped`` counts what the bag lacks
                       (sequence gaps, runtime drops, frames never recorded).
+``record_pipeline``   the default graph (``graph.yaml``: simulated world, both cameras,
+                      pressure, gripper, grasp monitor, shear, contact patch, IPOPT pose,
+                      supervisor) with its cameras at 45 fps, recorded with
+                      ``launch(record=...)``: the camera frames in the bag, their rate, and
+                      ``dropped`` = frames the world made that the bag lacks, plus gaps.
 ``read``              :class:`runtime.bag.BagReader` iterating the bag (no decode).
 ``replay_fast`` / ``replay_lockstep``  the ``replay`` node publishing the bag as fast as
-                      possible, or in lockstep (waiting for the graph to be idle before
-                      each frame), into a sink node, under the real launcher; throughput
-                      is counted at the sink from its first to its last frame.
-                      ``lockstep_cost_pct`` = how much slower lockstep is than fast.
-                      The ``_work10ms`` rows give the sink 10 ms of busy work per frame
-                      (a perception stage's order of cost): with an idle sink the rows
-                      measure lockstep's bare round trip (replay -> sink -> launcher ->
-                      replay), with a working one what it costs a real replay.
+                      possible, or in lockstep, into a sink node reading both cameras,
+                      under the real launcher; throughput is counted at the sink from its
+                      first to its last frame. ``lockstep_cost_pct`` = how much slower
+                      lockstep is than fast. The sink reads both topics from one publisher
+                      (the replay), so lockstep pipelines them (``Graph.barrier_topics``).
+                      ``_fanin`` rows route the right camera through a relay node: the sink
+                      then merges two publishers and lockstep waits for the graph to be
+                      idle before every frame (replay -> relay -> sink -> launcher ->
+                      replay). ``_work10ms`` rows give the sink 10 ms of busy work per
+                      frame (a perception stage's order of cost).
 
     python -m bench.bags [--quick] [--json] [--no-plot]
 """
@@ -41,6 +48,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import yaml
 from mcap.writer import CompressionType, Writer
 
 from bench.common import Row, main, median
@@ -204,6 +212,16 @@ class ReplaySink(Node):
             Path(self.params.out_path).write_text(json.dumps(result))
 
 
+class ImageRelay(Node):
+    """Republishes each camera frame as it comes (``bench.bags:ImageRelay``)."""
+
+    inputs = {"image": ToFImage}
+    outputs = {"image": ToFImage}
+
+    def on_image(self, msg: ToFImage) -> None:
+        self.io.publish("image", msg)
+
+
 def _launch(graph: dict[str, Any], **kwargs: Any) -> int:
     from runtime.launcher import launch
 
@@ -248,9 +266,43 @@ def run_live_record(sizes: Sizes, workdir: Path) -> Row:
     return _row("record_live", recorded, nbytes, span / 1e9, dropped=dropped, target_fps=90.0)
 
 
-def run_replay(bag: Path, workdir: Path, lockstep: bool, work_secs: float) -> Row:
-    out = workdir / f"sink_{lockstep}_{work_secs}.json"
-    graph = {
+def run_pipeline_record(workdir: Path) -> Row:
+    root = Path(__file__).resolve().parents[1]
+    graph = yaml.safe_load((root / "graph.yaml").read_text())
+    scene = yaml.safe_load((root / graph["nodes"]["world"]["params"]["scene"]).read_text())
+    scene.setdefault("camera", {})["frame_rate_hz"] = 45.0
+    scene_path = workdir / "scene_45fps.yaml"
+    scene_path.write_text(yaml.safe_dump(scene))
+    graph["nodes"]["world"]["params"]["scene"] = str(scene_path)
+    bag = workdir / "pipeline.mcap"
+    code = _launch(graph, record=bag)
+    if code != 0:
+        raise RuntimeError(f"the default graph exited {code} while recording")
+    with BagReader(bag) as reader:
+        stats = reader.stats()
+        drops = reader.drops()
+    topics = ["left_camera/image", "right_camera/image"]
+    recorded = sum(stats[t].messages for t in topics)
+    made = 2 * stats["world/state"].messages
+    gaps = sum(sum(drops.get(t, {}).values()) for t in topics)
+    span = max(stats[t].last_log_nanos for t in topics) - min(
+        stats[t].first_log_nanos for t in topics
+    )
+    nbytes = sum(stats[t].bytes for t in topics)
+    return _row(
+        "record_pipeline",
+        recorded,
+        nbytes,
+        span / 1e9,
+        dropped=made - recorded + gaps,
+        target_fps=90.0,
+    )
+
+
+def run_replay(bag: Path, workdir: Path, lockstep: bool, work_secs: float, fan_in: bool) -> Row:
+    out = workdir / f"sink_{lockstep}_{work_secs}_{fan_in}.json"
+    right = "relay/image" if fan_in else "right_camera/image"
+    graph: dict[str, Any] = {
         "nodes": {
             "replay": {
                 "impl": "replay",
@@ -259,10 +311,15 @@ def run_replay(bag: Path, workdir: Path, lockstep: bool, work_secs: float) -> Ro
             "sink": {
                 "impl": "bench.bags:ReplaySink",
                 "params": {"out_path": str(out), "work_secs": work_secs},
-                "inputs": {"left": "left_camera/image", "right": "right_camera/image"},
+                "inputs": {"left": "left_camera/image", "right": right},
             },
         }
     }
+    if fan_in:
+        graph["nodes"]["relay"] = {
+            "impl": "bench.bags:ImageRelay",
+            "inputs": {"image": "right_camera/image"},
+        }
     # The launcher tracks counts in both modes so the replay can wait for the sink to
     # drain before it stops the graph (as ``launch.py replay`` does).
     code = _launch(graph, lockstep=True)
@@ -271,28 +328,36 @@ def run_replay(bag: Path, workdir: Path, lockstep: bool, work_secs: float) -> Ro
     result = json.loads(out.read_text())
     secs = (result["last"] - result["first"]) / 1e9
     mode = "replay_lockstep" if lockstep else "replay_fast"
+    if fan_in:
+        mode += "_fanin"
     if work_secs:
         mode += f"_work{work_secs * 1e3:g}ms"
     return _row(mode, result["count"], result["bytes"], secs, work_ms=work_secs * 1e3)
 
 
 def run(quick: bool) -> list[Row]:
-    import nodes.bench_nodes  # noqa: F401  (registers bench.image_source / image_sink)
-    import nodes.recorder  # noqa: F401
-    import nodes.replay  # noqa: F401
+    import nodes
+
+    nodes.import_all()  # the default graph's nodes, the bench nodes, recorder and replay
 
     sizes = QUICK if quick else FULL
     with tempfile.TemporaryDirectory(prefix="bench_bags_") as tmp:
         workdir = Path(tmp)
         rows = run_record(sizes, workdir)
         rows.append(run_live_record(sizes, workdir))
+        rows.append(run_pipeline_record(workdir))
         bag = workdir / "cameras.mcap"
-        for work_secs in (0.0, sizes.work_secs):
+        for work_secs, fan_in in (
+            (0.0, False),
+            (0.0, True),
+            (sizes.work_secs, False),
+            (sizes.work_secs, True),
+        ):
             fast: list[Row] = []
             lock: list[Row] = []
             for _ in range(sizes.repeats):
-                fast.append(run_replay(bag, workdir, lockstep=False, work_secs=work_secs))
-                lock.append(run_replay(bag, workdir, lockstep=True, work_secs=work_secs))
+                fast.append(run_replay(bag, workdir, False, work_secs, fan_in))
+                lock.append(run_replay(bag, workdir, True, work_secs, fan_in))
             for mode_rows in (fast, lock):
                 best = dict(mode_rows[0])
                 best["frames_per_sec"] = median([r["frames_per_sec"] for r in mode_rows])

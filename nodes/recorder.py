@@ -80,6 +80,7 @@ class Recorder(Node):
 
     Params = RecorderParams
     raw_input = True
+    merges_in_any_order = True  # each topic is stored in its own order; bags are per topic
 
     def setup(self) -> None:
         p = self.params

@@ -15,10 +15,12 @@ so downstream nodes that use message stamps behave exactly as they did live. Pac
 - ``fast``: as fast as the graph takes them: at most ``window`` (256) messages in flight,
   then wait for the graph to be idle, so no queue overflows at its high-water mark (0 =
   unbounded; needs the launcher's idle tracking, which ``launch.py replay`` turns on);
-- ``lockstep``: before each message, wait until every node downstream has handled every
-  message published so far (``io.wait_idle``), so the same bag through the same nodes gives
-  the same outputs whatever the load; implies ``fast`` pacing. The launcher must run the
-  graph with ``lockstep=True`` for the runtime to track idleness.
+- ``lockstep``: the same bag through the same nodes gives the same outputs whatever the
+  load; implies ``fast`` pacing. Before a message that can reach a node merging several
+  publishers (``io.lockstep_barrier``), wait until every node downstream has handled every
+  message published so far (``io.wait_idle``); other messages go out without waiting (each
+  node reads a publisher in its publishing order), at most ``window`` before an idle wait.
+  The launcher must run the graph with ``lockstep=True`` for the runtime to track idleness.
 
 ``start_secs``/``end_secs`` cut the bag (seconds from its first message), ``topics`` selects
 topics (a regex, ``re.search`` like ``launch.py --topics``), ``remap`` renames them (``{bag_topic: published_topic}``), and
@@ -169,16 +171,17 @@ class Replay(Node):
                 return
             if not self._due(msg, self.io.now_nanos()):
                 return
+            topic = self.topic_map[msg.topic]
+            # Bound what is in flight: "as fast as the graph takes them", not faster (in
+            # lockstep nothing is dropped at a high-water mark, but memory is finite).
+            full = bool(self.params.window) and self._in_flight >= self.params.window
             if self.params.lockstep:
-                if not self._wait_idle(msg):
+                if (full or self.io.lockstep_barrier(topic)) and not self._wait_idle(msg):
                     return
-            elif self.params.fast and self.params.window and self._in_flight >= self.params.window:
-                # Bound what is in flight so a slow consumer's queue never overflows at the
-                # high-water mark: "as fast as the graph takes them", not faster.
+            elif full:
                 if not self.io.wait_idle(self.params.idle_timeout_secs):
                     self.io.log.warning("graph not idle after %s s", self.params.idle_timeout_secs)
                 self._in_flight = 0
-            topic = self.topic_map[msg.topic]
             self.io.publish_raw(topic, msg.wire_frames(topic))
             self.published += 1
             self._in_flight += 1
@@ -186,6 +189,7 @@ class Replay(Node):
 
     def _wait_idle(self, msg: BagMessage) -> bool:
         if self.io.wait_idle(self.params.idle_timeout_secs):
+            self._in_flight = 0
             return True
         if self.io.stop_requested:
             self.done = True  # the graph is stopping; not a lockstep failure

@@ -21,6 +21,7 @@ node and the field.
 from __future__ import annotations
 
 import re
+from collections import defaultdict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -110,6 +111,40 @@ class Graph:
             for spec in self.nodes.values()
             for inp in spec.inputs.values()
         ]
+
+    def barrier_topics(self) -> set[str]:
+        """Topics from which a message can reach a node that merges several publishers.
+
+        A node reading the topics of two or more publishers (a fan-in) sees their
+        messages in an order set by timing; one reading a single publisher sees them in
+        the order they were published, however many topics it reads (lockstep gives each
+        publisher one socket per subscriber, and ZeroMQ keeps one connection's order).
+        Lockstep replay waits for the graph to be idle before a message on a barrier
+        topic and pipelines the others. Nodes with ``merges_in_any_order`` (the recorder)
+        do not count as fan-ins.
+        """
+        providers = {topic: node for topic, (node, _) in self.providers().items()}
+        readers: dict[str, set[str]] = defaultdict(set)
+        for topic, node, _ in self.edges():
+            readers[topic].add(node)
+        fan_ins = {
+            spec.name
+            for spec in self.nodes.values()
+            if not spec.cls.merges_in_any_order
+            and len({providers.get(inp.topic) for inp in spec.inputs.values()}) > 1
+        }
+        barriers = set()
+        for start in providers:
+            seen: set[str] = set()
+            todo = [start]
+            while todo:
+                topic = todo.pop()
+                for node in readers[topic] - seen:
+                    seen.add(node)
+                    todo.extend(self.nodes[node].topics.values())
+            if seen & fan_ins:
+                barriers.add(start)
+        return barriers
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):  # type: ignore[misc]

@@ -85,9 +85,14 @@ class Launcher:
         self.out = out or sys.stdout
         self.procs = {name: _Proc(spec) for name, spec in graph.nodes.items()}
         self.providers = {topic: node for topic, (node, _) in graph.providers().items()}
+        # Subscriptions each publisher waits for: one per input, but in lockstep a node
+        # reads each publisher through one socket, subscribed once per topic.
         self.expected: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
-        for topic, _, _ in graph.edges():
+        edges = graph.edges()
+        subscriptions = {(t, n) for t, n, _ in edges} if lockstep else [(t, n) for t, n, _ in edges]
+        for topic, _ in subscriptions:
             self.expected[self.providers[topic]][topic] += 1
+        self.barrier_topics = graph.barrier_topics() if lockstep else set()
         self.stop_reason: str | None = None
         self.exit_code = 0
         self.idle_waiters: list[bytes] = []
@@ -146,6 +151,7 @@ class Launcher:
             "control": self.control_endpoint,
             "parent_pid": os.getpid(),
             "lockstep": self.lockstep,
+            "barrier_topics": sorted(self.barrier_topics & set(spec.topics.values())),
             "log_level": self.log_level,
         }
         env = dict(os.environ)

@@ -62,6 +62,10 @@ class IO(Protocol):
         """Block until every message published so far has been handled downstream
         (lockstep replay); True when idle, False on timeout."""
 
+    def lockstep_barrier(self, topic: str) -> bool:
+        """Whether, in lockstep, a message on ``topic`` must wait for the graph to be idle:
+        it can reach a node that merges several publishers (``Graph.barrier_topics``)."""
+
     def drops(self) -> dict[str, int]:
         """Messages lost per input topic so far (sequence gaps and superseded ones)."""
 
@@ -76,6 +80,10 @@ class Node:
     # A raw-input node (the recorder) receives every message undecoded through
     # ``on_raw(topic, frames)``, and its graph inputs may name any port and type.
     raw_input: ClassVar[bool] = False
+    # True when nothing the node publishes or writes depends on how the messages of
+    # different publishers interleave (the recorder keeps each topic in its own order):
+    # lockstep replay then need not wait for the graph to be idle for its sake.
+    merges_in_any_order: ClassVar[bool] = False
 
     def __init__(self, name: str, params: Any, io: IO) -> None:
         if not isinstance(params, self.Params):

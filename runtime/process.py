@@ -11,6 +11,14 @@ input (fair between inputs), bounded by the socket high-water mark. ``latest``: 
 input is drained on every round and only the newest message is handled, so a slow
 consumer never works through a backlog (ZeroMQ's CONFLATE cannot do multipart).
 
+Lockstep (deterministic replay). Every input is a ``queue`` without a bound (the
+replay bounds what is in flight), and a node reads each publisher through one SUB
+socket subscribed to all the topics it takes from it, so it handles one publisher's
+messages in the order they were published, whatever the topics. After each handled
+message it reports its counts to the launcher, which tells a waiting replay when the
+graph is idle; the replay waits only before messages on ``barrier_topics`` (those that
+can reach a node merging several publishers, see ``Graph.barrier_topics``).
+
 Drops. Every output stamps ``header.seq``; a receiver counts sequence gaps as
 ``dropped`` (lost at a high-water mark) and, on ``latest`` inputs, skipped messages
 as ``superseded``. Frames that fail to decode are counted as ``bad_frames`` and
@@ -69,9 +77,17 @@ class _Input:
     port: str
     topic: str
     policy: str
-    socket: zmq.Socket[Any]
     kind: type[Message] | None
     counters: InputCounters = field(default_factory=InputCounters)
+
+
+@dataclass
+class _Source:
+    """One SUB socket and the inputs it feeds, by exact topic (SUB filters by prefix)."""
+
+    socket: zmq.Socket[Any]
+    inputs: dict[bytes, list[_Input]] = field(default_factory=dict)
+    latest: bool = False  # only a socket of one ``latest`` input, outside lockstep
 
 
 @dataclass
@@ -103,7 +119,9 @@ class ZmqIO:
         self.output_types: dict[str, type[Message] | None] = {}
         self.pub = ctx.socket(zmq.XPUB)
         self.pub.setsockopt(zmq.XPUB_VERBOSE, 1)
-        self.pub.setsockopt(zmq.SNDHWM, spec.get("sndhwm", 1000))
+        self.lockstep: bool = spec.get("lockstep", False)
+        # Lockstep must not lose a message to a high-water mark: the replay bounds the flow.
+        self.pub.setsockopt(zmq.SNDHWM, 0 if self.lockstep else spec.get("sndhwm", 1000))
         self.pub.setsockopt(zmq.LINGER, 1000)
         self.endpoint = self._bind(spec["bind"])
         self.control = ctx.socket(zmq.DEALER)
@@ -114,7 +132,7 @@ class ZmqIO:
         self.published: dict[str, int] = defaultdict(int)
         self.timers: list[_Timer] = []
         self.stop_requested = False
-        self.lockstep: bool = spec.get("lockstep", False)
+        self.barrier_topics = frozenset(spec.get("barrier_topics", ()))
         self.subscriptions: dict[bytes, int] = defaultdict(int)
 
     def _bind(self, endpoint: str) -> str:
@@ -176,6 +194,9 @@ class ZmqIO:
                 return False
         return False
 
+    def lockstep_barrier(self, topic: str) -> bool:
+        return self.lockstep and topic in self.barrier_topics
+
     def drops(self) -> dict[str, int]:
         return {i.topic: i.counters.dropped + i.counters.superseded for i in self.inputs}
 
@@ -222,6 +243,7 @@ class Runner:
         self.raw = cls.raw_input
         self.inputs_decl = inputs_decl
         self.busy_since = 0.0
+        self.sources: list[_Source] = []
         self.stopping = threading.Event()
         self._hb_thread = threading.Thread(target=self._heartbeat, daemon=True)
 
@@ -233,14 +255,27 @@ class Runner:
         connect = self._wait_control("connect")
         if connect is None:
             return self._finish(0)
+        by_key: dict[str, _Source] = {}
         for inp in self.spec["inputs"]:
-            sock = self.ctx.socket(zmq.SUB)
-            sock.setsockopt(zmq.RCVHWM, inp["queue_size"])
-            sock.setsockopt(zmq.LINGER, 0)
-            sock.connect(connect["endpoints"][inp["provider"]])
-            sock.setsockopt(zmq.SUBSCRIBE, inp["topic"].encode())
+            # Outside lockstep a socket per input (its own bound and policy); in lockstep
+            # a socket per publisher, which keeps that publisher's order across topics.
+            key = inp["provider"] if io.lockstep else inp["port"]
+            source = by_key.get(key)
+            if source is None:
+                sock = self.ctx.socket(zmq.SUB)
+                sock.setsockopt(zmq.RCVHWM, 0 if io.lockstep else inp["queue_size"])
+                sock.setsockopt(zmq.LINGER, 0)
+                sock.connect(connect["endpoints"][inp["provider"]])
+                latest = inp["policy"] == "latest" and not io.lockstep
+                source = by_key[key] = _Source(sock, latest=latest)
+                self.sources.append(source)
+            topic = inp["topic"].encode()
+            if topic not in source.inputs:
+                source.socket.setsockopt(zmq.SUBSCRIBE, topic)
             kind = None if self.raw else self.inputs_decl[inp["port"]]
-            io.inputs.append(_Input(inp["port"], inp["topic"], inp["policy"], sock, kind))
+            entry = _Input(inp["port"], inp["topic"], inp["policy"], kind)
+            source.inputs.setdefault(topic, []).append(entry)
+            io.inputs.append(entry)
         self._await_subscribers()
         self.busy_since = time.monotonic()
         self.node.setup()
@@ -257,8 +292,8 @@ class Runner:
             self.node.teardown()
         finally:
             self.io.control.send(protocol.pack("final", stats=self.io.stats()))
-            for inp in self.io.inputs:
-                inp.socket.close(linger=0)
+            for source in self.sources:
+                source.socket.close(linger=0)
             self.io.pub.close(linger=1000)
             self.io.control.close(linger=1000)
             self._hb_thread.join(timeout=2)
@@ -311,11 +346,11 @@ class Runner:
     def _loop(self) -> None:
         io = self.io
         poller = zmq.Poller()
-        for inp in io.inputs:
-            poller.register(inp.socket, zmq.POLLIN)
+        for source in self.sources:
+            poller.register(source.socket, zmq.POLLIN)
         poller.register(io.control, zmq.POLLIN)
         poller.register(io.pub, zmq.POLLIN)
-        by_socket = {inp.socket: inp for inp in io.inputs}
+        by_socket = {source.socket: source for source in self.sources}
         while not io.stop_requested:
             timeout_ms = 200
             if io.timers:
@@ -329,9 +364,9 @@ class Runner:
             if io.pub in events:
                 self._drain_subscriptions()
             handled = False
-            for sock, inp in by_socket.items():
+            for sock, source in by_socket.items():
                 if sock in events and not io.stop_requested:
-                    handled |= self._service(inp)
+                    handled |= self._service(source)
             self._run_timers()
             if handled and io.lockstep:
                 io.send_counts()
@@ -353,25 +388,32 @@ class Runner:
                 timer.due_nanos = max(timer.due_nanos + timer.period_nanos, now)
                 self._call(timer.callback)
 
-    def _service(self, inp: _Input) -> bool:
-        frames = self._recv(inp)
-        if frames is None:
+    def _service(self, source: _Source) -> bool:
+        got = self._recv(source)
+        if got is None:
             return False
+        inputs, frames = got
         skipped = 0
-        if inp.policy == "latest":
-            while (newer := self._recv(inp)) is not None:
+        if source.latest:
+            while (newer := self._recv(source)) is not None:
                 skipped += 1
-                frames = newer
-            inp.counters.superseded += skipped
-            inp.counters.received += skipped
-        self._deliver(inp, frames, skipped)
+                frames = newer[1]
+            inputs[0].counters.superseded += skipped
+            inputs[0].counters.received += skipped
+        for inp in inputs:
+            self._deliver(inp, frames, skipped)
         return True
 
-    def _recv(self, inp: _Input) -> list[Any] | None:
-        try:
-            return inp.socket.recv_multipart(zmq.NOBLOCK, copy=False)
-        except zmq.Again:
-            return None
+    def _recv(self, source: _Source) -> tuple[list[_Input], list[Any]] | None:
+        """The next message of an input of ``source`` and those inputs, or None."""
+        while True:
+            try:
+                frames = source.socket.recv_multipart(zmq.NOBLOCK, copy=False)
+            except zmq.Again:
+                return None
+            inputs = source.inputs.get(frames[0].bytes)
+            if inputs:  # else another topic that merely starts with a subscribed one
+                return inputs, frames
 
     def _deliver(self, inp: _Input, frames: list[Any], skipped: int = 0) -> None:
         """Decode and handle one message; ``skipped`` newer-than-last ones were superseded."""

@@ -64,6 +64,9 @@ class FakeIO:
     def wait_idle(self, timeout_secs: float) -> bool:
         return True
 
+    def lockstep_barrier(self, topic: str) -> bool:
+        return True  # no graph to reason about: always the safe answer
+
     def drops(self) -> dict[str, int]:
         return dict(self.dropped)
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+import nodes.recorder  # noqa: F401 - registers the recorder
 import nodes.synthetic  # noqa: F401 - registers the synthetic nodes
 from messages.errors import GraphError
 from runtime import graph as graphs
@@ -39,6 +40,25 @@ def test_valid_graph_resolves_edges_and_types(tmp_path: Path) -> None:
     assert g.edges() == [("src/tick", "sink", "tick")]
     assert g.nodes["sink"].inputs["tick"].policy == "latest"
     assert g.nodes["src"].params.rate_hz == 20.0
+
+
+def test_barrier_topics_are_those_that_reach_a_fan_in(tmp_path: Path) -> None:
+    g = check_text(
+        "nodes:\n"
+        "  a: {impl: synthetic.source}\n"
+        "  b: {impl: synthetic.source}\n"
+        "  c: {impl: synthetic.source}\n"
+        "  relay: {impl: synthetic.relay, inputs: {tick: a/tick}}\n"
+        # one publisher (relay) on both inputs: its order holds, not a fan-in
+        "  same: {impl: synthetic.merge, inputs: {a: relay/tick, b: relay/tick}}\n"
+        # two publishers: a fan-in, so a/tick (through relay) and b/tick are barriers
+        "  fan: {impl: synthetic.merge, inputs: {a: relay/tick, b: b/tick}}\n"
+        "  sink: {impl: synthetic.sink, inputs: {tick: fan/tick}}\n"
+        "  rec: {impl: recorder, params: {path: x.mcap}, inputs: {t0: same/tick, t1: c/tick}}\n",
+        tmp_path,
+    )
+    # The recorder merges in any order: c/tick reaches only it.
+    assert g.barrier_topics() == {"a/tick", "relay/tick", "b/tick"}
 
 
 def test_unknown_implementation_lists_valid_ones(tmp_path: Path) -> None:
