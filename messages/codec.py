@@ -18,14 +18,16 @@ Every way a frame can be wrong raises :class:`FrameDecodeError` (or its subclass
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import msgspec
 import numpy as np
 
-from messages.base import Message
+from messages.base import Array, Message
 from messages.errors import FingerprintMismatchError, FrameDecodeError
 
 _encoder = msgspec.msgpack.Encoder()
@@ -44,19 +46,81 @@ class WireHeader(msgspec.Struct, forbid_unknown_fields=True):
 _wire_decoder = msgspec.msgpack.Decoder(WireHeader)
 
 
-def _wire_array(msg: Message, name: str) -> np.ndarray:
-    value = getattr(msg, name)
-    spec = msg.schema().array_fields[name]
+@dataclass(frozen=True, slots=True)
+class _WireArray:
+    """One array field as the wire carries it: its declaration and little-endian dtype."""
+
+    name: str
+    spec: Array
+    dtype: np.dtype[Any]
+    dtype_str: str  # how the encoder spells it: the usual spelling on the wire
+    fixed_axes: tuple[tuple[int, int], ...]
+
+    def fits(self, shape: Sequence[int]) -> bool:
+        """Whether ``shape`` has the declared number of axes and every fixed axis length."""
+        if len(shape) != len(self.spec.shape):
+            return False
+        # A loop, not all(...): most declarations fix no axis, and a generator costs more.
+        for axis, length in self.fixed_axes:
+            if shape[axis] != length:
+                return False
+        return True
+
+
+@dataclass(frozen=True, slots=True)
+class _Plan:
+    """What encode and decode need of a message class, computed once per class."""
+
+    fingerprint: str
+    arrays: tuple[_WireArray, ...]
+    arrays_by_name: dict[str, _WireArray]
+    scalar_names: tuple[str, ...]
+
+
+@functools.cache
+def _plan(cls: type[Message]) -> _Plan:
+    schema = cls.schema()
+    arrays = []
+    for name, spec in schema.array_fields.items():
+        # Through .str: the interned dtype that freshly made arrays carry, so the encoder's
+        # identity test hits.
+        dtype = np.dtype(np.dtype(spec.dtype).newbyteorder("<").str)
+        fixed = tuple((axis, n) for axis, n in enumerate(spec.shape) if n is not None)
+        arrays.append(_WireArray(name, spec, dtype, dtype.str, fixed))
+    return _Plan(
+        fingerprint=schema.fingerprint,
+        arrays=tuple(arrays),
+        arrays_by_name={a.name: a for a in arrays},
+        scalar_names=tuple(
+            f.name for f in msgspec.structs.fields(cls) if f.name not in schema.array_fields
+        ),
+    )
+
+
+def _wire_array(msg: Message, field: _WireArray) -> np.ndarray:
+    """``msg``'s array ``field``, C-contiguous and little-endian (raises ``ValueError``)."""
+    value = getattr(msg, field.name)
+    # The usual case (an array made by numpy in this process) is checked without building
+    # a dtype; anything else goes through the declaration's full check.
+    if (
+        type(value) is np.ndarray
+        and value.dtype is field.dtype
+        and field.fits(value.shape)
+        and value.flags.c_contiguous
+    ):
+        return value
+    field.spec.check(type(msg).__name__, field.name, value)
     array = np.asarray(value)
-    want = np.dtype(spec.dtype).newbyteorder("<")
-    if array.dtype != want:
-        if array.dtype.newbyteorder("=") != want.newbyteorder("="):
-            raise ValueError(
-                f"{type(msg).__name__}.{name}: dtype must be {spec.dtype}, got {array.dtype}"
-            )
-        array = array.astype(want)
+    if array.dtype != field.dtype:
+        array = array.astype(field.dtype)  # the same values, byte-swapped
     # np.ascontiguousarray would turn a 0-d array into shape (1,).
     return array if array.flags.c_contiguous else np.ascontiguousarray(array)
+
+
+def _raw_bytes(array: np.ndarray) -> memoryview:
+    """A flat byte view of a C-contiguous ``array`` (no copy)."""
+    # memoryview.cast refuses shapes with a zero-length axis; such an array has no bytes.
+    return array.data.cast("B") if array.size else memoryview(b"")
 
 
 def _numpy_scalar(obj: Any) -> Any:
@@ -84,27 +148,26 @@ def encode(topic: str, msg: Message) -> list[Any]:
             value MessagePack cannot carry (an int past 64 bits, an arbitrary object);
             the message names the field.
     """
-    schema = msg.schema()
-    msg.validate()
-    arrays = [(name, _wire_array(msg, name)) for name in schema.array_fields]
-    fields = {
-        name: value
-        for name, value in msgspec.structs.asdict(msg).items()
-        if name not in schema.array_fields
-    }
+    plan = _plan(type(msg))
+    rows = []
+    buffers = []
+    for field in plan.arrays:
+        array = _wire_array(msg, field)
+        # A tuple shape packs as the same MessagePack array as a list.
+        rows.append((field.name, field.dtype_str, array.shape))
+        buffers.append(_raw_bytes(array))
+    fields = {name: getattr(msg, name) for name in plan.scalar_names}
     try:
         header = _encoder.encode(
             {
                 "type": type(msg).__name__,
-                "fp": schema.fingerprint,
+                "fp": plan.fingerprint,
                 "fields": msgspec.to_builtins(fields, enc_hook=_numpy_scalar),
-                "arrays": [[name, a.dtype.str, list(a.shape)] for name, a in arrays],
+                "arrays": rows,
             }
         )
     except (TypeError, OverflowError, NotImplementedError) as err:
         raise ValueError(f"{type(msg).__name__}.{_unencodable(fields)}: {err}") from err
-    # A flat uint8 view, not memoryview.cast: cast refuses shapes with a zero-length axis.
-    buffers = [a.reshape(-1).view(np.uint8).data for _, a in arrays]
     return [topic.encode(), header, *buffers]
 
 
@@ -134,6 +197,48 @@ def _passthrough(kind: type, obj: Any) -> Any:
     raise NotImplementedError(f"cannot convert {type(obj).__name__} to {kind}")
 
 
+def _received_array(
+    topic: str, wire_type: str, row: tuple[str, str, list[int]], frame: Any, plan: _Plan
+) -> np.ndarray:
+    """The array of one header row, a read-only view on ``frame`` (raises ``FrameDecodeError``)."""
+    name, dtype_str, shape = row
+    field = plan.arrays_by_name.get(name)
+    if field is None:
+        raise FrameDecodeError(f"{topic}: {wire_type} has no array field {name!r}")
+    if dtype_str == field.dtype_str:
+        dtype = field.dtype  # numpy's parser would return an equal dtype
+    else:
+        try:
+            dtype = np.dtype(dtype_str)
+        except (TypeError, ValueError, SyntaxError) as err:  # numpy's dtype-string parser
+            raise FrameDecodeError(f"{topic}: {wire_type}.{name}: bad dtype {dtype_str!r}") from err
+    # The wire carries little-endian buffers only ("=f4" and "f4" mean "<f4" here): a
+    # big-endian array would reach the node and trip torch.from_numpy and OpenCV.
+    if dtype.hasobject or dtype != field.dtype:
+        raise FrameDecodeError(
+            f"{topic}: {wire_type}.{name}: dtype {dtype_str!r}, declared {field.spec.dtype}"
+        )
+    # The shape is checked before numpy sees it: no array is built for a frame refused.
+    if not field.fits(shape) or (shape and min(shape) < 0):
+        raise FrameDecodeError(
+            f"{topic}: {wire_type}.{name}: shape {shape}, declared {list(field.spec.shape)}"
+        )
+    # zmq.Frame buffers are writable, and over inproc they can be the sender's own array:
+    # a receiver must never write through to it. numpy makes arrays on a read-only view
+    # read-only (cheaper than clearing the flag afterwards).
+    buf = _buffer(frame).toreadonly()
+    want = math.prod(shape) * dtype.itemsize  # Python ints: no int64 wrap-around
+    if buf.nbytes != want:
+        raise FrameDecodeError(
+            f"{topic}: {wire_type}.{name}: buffer of {buf.nbytes} bytes, "
+            f"shape {shape} of {dtype_str} needs {want}"
+        )
+    try:
+        return np.ndarray(shape, dtype, buffer=buf)
+    except ValueError as err:  # an axis past numpy's limit (with another axis of 0)
+        raise FrameDecodeError(f"{topic}: {wire_type}.{name}: bad shape {shape}: {err}") from err
+
+
 def decode(frames: Sequence[Any], expect: type[Message] | None = None) -> tuple[str, Message]:
     """Decode ``[topic, header, *buffers]`` (bytes or ``zmq.Frame``) into ``(topic, message)``.
 
@@ -148,7 +253,7 @@ def decode(frames: Sequence[Any], expect: type[Message] | None = None) -> tuple[
     if len(frames) < 2:
         raise FrameDecodeError(f"truncated message: {len(frames)} frame(s), need at least 2")
     try:
-        topic = bytes(_buffer(frames[0])).decode()
+        topic = str(_buffer(frames[0]), "utf-8")
     except UnicodeDecodeError as err:
         raise FrameDecodeError("topic frame is not UTF-8") from err
     wire = decode_header(_buffer(frames[1]))
@@ -157,54 +262,19 @@ def decode(frames: Sequence[Any], expect: type[Message] | None = None) -> tuple[
         raise FrameDecodeError(f"{topic}: unknown message type {wire.type!r}")
     if expect is not None and cls is not expect:
         raise FrameDecodeError(f"{topic}: expected {expect.__name__}, got {wire.type}")
-    schema = cls.schema()
-    if wire.fp != schema.fingerprint:
+    plan = _plan(cls)
+    if wire.fp != plan.fingerprint:
         raise FingerprintMismatchError(
             f"{topic}: {wire.type} fingerprint {wire.fp} from the sender, "
-            f"{schema.fingerprint} here: the two sides declare different fields"
+            f"{plan.fingerprint} here: the two sides declare different fields"
         )
     if len(frames) != 2 + len(wire.arrays):
         raise FrameDecodeError(
             f"{topic}: {wire.type} header lists {len(wire.arrays)} arrays, got {len(frames) - 2} buffers"
         )
     fields = dict(wire.fields)
-    for (name, dtype_str, shape), frame in zip(wire.arrays, frames[2:], strict=True):
-        spec = schema.array_fields.get(name)
-        if spec is None:
-            raise FrameDecodeError(f"{topic}: {wire.type} has no array field {name!r}")
-        try:
-            dtype = np.dtype(dtype_str)
-        except (TypeError, ValueError, SyntaxError) as err:  # numpy's dtype-string parser
-            raise FrameDecodeError(f"{topic}: {wire.type}.{name}: bad dtype {dtype_str!r}") from err
-        # The wire carries little-endian buffers only ("=f4" and "f4" mean "<f4" here): a
-        # big-endian array would reach the node and trip torch.from_numpy and OpenCV.
-        if dtype.hasobject or dtype != np.dtype(spec.dtype).newbyteorder("<"):
-            raise FrameDecodeError(
-                f"{topic}: {wire.type}.{name}: dtype {dtype_str!r}, declared {spec.dtype}"
-            )
-        if any((not isinstance(n, int)) or n < 0 for n in shape):
-            raise FrameDecodeError(f"{topic}: {wire.type}.{name}: bad shape {shape}")
-        buf = _buffer(frame)
-        want = math.prod(shape) * dtype.itemsize  # Python ints: no int64 wrap-around
-        if buf.nbytes != want:
-            raise FrameDecodeError(
-                f"{topic}: {wire.type}.{name}: buffer of {buf.nbytes} bytes, "
-                f"shape {shape} of {dtype_str} needs {want}"
-            )
-        try:
-            array = np.frombuffer(buf, dtype=dtype).reshape(shape)
-        except ValueError as err:  # over 64 axes, or an axis past numpy's limit
-            raise FrameDecodeError(
-                f"{topic}: {wire.type}.{name}: bad shape {shape}: {err}"
-            ) from err
-        # zmq.Frame buffers are writable, and over inproc they can be the sender's own
-        # array: a receiver must never write through to it.
-        array.flags.writeable = False
-        try:
-            spec.check(wire.type, name, array)
-        except ValueError as err:
-            raise FrameDecodeError(f"{topic}: {err}") from err
-        fields[name] = array
+    for row, frame in zip(wire.arrays, frames[2:], strict=True):
+        fields[row[0]] = _received_array(topic, wire.type, row, frame, plan)
     try:
         msg = msgspec.convert(fields, cls, dec_hook=_passthrough)
     except (msgspec.ValidationError, NotImplementedError, TypeError) as err:
