@@ -671,6 +671,105 @@ def test_fixed_axis_of_wrong_length_is_refused_on_decode() -> None:
         decode([frames[0], msgpack.packb(header), *frames[2:]])
 
 
+# --------------------------------------------------------------------------- fast paths
+
+# encode skips the declaration's full check for arrays already as the wire wants them, and
+# decode skips numpy's dtype parser for the encoder's spelling: neither may change a byte
+# on the wire or let a bad frame through.
+
+
+def _camera_tof(depth_m: np.ndarray, ir: np.ndarray) -> ToFImage:
+    return ToFImage(
+        header=Header(stamp_nanos=1_700_000_000_000_000_000, seq=7, frame_id="left_tof"),
+        sensor="left",
+        depth_m=depth_m,
+        ir=ir,
+        fx_px=200.0,
+        fy_px=200.0,
+        cx_px=112.0,
+        cy_px=86.0,
+    )
+
+
+SLOW_LAYOUTS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+    "big-endian": lambda a: _layout(a, "big_endian"),
+    "fortran": lambda a: _layout(a, "fortran"),
+    "strided": lambda a: _layout(a, "strided"),
+    "big-endian strided": lambda a: _layout(a, "big_endian_strided"),
+    # Equal to the declared dtype, but not numpy's interned one.
+    "uninterned dtype": lambda a: a.view(a.dtype.newbyteorder("=")),
+}
+
+
+@pytest.mark.parametrize("layout", sorted(SLOW_LAYOUTS))
+def test_fast_and_slow_encode_paths_send_the_same_bytes(
+    layout: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    rng = np.random.default_rng(3)
+    depth = rng.uniform(0.04, 0.11, (172, 224)).astype(np.float32)
+    depth[::7, ::5] = np.nan
+    ir = rng.integers(0, 2**16, (172, 224), dtype=np.uint16)
+    checked: list[str] = []
+    full_check = Array.check
+
+    def spy(spec: Array, type_name: str, field: str, value: np.ndarray) -> None:
+        checked.append(field)
+        full_check(spec, type_name, field, value)
+
+    monkeypatch.setattr(Array, "check", spy)
+    fast = encode("camera/left", _camera_tof(depth, ir))
+    assert checked == []  # the fast path took both arrays
+    slow_depth, slow_ir = SLOW_LAYOUTS[layout](depth), SLOW_LAYOUTS[layout](ir)
+    slow = encode("camera/left", _camera_tof(slow_depth, slow_ir))
+    assert checked == ["depth_m", "ir"]  # the slow path took both arrays
+    assert _to_bytes(slow) == _to_bytes(fast)
+    # Both are exactly what plain msgpack writes for the documented header.
+    assert fast[1] == msgpack.packb(
+        {
+            "type": "ToFImage",
+            "fp": ToFImage.schema().fingerprint,
+            "fields": {
+                "header": {
+                    "stamp_nanos": 1_700_000_000_000_000_000,
+                    "seq": 7,
+                    "frame_id": "left_tof",
+                },
+                "sensor": "left",
+                "fx_px": 200.0,
+                "fy_px": 200.0,
+                "cx_px": 112.0,
+                "cy_px": 86.0,
+            },
+            "arrays": [["depth_m", "<f4", [172, 224]], ["ir", "<u2", [172, 224]]],
+        }
+    )
+    assert bytes(fast[2]) == depth.tobytes() and bytes(fast[3]) == ir.tobytes()
+    # The fast path sends the arrays' own memory.
+    assert np.shares_memory(_frame_memory(fast[2]), depth)
+    assert np.shares_memory(_frame_memory(fast[3]), ir)
+
+
+REFUSED_AFTER_A_GOOD_FRAME: dict[str, list[Any]] = {
+    # The encoder's spelling for the other array: accepted for ir, never for depth_m.
+    "uint16 for depth": [0, "<u2", [6, 10]],
+    "float32 for ir": [1, "<f4", [3, 5]],
+    "big-endian depth": [0, ">f4", None],
+    "int32 depth": [0, "<i4", None],
+    "object depth": [0, "|O", None],
+    "garbage dtype": [0, "f4,,i4", None],
+}
+
+
+@pytest.mark.parametrize("case", sorted(REFUSED_AFTER_A_GOOD_FRAME))
+def test_a_good_frame_does_not_open_the_way_for_a_bad_dtype(case: str) -> None:
+    index, dtype, shape = REFUSED_AFTER_A_GOOD_FRAME[case]
+    bad = _with_array_row(index, dtype=dtype, shape=shape)
+    for _ in range(2):
+        assert isinstance(decode(_tof_frames(), expect=ToFImage)[1], ToFImage)
+        with pytest.raises(FrameDecodeError, match="dtype"):
+            decode(bad)
+
+
 # --------------------------------------------------------------------------- encode refuses
 
 
