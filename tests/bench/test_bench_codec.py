@@ -16,7 +16,7 @@ def test_quick_rows_cover_every_case_with_finite_positive_times() -> None:
     cases = {(r["message"], r["op"], r["input"]) for r in rows}
     assert ("ToFImage", "encode", "big_endian") in cases
     assert ("ToFImage", "decode", "zmq.Frame") in cases
-    assert len(cases) == len(rows) == 12
+    assert len(cases) == len(rows) == 13  # ToFImage 5, PoseEstimate 5, Pressure 3
     for row in rows:
         assert math.isfinite(row["us_best"]) and row["us_best"] > 0
         assert row["us_median"] >= row["us_best"]
