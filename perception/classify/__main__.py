@@ -54,6 +54,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         val_fraction=args.val_fraction,
         seed=args.seed,
         shift_px=args.shift_px,
+        swap_sides=not args.no_swap_sides,
         max_frames_per_grasp=args.max_frames_per_grasp,
         subtract_mean=not args.no_mean,
     )
@@ -178,6 +179,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=0, help="torch threads (0 = torch default)")
     p.add_argument("--log", default=None, help="JSON lines, one per epoch")
     p.add_argument("--no-mean", action="store_true", help="do not subtract the mean image")
+    p.add_argument(
+        "--no-swap-sides", action="store_true", help="do not swap the bubbles (augmentation)"
+    )
     p.add_argument("--full-precision", action="store_true", help="store float32 weights")
     p.set_defaults(func=_cmd_train)
     e = sub.add_parser("evaluate", help="score a model on a held-out dataset")

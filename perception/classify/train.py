@@ -41,6 +41,11 @@ class TrainConfig:
     val_fraction: float = 0.3
     seed: int = 0
     shift_px: int = 4  # random translation (augmentation): grasps land a few px apart
+    # Swap the two bubbles' halves of half the inputs (augmentation). The right finger is
+    # the left one turned 180 degrees about the approach axis, cameras and printed
+    # pattern alike (geometry/gripper.py), so the swapped pair is exactly what the hand
+    # sees of the object turned that way: a grasp the generator draws just as often.
+    swap_sides: bool = True
     max_frames_per_grasp: int | None = None
     subtract_mean: bool = True  # the network subtracts the mean training image first
 
@@ -60,6 +65,9 @@ class TrainConfig:
             raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
         if self.shift_px < 0:
             raise ValueError(f"shift_px must be >= 0, got {self.shift_px}")
+        if self.swap_sides and self.input_px % 2:
+            # Left and right each fill half the columns only when input_px is even.
+            raise ValueError(f"swap_sides needs an even input_px, got {self.input_px}")
         if self.max_frames_per_grasp is not None and self.max_frames_per_grasp < 1:
             raise ValueError(f"max_frames_per_grasp must be >= 1, got {self.max_frames_per_grasp}")
 
@@ -144,6 +152,16 @@ def _shifted(batch: torch.Tensor, shift_px: int, rng: np.random.Generator) -> to
     return torch.stack(
         [padded[i, :, dy : dy + h, dx : dx + w] for i, (dy, dx) in enumerate(offsets)]
     )
+
+
+def _sides_swapped(batch: torch.Tensor, rng: np.random.Generator) -> torch.Tensor:
+    """Half the images (at random) with their left and right bubble halves swapped."""
+    flip = torch.from_numpy(rng.random(len(batch)) < 0.5)
+    if not flip.any():
+        return batch
+    out = batch.clone()
+    out[flip] = torch.roll(batch[flip], batch.shape[-1] // 2, dims=-1)
+    return out
 
 
 @torch.inference_mode()
@@ -245,7 +263,10 @@ def train(
             )
             if len(idx) < 2:  # batch norm needs two samples; drop a lone leftover
                 continue
-            xb = _shifted(torch.from_numpy(x_train[idx].astype(np.float32)), config.shift_px, rng)
+            xb = torch.from_numpy(x_train[idx].astype(np.float32))
+            if config.swap_sides:
+                xb = _sides_swapped(xb, rng)
+            xb = _shifted(xb, config.shift_px, rng)
             yb = torch.from_numpy(y_train[idx])
             for group in optimizer.param_groups:
                 group["lr"] = lr_at(step)

@@ -135,3 +135,18 @@ def test_cli_train_and_evaluate(toy: Path, tmp_path: Path, capsys: pytest.Captur
     # Errors are one line naming the culprit, exit status 2.
     assert main(["evaluate", str(out), str(tmp_path)]) == 2
     assert "no manifest.json" in capsys.readouterr().err
+
+
+def test_side_swap_exchanges_the_bubble_halves_of_about_half_the_batch() -> None:
+    from perception.classify.train import _sides_swapped
+
+    batch = torch.arange(64 * 2 * 4 * 6, dtype=torch.float32).reshape(64, 2, 4, 6)
+    out = _sides_swapped(batch, np.random.default_rng(0))
+    swapped = [not torch.equal(out[i], batch[i]) for i in range(len(batch))]
+    assert 16 < sum(swapped) < 48
+    for i, was in enumerate(swapped):
+        if was:
+            assert torch.equal(out[i, :, :, :3], batch[i, :, :, 3:])
+            assert torch.equal(out[i, :, :, 3:], batch[i, :, :, :3])
+    with pytest.raises(ValueError, match="even input_px"):
+        TrainConfig(epochs=1, input_px=33)
