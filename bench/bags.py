@@ -44,6 +44,7 @@ import json
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -247,23 +248,7 @@ def run_live_record(sizes: Sizes, workdir: Path) -> Row:
     code = _launch(graph, record=bag, topics=r".*_camera/image")
     if code != 0:
         raise RuntimeError(f"live recording exited {code}")
-    with BagReader(bag) as reader:
-        stats = reader.stats()
-        drops = reader.drops()
-    topics = ["left_camera/image", "right_camera/image"]
-    recorded = sum(stats[t].messages for t in topics)
-    dropped = (
-        2 * frames
-        - recorded
-        + sum(
-            drops.get(t, {}).get("runtime", 0) + drops.get(t, {}).get("rejected", 0) for t in topics
-        )
-    )
-    span = max(stats[t].last_log_nanos for t in topics) - min(
-        stats[t].first_log_nanos for t in topics
-    )
-    nbytes = sum(stats[t].bytes for t in topics)
-    return _row("record_live", recorded, nbytes, span / 1e9, dropped=dropped, target_fps=90.0)
+    return _camera_row("record_live", bag, expected=lambda stats: 2 * frames)
 
 
 def run_pipeline_record(workdir: Path) -> Row:
@@ -278,25 +263,27 @@ def run_pipeline_record(workdir: Path) -> Row:
     code = _launch(graph, record=bag)
     if code != 0:
         raise RuntimeError(f"the default graph exited {code} while recording")
+    # Each camera renders one frame per world state.
+    return _camera_row("record_pipeline", bag, expected=lambda s: 2 * s["world/state"].messages)
+
+
+def _camera_row(mode: str, bag: Path, expected: Callable[[dict[str, Any]], int]) -> Row:
+    """A recording's row: both cameras' frames; ``dropped`` = expected frames not in the
+    bag, plus what the recorder saw dropped or rejected."""
     with BagReader(bag) as reader:
         stats = reader.stats()
         drops = reader.drops()
     topics = ["left_camera/image", "right_camera/image"]
     recorded = sum(stats[t].messages for t in topics)
-    made = 2 * stats["world/state"].messages
-    gaps = sum(sum(drops.get(t, {}).values()) for t in topics)
+    lost = sum(
+        drops.get(t, {}).get("runtime", 0) + drops.get(t, {}).get("rejected", 0) for t in topics
+    )
     span = max(stats[t].last_log_nanos for t in topics) - min(
         stats[t].first_log_nanos for t in topics
     )
     nbytes = sum(stats[t].bytes for t in topics)
-    return _row(
-        "record_pipeline",
-        recorded,
-        nbytes,
-        span / 1e9,
-        dropped=made - recorded + gaps,
-        target_fps=90.0,
-    )
+    dropped = expected(stats) - recorded + lost
+    return _row(mode, recorded, nbytes, span / 1e9, dropped=dropped, target_fps=90.0)
 
 
 def run_replay(bag: Path, workdir: Path, lockstep: bool, work_secs: float, fan_in: bool) -> Row:

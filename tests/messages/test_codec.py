@@ -281,16 +281,7 @@ def test_scalar_round_trip(msg: CodecScalars) -> None:
 def test_round_trip_over_a_real_socket_is_zero_copy() -> None:
     depth = np.random.default_rng(0).random((172, 224), dtype=np.float32)
     ir = np.arange(172 * 224, dtype=np.uint16).reshape(172, 224)
-    msg = ToFImage(
-        header=Header(stamp_nanos=1, seq=2, frame_id="left_tof"),
-        sensor="left",
-        depth_m=depth,
-        ir=ir,
-        fx_px=200.0,
-        fy_px=200.0,
-        cx_px=112.0,
-        cy_px=86.0,
-    )
+    msg = _camera_tof(depth, ir)
     ctx = zmq.Context.instance()
     tx, rx = ctx.socket(zmq.PAIR), ctx.socket(zmq.PAIR)
     try:
