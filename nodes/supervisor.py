@@ -16,6 +16,12 @@ Ports:
         ``classes`` (ClassProbabilities, sort); ``pose`` (PoseEstimate, optional: the
         last estimate is reported with each event).
     outputs: ``command`` (GripperCommand), ``event`` (TaskEvent).
+
+Clock. A task keeps the time of its data: the stamp of the newest message it has
+received. It grasps ``start_delay_secs`` after its first message, times out
+``timeout_secs`` after it, and stamps what it publishes with it, so the same messages
+give the same decisions live and in a replay at any speed (lockstep replays of a task
+are deterministic). A wall-clock watchdog times out a task that never hears anything.
 """
 
 from __future__ import annotations
@@ -33,6 +39,7 @@ from messages import (
     ShearEstimate,
     TaskEvent,
 )
+from messages.base import Message
 from runtime.node import Node
 from runtime.registry import register
 
@@ -74,26 +81,46 @@ class _Task(Node):
     def setup(self) -> None:
         self.state = "idle"
         self.pose: PoseEstimate | None = None
-        self.started = self.io.now_nanos()
-        self.io.add_timer(0.05, self._tick)
+        self.first_nanos: int | None = None  # data time of the first message
+        self.now_nanos = 0  # data time: the newest message's stamp
+        self.wall_started = self.io.now_nanos()
+        self.io.add_timer(0.5, self._watchdog)
 
-    def _tick(self) -> None:
-        elapsed = (self.io.now_nanos() - self.started) / 1e9
-        if self.state == "idle" and elapsed >= self.params.start_delay_secs:
+    def handle(self, port: str, msg: Message) -> None:
+        """Advance the data clock to ``msg``'s stamp, then hand it to ``on_<port>``."""
+        stamp = msg.header.stamp_nanos  # type: ignore[attr-defined]
+        if self.first_nanos is None:
+            self.first_nanos = stamp
+        self.now_nanos = max(self.now_nanos, stamp)
+        self._advance((self.now_nanos - self.first_nanos) / 1e9)
+        super().handle(port, msg)
+
+    def _advance(self, elapsed_secs: float) -> None:
+        if self.state == "idle" and elapsed_secs >= self.params.start_delay_secs:
             if self.params.grasp_on_start:
                 self.command("grasp", self.params.grasp_width_m)
             self.state = "grasping"
             self.event("grasping", "waiting for a stable grasp")
-        if self.state not in ("done",) and elapsed > self.params.timeout_secs:
-            self.state = "done"
-            self.event("timeout", f"no completion within {self.params.timeout_secs:g} s")
-            self.io.request_stop(f"{self.task}: timeout")
+        if self.state != "done" and elapsed_secs > self.params.timeout_secs:
+            self.timeout()
+
+    def _watchdog(self) -> None:
+        silent_secs = (self.io.now_nanos() - self.wall_started) / 1e9
+        if self.first_nanos is None and silent_secs > self.params.timeout_secs:
+            if self.state != "done":
+                self.timeout("no input")
+
+    def timeout(self, why: str = "") -> None:
+        self.state = "done"
+        detail = f"no completion within {self.params.timeout_secs:g} s"
+        self.event("timeout", f"{detail} ({why})" if why else detail)
+        self.io.request_stop(f"{self.task}: timeout")
 
     def command(self, command: str, width_m: float) -> None:
         self.io.publish(
             "command",
             GripperCommand(
-                header=Header(stamp_nanos=self.io.now_nanos()),
+                header=Header(stamp_nanos=self.now_nanos or self.io.now_nanos()),
                 command=command,
                 width_m=width_m,
                 speed_m_per_s=self.params.grasp_speed_m_per_s,
@@ -109,7 +136,7 @@ class _Task(Node):
         self.io.publish(
             "event",
             TaskEvent(
-                header=Header(stamp_nanos=self.io.now_nanos()),
+                header=Header(stamp_nanos=self.now_nanos or self.io.now_nanos()),
                 task=self.task,
                 event=event,
                 detail=detail,

@@ -272,8 +272,17 @@ class Launcher:
         elif kind == "wait_idle":
             self.idle_waiters.append(ident)
         elif kind == "stop_request":
-            self.say(f"node {name!r} asks to stop: {msg.get('reason', '')}")
-            self._request_stop(f"{name}: {msg.get('reason', '')}")
+            reason = msg.get("reason", "")
+            if self.lockstep and self.graph.nodes[name].inputs:
+                # A replay runs ahead of its consumers by up to its window, so where such
+                # a request would cut the bag depends on timing: in lockstep the sources
+                # (the replay) end the run, and the outputs stay the same run to run.
+                self.say(
+                    f"node {name!r} asks to stop ({reason}): lockstep, the replay ends the run"
+                )
+                return
+            self.say(f"node {name!r} asks to stop: {reason}")
+            self._request_stop(f"{name}: {reason}")
 
     def _endpoints(self) -> dict[str, str]:
         return {name: p.endpoint for name, p in self.procs.items() if p.endpoint}

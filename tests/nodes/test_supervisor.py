@@ -24,16 +24,26 @@ def shear(sensor: str, magnitude_px: float, *, defined: bool = True) -> ShearEst
     )
 
 
+def grasp(t_secs: float, event: str = "") -> GraspState:
+    """A grasp monitor message at data time ``t_secs``."""
+    stamp = int(1e18 + t_secs * 1e9)
+    return GraspState(header=Header(stamp_nanos=stamp), stable=event == "stable", event=event)
+
+
 def events(io) -> list[str]:
     return [e.event for e in io.published["event"]]
 
 
 def test_handover_grasps_waits_for_stable_and_releases_on_a_sustained_pull() -> None:
     node, io = make_node(HandoverSupervisor, {"confirm_frames": 3, "release_shear_px": 1.0})
-    io.advance(0.5)
+    io.advance(5.0)  # the wall clock does not drive the task: its data does
+    feed(node, "grasp", grasp(0.0))
+    assert not io.published["command"]
+    feed(node, "grasp", grasp(0.4))  # start_delay_secs (0.3) after the first message
     assert [c.command for c in io.published["command"]] == ["grasp"]
+    assert io.published["command"][0].header.stamp_nanos == grasp(0.4).header.stamp_nanos
     feed(node, "shear", shear("left", 5.0))  # not holding yet: ignored
-    feed(node, "grasp", GraspState(header=Header(), stable=True, event="stable"))
+    feed(node, "grasp", grasp(0.5, "stable"))
     for magnitude in (2.0, 2.0, 0.1, 2.0, 2.0):  # interrupted: no release yet
         feed(node, "shear", shear("left", magnitude))
     assert "release" not in events(io)
@@ -47,20 +57,29 @@ def test_handover_grasps_waits_for_stable_and_releases_on_a_sustained_pull() -> 
         "right bubble" in io.published["event"][-1].detail
         and "90 deg" in io.published["event"][-1].detail
     )
-    feed(node, "grasp", GraspState(header=Header(), stable=False, event="released"))
+    feed(node, "grasp", grasp(0.9, "released"))
     assert events(io)[-1] == "done" and io.stop_reason == "handover: done"
 
 
 def test_handover_times_out_without_a_grasp() -> None:
     node, io = make_node(HandoverSupervisor, {"timeout_secs": 2.0})
-    io.advance(3.0)
+    for t_secs in (0.0, 1.0, 2.5):
+        feed(node, "grasp", grasp(t_secs))
     assert events(io) == ["grasping", "timeout"] and io.stop_reason == "handover: timeout"
+
+
+def test_a_task_that_hears_nothing_times_out_on_the_wall_clock() -> None:
+    node, io = make_node(HandoverSupervisor, {"timeout_secs": 2.0})
+    io.advance(1.0)
+    assert not events(io)
+    io.advance(2.0)
+    assert events(io) == ["timeout"] and "no input" in io.published["event"][0].detail
 
 
 def test_sort_votes_then_routes_to_the_bin() -> None:
     node, io = make_node(SortSupervisor, {"vote_frames": 3})
-    io.advance(0.5)
-    feed(node, "grasp", GraspState(header=Header(), stable=True, event="stable"))
+    feed(node, "grasp", grasp(0.0))
+    feed(node, "grasp", grasp(0.5, "stable"))
     classes = ["mug", "pet_bottle", "square_bottle", "wine_glass"]
     for p in ([0.1, 0.7, 0.1, 0.1], [0.1, 0.6, 0.2, 0.1], [0.5, 0.3, 0.1, 0.1]):
         feed(
