@@ -15,7 +15,7 @@ from nodes.recorder import Recorder
 from nodes.replay import Replay
 from runtime.bag import BagReader, BagWriter, pack_frames
 from runtime.params import build_params
-from runtime.testing import make_node
+from runtime.testing import FakeIO, make_node
 
 MS = 1_000_000
 
@@ -169,8 +169,8 @@ def test_replay_loop(bag: Path) -> None:
     assert io.stop_reason is None
 
 
-def test_replay_lockstep_waits_for_idle_before_each_message(bag: Path) -> None:
-    node, io = make_replay({"path": str(bag), "lockstep": True})
+def record_idle_waits(io: FakeIO) -> list[int]:
+    """Make ``io.wait_idle`` record how many messages were published when it was called."""
     calls: list[int] = []
 
     def wait_idle(timeout_secs: float) -> bool:
@@ -178,11 +178,34 @@ def test_replay_lockstep_waits_for_idle_before_each_message(bag: Path) -> None:
         return True
 
     io.wait_idle = wait_idle  # type: ignore[method-assign]
+    return calls
+
+
+def test_replay_lockstep_waits_for_idle_before_each_message(bag: Path) -> None:
+    node, io = make_replay({"path": str(bag), "lockstep": True})
+    calls = record_idle_waits(io)
     io.advance(0.001)
-    # One wait before each of the 14 messages, with everything before it published, and
-    # one more before asking the graph to stop.
+    # Every topic a barrier (FakeIO's answer): one wait before each of the 14 messages,
+    # with everything before it published, and one more before asking the graph to stop.
     assert calls == [*range(14), 14]
     assert io.stop_reason is not None
+
+
+def test_replay_lockstep_pipelines_topics_without_a_barrier(bag: Path) -> None:
+    node, io = make_replay({"path": str(bag), "lockstep": True, "window": 4})
+    io.lockstep_barrier = lambda topic: topic == "p/pressure"  # type: ignore[method-assign]
+    calls = record_idle_waits(io)
+    io.advance(0.001)
+    with BagReader(bag) as reader:
+        order = [m.topic for m in reader.messages()]
+    # A wait before each pressure (4 of them), and after 4 ticks in flight without one.
+    expected, in_flight = [], 0
+    for sent, topic in enumerate(order):
+        if topic == "p/pressure" or in_flight >= 4:
+            expected.append(sent)
+            in_flight = 0
+        in_flight += 1
+    assert calls == [*expected, 14] and 4 <= len(expected) < 14
 
 
 def test_replay_lockstep_timeout_is_an_error(bag: Path) -> None:
@@ -233,13 +256,7 @@ def test_pack_frames_matches_recorder_payload(bag: Path) -> None:
 
 def test_replay_fast_bounds_messages_in_flight(bag: Path) -> None:
     node, io = make_replay({"path": str(bag), "fast": True, "window": 4})
-    calls: list[int] = []
-
-    def wait_idle(timeout_secs: float) -> bool:
-        calls.append(sum(len(v) for v in io.published.values()))
-        return True
-
-    io.wait_idle = wait_idle  # type: ignore[method-assign]
+    calls = record_idle_waits(io)
     io.advance(0.001)
     assert calls == [4, 8, 12, 14]  # every 4 messages, and once more before stopping
 

@@ -226,6 +226,17 @@ def _request(grasp_id: int = 0, seed: int = 3) -> GraspRequest:
     )
 
 
+def _close_on(request: GraspRequest) -> GripperCommand:
+    """The command that closes the jaws on a requested grasp, as the supervisor sends it."""
+    return GripperCommand(
+        header=Header(),
+        command="grasp",
+        width_m=request.grasp_width_m,
+        speed_m_per_s=0.1,
+        force_n=request.force_n,
+    )
+
+
 def test_rpy_round_trip_including_gimbal_lock() -> None:
     rng = np.random.default_rng(0)
     for rpy in [*rng.uniform(-180, 180, (20, 3)), (30.0, 90.0, 10.0), (0.0, -90.0, 45.0)]:
@@ -246,14 +257,7 @@ def test_world_places_the_requested_object_and_closes_on_it() -> None:
     assert not any(first.in_contact)
     truth = io.published["ground_truth"][-1]
     assert truth.object_class == request.class_label
-    command = GripperCommand(
-        header=Header(),
-        command="grasp",
-        width_m=request.grasp_width_m,
-        speed_m_per_s=0.1,
-        force_n=request.force_n,
-    )
-    feed(node, "command", command)
+    feed(node, "command", _close_on(request))
     io.advance(1.5)
     last = io.published["state"][-1]
     assert all(last.in_contact) and last.width_m < 0.11
@@ -409,14 +413,7 @@ def test_committed_model_fits_the_node_defaults_and_classifies_sim_grasps() -> N
         )
         feed(world, "place", request)
         world_io.advance(0.05)
-        command = GripperCommand(
-            header=Header(),
-            command="grasp",
-            width_m=request.grasp_width_m,
-            speed_m_per_s=0.1,
-            force_n=request.force_n,
-        )
-        feed(world, "command", command)
+        feed(world, "command", _close_on(request))
         world_io.advance(1.2)
         state = world_io.published["state"][-1]
         assert all(state.in_contact)

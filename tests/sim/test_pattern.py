@@ -61,47 +61,19 @@ def test_svg_circles_match_the_pattern(tmp_path: Path) -> None:
     assert root.get("width") == "80.000mm"
 
 
+CLI_ARGS = (
+    *("--density", "0.05", "--min-diameter-mm", "1", "--max-diameter-mm", "2.5"),
+    *("--randomness", "0.6", "--seed", "3"),
+)
+
+
 def test_cli_writes_the_stencil(tmp_path: Path) -> None:
     out = tmp_path / "stencil.svg"
-    cmd = [
-        sys.executable,
-        "-m",
-        "sim.pattern",
-        "--density",
-        "0.05",
-        "--min-diameter-mm",
-        "1",
-        "--max-diameter-mm",
-        "2.5",
-        "--randomness",
-        "0.6",
-        "--seed",
-        "3",
-        "--out",
-        str(out),
-    ]
+    cmd = [sys.executable, "-m", "sim.pattern", *CLI_ARGS, "--out", str(out)]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=60, check=False)
     assert done.returncode == 0, done.stderr
     assert out.read_text().count("<circle") > 100
-    assert (
-        main(
-            [
-                "--density",
-                "0.05",
-                "--min-diameter-mm",
-                "1",
-                "--max-diameter-mm",
-                "2.5",
-                "--randomness",
-                "0.6",
-                "--seed",
-                "3",
-                "--out",
-                str(tmp_path / "b.svg"),
-            ]
-        )
-        == 0
-    )
+    assert main([*CLI_ARGS, "--out", str(tmp_path / "b.svg")]) == 0
     assert (tmp_path / "b.svg").read_text() == out.read_text()
 
 
