@@ -12,7 +12,12 @@ Three implementations run side by side, in the same run, alternating per repeat:
              ``messages.codec`` (no node runner): splits the runtime's cost between
              codec and the runner loop.
 ``raw``      two bare processes with pyzmq PUB/SUB sending the same pixel buffers as
-             ``[topic, 16-byte stamp/seq + frame id, depth, ir]``, ``copy=False``.
+             ``[topic, 16-byte stamp/seq + frame id, depth, ir]`` with pyzmq's
+             ``send_multipart``/``recv_multipart``, ``copy=False``: the target's baseline.
+``raw_parts`` ``raw`` with the runtime's own part loops (``runtime.process.send_parts``,
+             ``recv_parts``) instead of pyzmq's multipart helpers: what the runtime's
+             way of driving pyzmq is worth on its own, so a ratio against ``raw`` is
+             not read as the runtime using a cheaper socket.
 
 Every implementation runs the same protocol (:class:`nodes.bench_nodes.WindowPlan` and
 :class:`nodes.bench_nodes.SinkRecord`): a latency phase at ``rate_hz`` (stamp with
@@ -53,10 +58,11 @@ from messages import Header, ToFImage, decode, encode
 from nodes.bench_nodes import LATENCY, SinkRecord, WindowPlan, bench_images
 from runtime.graph import check
 from runtime.launcher import Launcher
+from runtime.process import recv_parts, send_parts
 
 ROWS, COLS = 172, 224
 TRANSPORTS = ("ipc", "tcp")
-IMPLS = ("runtime", "codec", "raw")
+IMPLS = ("runtime", "codec", "raw", "raw_parts")
 TOPIC = b"source/image"
 PROBE = b"source/probe"
 ACK = struct.Struct("<q")
@@ -198,13 +204,18 @@ def _source_process(
     )
     depth_m, ir = bench_images(ROWS, COLS)
     make = _codec_frames if impl == "codec" else _raw_frames
+    parts = impl == "raw_parts"
     plan = WindowPlan(sizes.latency_frames, sizes.throughput_frames, sizes.window)
     seq = 0
 
     def send(frame_ids: list[str]) -> None:
         nonlocal seq
         for frame_id in frame_ids:
-            pub.send_multipart(make(frame_id, seq, depth_m, ir), copy=False)
+            frames = make(frame_id, seq, depth_m, ir)
+            if parts:
+                send_parts(pub, frames)
+            else:
+                pub.send_multipart(frames, copy=False)
             seq += 1
 
     # A subscriber that connects late misses messages: probe until the sink answers.
@@ -245,7 +256,8 @@ def _sink_process(conn: Connection, impl: str, endpoints: list[str], sizes: Size
     record = SinkRecord(sizes.ack_every)
     ready = False
     while sub.poll(TIMEOUT_MS):
-        frames = sub.recv_multipart(copy=False)
+        frames = recv_parts(sub) if impl == "raw_parts" else sub.recv_multipart(copy=False)
+        assert frames is not None  # poll said a message waits
         if frames[0].bytes == PROBE:
             if not ready:
                 acks.send(b"ready")

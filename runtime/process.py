@@ -47,9 +47,9 @@ import threading
 import time
 import traceback
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import zmq
 
@@ -64,6 +64,39 @@ from runtime.registry import resolve
 PR_SET_PDEATHSIG = 1
 _BAD_FRAME_LOG_EVERY = 100
 _BATCH_NANOS = 2_000_000
+# Plain ints: pyzmq 27's flags are enum members, and arithmetic on them costs about a
+# microsecond per part of a message.
+_SNDMORE = int(zmq.SNDMORE)
+_POLLIN = int(zmq.POLLIN)
+
+
+def send_parts(sock: zmq.Socket[Any], parts: Sequence[Any]) -> None:
+    """Send ``parts`` as one multipart message, arrays without copying.
+
+    The same frames as ``send_multipart(parts, copy=False)`` at about 6 us less per
+    message: no flag arithmetic on enum members per part (see docs/transport.md).
+    """
+    last = len(parts) - 1
+    for i, part in enumerate(parts):
+        sock.send(part, _SNDMORE if i < last else 0, copy=False)
+
+
+def recv_parts(sock: zmq.Socket[Any]) -> list[zmq.Frame] | None:
+    """The next whole multipart message as zero-copy frames, or None if none is waiting.
+
+    Asks the socket whether a message waits rather than catching ``zmq.Again`` (a raised
+    error costs 3.8 us, the question 1.4), and follows each frame's ``more`` flag rather
+    than ``recv_multipart``'s ``getsockopt(RCVMORE)`` per part. The parts of a message
+    arrive together, so the reads after the first never block.
+    """
+    if not cast(int, sock.get(zmq.EVENTS)) & _POLLIN:
+        return None
+    frame = sock.recv(copy=False)
+    frames = [frame]
+    while frame.more:
+        frame = sock.recv(copy=False)
+        frames.append(frame)
+    return frames
 
 
 @dataclass
@@ -159,13 +192,13 @@ class ZmqIO:
         header = getattr(msg, "header", None)
         if header is not None:
             header.seq = self.published[topic]
-        self.pub.send_multipart(encode(topic, msg), copy=False)
+        send_parts(self.pub, encode(topic, msg))
         self.published[topic] += 1
 
     def publish_raw(self, topic: str, frames: list[Any]) -> None:
         if topic not in self.topics.values():
             raise KeyError(f"{self.name}: {topic!r} is not one of its output topics")
-        self.pub.send_multipart([topic.encode(), *frames[1:]], copy=False)
+        send_parts(self.pub, [topic.encode(), *frames[1:]])
         self.published[topic] += 1
 
     def add_timer(self, period_secs: float, callback: Callable[[], None]) -> None:
@@ -417,14 +450,11 @@ class Runner:
 
     def _recv(self, source: _Source) -> tuple[list[_Input], list[Any]] | None:
         """The next message of an input of ``source`` and those inputs, or None."""
-        while True:
-            try:
-                frames = source.socket.recv_multipart(zmq.NOBLOCK, copy=False)
-            except zmq.Again:
-                return None
+        while (frames := recv_parts(source.socket)) is not None:
             inputs = source.inputs.get(frames[0].bytes)
             if inputs:  # else another topic that merely starts with a subscribed one
                 return inputs, frames
+        return None
 
     def _deliver(self, inp: _Input, frames: list[Any], skipped: int = 0) -> None:
         """Decode and handle one message; ``skipped`` newer-than-last ones were superseded."""

@@ -39,7 +39,9 @@ def test_quick_json_has_every_transport_and_impl_with_finite_positive_figures() 
     assert set(report) == {"machine", "rows"}
     rows = report["rows"]
     keys = {(row["transport"], row["impl"]) for row in rows}
-    assert keys == {(t, i) for t in ("ipc", "tcp") for i in ("runtime", "codec", "raw")}
+    assert keys == {
+        (t, i) for t in ("ipc", "tcp") for i in ("runtime", "codec", "raw", "raw_parts")
+    }
     assert len(rows) == len(keys)
     for row in rows:
         for name in FIGURES:
