@@ -9,7 +9,11 @@
     is released, or at ``timeout_secs``.
 ``supervisor.sort`` (paper, task 1: dish loading with recycling separation)
     Closes the gripper, waits for a stable grasp, averages ``vote_frames`` classifier
-    outputs, sends the object to its bin (``bins``: class -> bin), releases, ends.
+    outputs, sends the object to its bin (``bins``: class -> bin), releases, ends. When
+    the averaged probability of the best class is under ``min_confidence``, the object
+    goes to ``unsure_bin`` instead (a reject bin for a person or a regrasp): the
+    classifier's confidence separates its errors well (docs/classifier.md, "Acting on
+    confidence").
 
 Ports:
     inputs: ``grasp`` (GraspState); ``shear`` (ShearEstimate, handover);
@@ -211,11 +215,15 @@ class HandoverSupervisor(_Task):
 class SortParams(TaskParams):
     vote_frames: int = 5
     bins: tuple[tuple[str, str], ...] = field(default=DEFAULT_BINS)
+    min_confidence: float = 0.0  # 0: always route to the best class's bin
+    unsure_bin: str = "manual"
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.vote_frames < 1:
             raise ValueError(f"`vote_frames` must be >= 1, got {self.vote_frames!r}")
+        if not 0.0 <= self.min_confidence <= 1.0:
+            raise ValueError(f"`min_confidence` must be in [0, 1], got {self.min_confidence!r}")
 
 
 @register("supervisor.sort")
@@ -242,6 +250,13 @@ class SortSupervisor(_Task):
         if len(self.votes) >= self.params.vote_frames:
             mean = np.mean(self.votes, axis=0)
             best = self.classes[int(np.argmax(mean))]
-            bin_name = dict(self.params.bins).get(best, "unknown")
-            self.event("classified", f"{best} ({mean.max():.3f}) -> {bin_name}")
+            if mean.max() < self.params.min_confidence:
+                bin_name = self.params.unsure_bin
+                self.event(
+                    "unsure",
+                    f"{best} ({mean.max():.3f} < {self.params.min_confidence:g}) -> {bin_name}",
+                )
+            else:
+                bin_name = dict(self.params.bins).get(best, "unknown")
+                self.event("classified", f"{best} ({mean.max():.3f}) -> {bin_name}")
             self.release(f"placed in {bin_name}")

@@ -92,8 +92,27 @@ def test_sort_votes_then_routes_to_the_bin() -> None:
     assert io.published["command"][-1].command == "release"
 
 
+def test_sort_sends_an_unsure_object_to_the_unsure_bin() -> None:
+    node, io = make_node(SortSupervisor, {"vote_frames": 2, "min_confidence": 0.9})
+    feed(node, "grasp", grasp(0.0))
+    feed(node, "grasp", grasp(0.5, "stable"))
+    classes = ["mug", "pet_bottle", "square_bottle", "wine_glass"]
+    for p in ([0.05, 0.95, 0.0, 0.0], [0.1, 0.8, 0.1, 0.0]):  # mean 0.875 for pet_bottle
+        feed(
+            node,
+            "classes",
+            ClassProbabilities(header=Header(), classes=classes, probabilities=np.float32(p)),
+        )
+    assert "classified" not in events(io)
+    detail = next(e.detail for e in io.published["event"] if e.event == "unsure")
+    assert detail.startswith("pet_bottle (0.875 < 0.9)") and detail.endswith("manual")
+    assert io.published["command"][-1].command == "release"
+
+
 def test_params_check_themselves() -> None:
     with pytest.raises(ValueError, match="release_shear_px"):
         build_params(HandoverSupervisor.Params, {"release_shear_px": 0})
     with pytest.raises(ValueError, match="vote_frames"):
         build_params(SortSupervisor.Params, {"vote_frames": 0})
+    with pytest.raises(ValueError, match="min_confidence"):
+        build_params(SortSupervisor.Params, {"min_confidence": 1.5})
