@@ -250,13 +250,14 @@ class SortSupervisor(_Task):
         if len(self.votes) >= self.params.vote_frames:
             mean = np.mean(self.votes, axis=0)
             best = self.classes[int(np.argmax(mean))]
-            if mean.max() < self.params.min_confidence:
+            confidence = float(mean.max())
+            if confidence < self.params.min_confidence:
                 bin_name = self.params.unsure_bin
                 self.event(
                     "unsure",
-                    f"{best} ({mean.max():.3f} < {self.params.min_confidence:g}) -> {bin_name}",
+                    f"{best} ({confidence:.3f} < {self.params.min_confidence:g}) -> {bin_name}",
                 )
             else:
                 bin_name = dict(self.params.bins).get(best, "unknown")
-                self.event("classified", f"{best} ({mean.max():.3f}) -> {bin_name}")
+                self.event("classified", f"{best} ({confidence:.3f}) -> {bin_name}")
             self.release(f"placed in {bin_name}")

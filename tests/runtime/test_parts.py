@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import zmq
 
-from messages import Header, ToFImage, decode, encode
+from bench.codec import LAYOUTS, tof_image
+from messages import ToFImage, decode, encode
 from runtime.process import recv_parts, send_parts
 
 
@@ -44,18 +45,7 @@ def test_send_parts_and_recv_parts_carry_the_same_frames_as_the_multipart_helper
     pair: tuple[zmq.Socket[Any], zmq.Socket[Any]],
 ) -> None:
     tx, rx = pair
-    depth = np.arange(172 * 224, dtype=np.float32).reshape(172, 224)
-    ir = np.arange(172 * 224, dtype=np.uint16).reshape(172, 224)
-    msg = ToFImage(
-        header=Header(stamp_nanos=7, seq=3, frame_id="left"),
-        sensor="left",
-        depth_m=depth,
-        ir=ir,
-        fx_px=210.0,
-        fy_px=210.0,
-        cx_px=111.5,
-        cy_px=85.5,
-    )
+    msg = tof_image(LAYOUTS["ready"])
     frames = encode("left/image", msg)
     send_parts(tx, frames)
     tx.send_multipart(frames, copy=False)
@@ -63,8 +53,8 @@ def test_send_parts_and_recv_parts_carry_the_same_frames_as_the_multipart_helper
     assert [f.bytes for f in mine] == [f.bytes for f in theirs]
     _, got = decode(mine, expect=ToFImage)
     assert isinstance(got, ToFImage)
-    np.testing.assert_array_equal(got.depth_m, depth)
-    np.testing.assert_array_equal(got.ir, ir)
+    np.testing.assert_array_equal(got.depth_m, msg.depth_m)
+    np.testing.assert_array_equal(got.ir, msg.ir)
 
 
 def test_recv_parts_keeps_messages_apart(pair: tuple[zmq.Socket[Any], zmq.Socket[Any]]) -> None:
