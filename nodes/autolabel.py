@@ -78,6 +78,8 @@ class AutolabelParams:
         release_secs: wait after opening, before the next drop.
         approach_tilt_deg, skew_deg, offset_m: ranges of the random pose
             (``GraspGeneratorParams``).
+        end_fraction, end_band_m: more grasps near the objects' ends, for training
+            (``GraspGeneratorParams``; 0, the default, for a held-out set).
         start_delay_secs: wall time before the first grasp (lets the graph settle).
         end_grace_secs: at the end, how long to wait for the writer to confirm the last
             grasps (its frames may trail under load) before stopping the graph.
@@ -97,6 +99,8 @@ class AutolabelParams:
     approach_tilt_deg: float = 40.0
     skew_deg: float = 8.0
     offset_m: float = 0.006
+    end_fraction: float = 0.0
+    end_band_m: float = 0.02
     start_delay_secs: float = 0.5
     end_grace_secs: float = 30.0
 
@@ -126,6 +130,8 @@ class AutolabelParams:
             approach_tilt_deg=self.approach_tilt_deg,
             skew_deg=self.skew_deg,
             offset_m=self.offset_m,
+            end_fraction=self.end_fraction,
+            end_band_m=self.end_band_m,
         )
 
 

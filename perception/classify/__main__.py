@@ -1,12 +1,13 @@
 """Command line of the tactile classifier.
 
-    python -m perception.classify train DATASET --epochs E --out model.pt [knobs]
+    python -m perception.classify train DATASET [DATASET ...] --epochs E --out model.pt [knobs]
     python -m perception.classify evaluate MODEL DATASET [--json]
     python -m perception.classify info DATASET
 
 ``train`` prints a progress bar (stderr), one log line per epoch (stdout, and as JSON
 lines in ``--log``, default ``OUT.log.jsonl``) and the confusion matrix of the
-validation split (30% of the grasps, by grasp) at the end. ``evaluate`` scores a saved
+validation split (30% of the grasps, by grasp) at the end; several datasets (of the same
+classes) train as one. ``evaluate`` scores a saved
 model on a held-out dataset and prints its confusion matrix.
 """
 
@@ -25,7 +26,7 @@ import numpy as np
 import torch
 
 from perception.classify.checkpoint import load_checkpoint, save_checkpoint
-from perception.classify.dataset import MANIFEST, load_samples, read_manifest
+from perception.classify.dataset import MANIFEST, concat_samples, load_samples, read_manifest
 from perception.classify.preprocess import MODALITIES, InputSpec
 from perception.classify.train import (
     TrainConfig,
@@ -58,15 +59,33 @@ def _cmd_train(args: argparse.Namespace) -> int:
         max_frames_per_grasp=args.max_frames_per_grasp,
         subtract_mean=not args.no_mean,
     )
-    root = Path(args.dataset)
-    manifest = read_manifest(root)
     spec = InputSpec(modality=config.modality, input_px=config.input_px)
     started = time.monotonic()
-    samples = load_samples(root, spec, max_frames_per_grasp=config.max_frames_per_grasp)
-    print(
-        f"dataset {root}: {len(manifest['grasps'])} grasps, {len(samples.labels)} frames, "
-        f"classes {samples.classes} (loaded in {time.monotonic() - started:.1f}s)"
-    )
+    parts, sources = [], []
+    for name in args.dataset:
+        root = Path(name)
+        manifest = read_manifest(root)
+        part = load_samples(
+            root,
+            spec,
+            classes=parts[0].classes if parts else None,
+            max_frames_per_grasp=config.max_frames_per_grasp,
+        )
+        print(
+            f"dataset {root}: {len(manifest['grasps'])} grasps, {len(part.labels)} frames, "
+            f"classes {part.classes}"
+        )
+        parts.append(part)
+        sources.append(
+            {
+                "path": str(root),
+                "manifest_sha256": _manifest_digest(root),
+                "seeds": manifest.get("seeds", {}),
+                "counts_per_class": manifest.get("counts_per_class", {}),
+            }
+        )
+    samples = concat_samples(parts)
+    print(f"{len(samples.labels)} frames loaded in {time.monotonic() - started:.1f}s")
     log_path = Path(args.log) if args.log else Path(str(args.out) + ".log.jsonl")
     log_path.parent.mkdir(parents=True, exist_ok=True)
     log_path.write_text("")
@@ -86,10 +105,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
     record = {
         "command": "python -m perception.classify " + shlex.join(args.argv),
-        "dataset": str(root),
-        "dataset_manifest_sha256": _manifest_digest(root),
-        "dataset_seeds": manifest.get("seeds", {}),
-        "dataset_counts_per_class": manifest.get("counts_per_class", {}),
+        "datasets": sources,
         "torch": torch.__version__,
     }
     result = train(samples, config, on_epoch=on_epoch, training_record=record)
@@ -161,8 +177,8 @@ def parser() -> argparse.ArgumentParser:
         prog="python -m perception.classify", description=__doc__.split("\n")[0]
     )
     sub = top.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("train", help="train a model on a dataset")
-    p.add_argument("dataset")
+    p = sub.add_parser("train", help="train a model on one or more datasets")
+    p.add_argument("dataset", nargs="+")
     p.add_argument("--epochs", type=int, required=True)
     p.add_argument("--out", required=True, help="checkpoint path (.pt)")
     p.add_argument("--modality", choices=MODALITIES, default="depth")

@@ -10,7 +10,9 @@ run is deterministic per seed and a resumed run draws the same grasps it would h
   towards the approach direction (grasps from above and from the side) and a little
   towards the closing direction, a small shift across and along the fingers;
 * the grasp height: anywhere along the object's axis but a margin at the ends (the
-  rim, handle, neck, stem and foot are all fair);
+  rim, handle, neck, stem and foot are all fair); a training run may ask for more
+  grasps near the ends (``end_fraction``), where objects look most alike
+  (docs/classifier.md): a held-out set keeps the generator's own spread;
 * feasibility, as a grasp generator would check it: what lies between the bubbles (the
   object's surface inside the bubbles' footprint) must fit the gripper (WSG 50 stroke,
   FACTS.md, less the bubbles), and nothing may hit a plate; the object is centred
@@ -49,6 +51,10 @@ class GraspGeneratorParams:
         skew_deg: tilt of the object axis towards the closing direction.
         offset_m: shift of the grasp point across the fingers and along the approach.
         height_margin_m: grasp heights stay this far from the object's ends.
+        end_fraction: share of the draws whose height lies within ``end_band_m`` of an
+            end (either, at random) instead of anywhere. 0 (the default) draws exactly
+            what a run without it draws.
+        end_band_m: width of that band, from the object's end (margin included).
         squeeze_min_m, squeeze_max_m: how much the jaws close past first contact.
         force_min_n, force_max_n: grasp force limit.
         clearance_m: what the gripper must have to spare at full opening.
@@ -61,6 +67,8 @@ class GraspGeneratorParams:
     skew_deg: float = 8.0
     offset_m: float = 0.006
     height_margin_m: float = 0.006
+    end_fraction: float = 0.0
+    end_band_m: float = 0.02
     squeeze_min_m: float = 0.006
     squeeze_max_m: float = 0.014
     force_min_n: float = 8.0
@@ -78,6 +86,13 @@ class GraspGeneratorParams:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"`{name}` must be >= 0, got {value!r}")
+        if not 0 <= self.end_fraction <= 1:
+            raise ValueError(f"`end_fraction` must be in [0, 1], got {self.end_fraction!r}")
+        if not self.end_band_m > self.height_margin_m:
+            raise ValueError(
+                f"`end_band_m` must be > height_margin_m ({self.height_margin_m!r}), "
+                f"got {self.end_band_m!r}"
+            )
         if not 0 <= self.squeeze_min_m <= self.squeeze_max_m:
             raise ValueError(
                 f"`squeeze_max_m` must be >= squeeze_min_m >= 0, got {self.squeeze_max_m!r}"
@@ -155,11 +170,19 @@ class GraspGenerator:
         lo, hi = model.bounds_m()
         surface = _surface(name)
         rng = np.random.default_rng([p.seed, grasp_id, 2])
+        # Its own stream, so that end_fraction = 0 leaves every other draw as it was.
+        end_rng = np.random.default_rng([p.seed, grasp_id, 3])
         for tries in range(1, p.max_tries + 1):
             yaw = rng.uniform(-180.0, 180.0)
             tilt = rng.uniform(-p.approach_tilt_deg, p.approach_tilt_deg)
             skew = rng.uniform(-p.skew_deg, p.skew_deg)
-            height = rng.uniform(lo[2] + p.height_margin_m, hi[2] - p.height_margin_m)
+            low, high = lo[2] + p.height_margin_m, hi[2] - p.height_margin_m
+            if p.end_fraction > 0 and end_rng.uniform() < p.end_fraction:
+                if end_rng.uniform() < 0.5:
+                    high = lo[2] + p.end_band_m
+                else:
+                    low = hi[2] - p.end_band_m
+            height = rng.uniform(low, high)
             offset = rng.uniform(-p.offset_m, p.offset_m, size=2)
             squeeze = rng.uniform(p.squeeze_min_m, p.squeeze_max_m)
             force = rng.uniform(p.force_min_n, p.force_max_n)

@@ -334,3 +334,27 @@ def load_samples(
         grasp_ids=np.asarray(grasp_ids, dtype=np.int64),
         classes=classes,
     )
+
+
+def concat_samples(parts: Sequence[Samples]) -> Samples:
+    """Several datasets' samples as one; grasp ids renumbered so no two datasets share one.
+
+    Raises:
+        DatasetError: no parts, or parts labelled with different classes.
+    """
+    if not parts:
+        raise DatasetError("no datasets to join")
+    classes = parts[0].classes
+    grasp_ids = []
+    offset = 0
+    for part in parts:
+        if part.classes != classes:
+            raise DatasetError(f"datasets label different classes: {classes} and {part.classes}")
+        grasp_ids.append(part.grasp_ids - part.grasp_ids.min() + offset)
+        offset = int(grasp_ids[-1].max()) + 1
+    return Samples(
+        x=np.concatenate([p.x for p in parts]),
+        labels=np.concatenate([p.labels for p in parts]),
+        grasp_ids=np.concatenate(grasp_ids),
+        classes=classes,
+    )

@@ -65,11 +65,34 @@ def test_heights_spread_along_the_objects(grasps) -> None:
         assert np.ptp(heights) > 0.2 * (hi[2] - lo[2])
 
 
+def _end_distance(sample) -> float:
+    lo, hi = objects.make(sample.object_name).bounds_m()
+    return min(sample.height_m - lo[2], hi[2] - sample.height_m)
+
+
+def test_end_fraction_draws_near_the_ends_and_zero_changes_nothing(grasps) -> None:
+    _, samples = grasps
+    plain = GraspGenerator(GraspGeneratorParams(seed=11, end_fraction=0.0))
+    assert plain.sample(5).to_params() == samples[5].to_params()
+    ends = GraspGenerator(GraspGeneratorParams(seed=11, end_fraction=1.0, end_band_m=0.02))
+    near = [_end_distance(ends.sample(i)) for i in range(24)]
+    assert all(0.006 <= d <= 0.02 for d in near)
+    spread = [_end_distance(s) for s in samples]
+    assert np.median(spread) > 0.03  # the plain generator's grasps are mostly on the body
+    # Both ends are drawn: heights below and above the object's middle.
+    heights = [ends.sample(i).height_m for i in range(24)]
+    assert min(heights) < 0 < max(heights)
+
+
 def test_bad_params_and_impossible_grasps() -> None:
     with pytest.raises(ValueError, match="objects"):
         GraspGeneratorParams(objects=("teapot",))
     with pytest.raises(ValueError, match="squeeze_max_m"):
         GraspGeneratorParams(squeeze_min_m=0.01, squeeze_max_m=0.005)
+    with pytest.raises(ValueError, match="end_fraction"):
+        GraspGeneratorParams(end_fraction=1.5)
+    with pytest.raises(ValueError, match="end_band_m"):
+        GraspGeneratorParams(end_band_m=0.004)
     with pytest.raises(ValueError, match="grasp_id"):
         GraspGenerator(GraspGeneratorParams()).sample(-1)
     # A clearance larger than the stroke leaves no feasible grasp: a clear error.

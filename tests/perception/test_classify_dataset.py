@@ -12,6 +12,7 @@ from perception.classify.dataset import (
     DatasetError,
     DatasetWriter,
     GraspBuffer,
+    concat_samples,
     load_samples,
     read_grasp,
     read_manifest,
@@ -110,6 +111,25 @@ def test_load_samples_labels_and_subsampling(tmp_path: Path) -> None:
     assert (reordered.labels == 3 - samples.labels).all()
     with pytest.raises(DatasetError, match="wine_glass"):
         load_samples(tmp_path, spec, classes=["mug", "pet_bottle", "square_bottle"])
+
+
+def test_concat_samples_keeps_datasets_grasps_apart(tmp_path: Path) -> None:
+    spec = InputSpec(modality="depth", input_px=32)
+    write_toy_dataset(tmp_path / "a", grasps_per_class=2, frames_per_grasp=3, seed=1)
+    write_toy_dataset(tmp_path / "b", grasps_per_class=1, frames_per_grasp=3, seed=2)
+    a, b = load_samples(tmp_path / "a", spec), load_samples(tmp_path / "b", spec)
+    both = concat_samples([a, b])
+    assert len(both.labels) == len(a.labels) + len(b.labels) == 36
+    # Both toy datasets number their grasps from 0: joined, they are 12 distinct grasps.
+    assert set(a.grasp_ids) & set(b.grasp_ids)
+    assert len(np.unique(both.grasp_ids)) == 12
+    assert (both.x[: len(a.labels)] == a.x).all() and (
+        both.labels[len(a.labels) :] == b.labels
+    ).all()
+    with pytest.raises(DatasetError, match="different classes"):
+        concat_samples([a, load_samples(tmp_path / "b", spec, classes=a.classes[::-1])])
+    with pytest.raises(DatasetError, match="no datasets"):
+        concat_samples([])
 
 
 def test_split_is_by_grasp_and_stratified() -> None:

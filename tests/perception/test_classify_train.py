@@ -114,7 +114,8 @@ def test_confusion_matrix() -> None:
 
 def test_cli_train_and_evaluate(toy: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "cli.pt"
-    args = ["train", str(toy), "--epochs", "2", "--out", str(out), "--modality", "both"]
+    # Two datasets train as one (here the same one twice: its grasps counted apart).
+    args = ["train", str(toy), str(toy), "--epochs", "2", "--out", str(out), "--modality", "both"]
     args += ["--input-px", "32", "--width", "0.125", "--batch-size", "16", "--threads", "1"]
     assert main(args) == 0
     printed = capsys.readouterr()
@@ -126,7 +127,9 @@ def test_cli_train_and_evaluate(toy: Path, tmp_path: Path, capsys: pytest.Captur
     meta = load_checkpoint(out)[1]
     assert meta.modality == "both"
     assert meta.training["command"].startswith("python -m perception.classify train")
-    assert len(meta.training["dataset_manifest_sha256"]) == 64
+    assert [d["path"] for d in meta.training["datasets"]] == [str(toy)] * 2
+    assert f"{2 * 4 * 8 * 4} frames loaded" in printed.out
+    assert len(meta.training["datasets"][0]["manifest_sha256"]) == 64
     assert main(["evaluate", str(out), str(toy), "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["frames"] == 4 * 8 * 4
