@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from perception.classify.autolabel import end_distance_m
 from perception.classify.checkpoint import load_checkpoint, save_checkpoint
 from perception.classify.dataset import MANIFEST, concat_samples, load_samples, read_manifest
 from perception.classify.preprocess import MODALITIES, InputSpec
@@ -132,11 +133,32 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     accuracy = float(np.trace(matrix) / matrix.sum())
     # A grasp is right when the majority of its frames is: what a task acting once per
     # grasp would see.
-    grasp_correct = []
+    params = {
+        int(g["grasp_id"]): g.get("params", {}) for g in read_manifest(args.dataset)["grasps"]
+    }
+    near_m = args.end_mm / 1000
+    regions: dict[str, list[int]] = {"near_end": [], "body": []}
+    grasp_correct, wrong = [], []
     for grasp in np.unique(samples.grasp_ids):
         mask = samples.grasp_ids == grasp
         votes = np.bincount(predicted[mask], minlength=len(meta.classes))
-        grasp_correct.append(int(votes.argmax() == samples.labels[mask][0]))
+        truth = int(samples.labels[mask][0])
+        correct = int(votes.argmax() == truth)
+        grasp_correct.append(correct)
+        p = params.get(int(grasp), {})
+        end_m = None
+        if "object_name" in p and "height_m" in p:  # auto-labelled: where the grasp was
+            end_m = end_distance_m(p["object_name"], p["height_m"])
+            regions["near_end" if end_m < near_m else "body"].append(correct)
+        if not correct:
+            wrong.append(
+                (int(grasp), meta.classes[truth], meta.classes[int(votes.argmax())], end_m)
+            )
+    by_region = {
+        name: {"grasps": len(v), "grasp_accuracy": float(np.mean(v))}
+        for name, v in regions.items()
+        if v
+    }
     if args.json:
         json.dump(
             {
@@ -148,6 +170,12 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
                 "grasps": len(grasp_correct),
                 "grasp_accuracy": float(np.mean(grasp_correct)),
                 "confusion": matrix.tolist(),
+                "end_mm": args.end_mm,
+                "by_region": by_region,
+                "wrong_grasps": [
+                    {"grasp_id": g, "true": t, "predicted": pr, "end_distance_m": e}
+                    for g, t, pr, e in wrong
+                ],
             },
             sys.stdout,
         )
@@ -159,6 +187,12 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         )
         print(format_confusion(matrix, meta.classes))
         print(f"grasp accuracy (majority of frames) {np.mean(grasp_correct):.4f}")
+        names = {"near_end": f"within {args.end_mm:g} mm of an end", "body": "the rest"}
+        for name, r in by_region.items():
+            print(f"  {names[name]}: {r['grasp_accuracy']:.4f} of {r['grasps']} grasps")
+        for g, t, pr, e in wrong:
+            where = "" if e is None else f", {e * 1000:.0f} mm from an end"
+            print(f"  wrong: grasp {g} ({t}{where}) read as {pr}")
     return 0
 
 
@@ -206,6 +240,12 @@ def parser() -> argparse.ArgumentParser:
     e.add_argument("--max-frames-per-grasp", type=int, default=None)
     e.add_argument("--threads", type=int, default=0)
     e.add_argument("--json", action="store_true")
+    e.add_argument(
+        "--end-mm",
+        type=float,
+        default=15.0,
+        help="grasps this near an object's end are scored apart",
+    )
     e.set_defaults(func=_cmd_evaluate)
     i = sub.add_parser("info", help="summarise a dataset's manifest")
     i.add_argument("dataset")

@@ -129,6 +129,18 @@ class GraspSample:
 
 
 @functools.cache
+def _axis_span_m(name: str) -> tuple[float, float]:
+    lo, hi = objects.make(name).bounds_m()
+    return float(lo[2]), float(hi[2])
+
+
+def end_distance_m(object_name: str, height_m: float) -> float:
+    """How far a grasp height (``GraspSample.height_m``) lies from the object's nearer end."""
+    lo, hi = _axis_span_m(object_name)
+    return min(height_m - lo, hi - height_m)
+
+
+@functools.cache
 def _surface(name: str) -> np.ndarray:
     # A fixed sample of the surface: extents must not depend on the grasp's draw.
     return objects.make(name).sample_surface(4000, np.random.default_rng(12345))

@@ -10,7 +10,7 @@ import pytest
 from geometry import objects
 from geometry.gripper import DEFAULT_GRIPPER
 from geometry.se3 import invert
-from perception.classify.autolabel import GraspGenerator, GraspGeneratorParams
+from perception.classify.autolabel import GraspGenerator, GraspGeneratorParams, end_distance_m
 
 
 @pytest.fixture(scope="module")
@@ -66,8 +66,7 @@ def test_heights_spread_along_the_objects(grasps) -> None:
 
 
 def _end_distance(sample) -> float:
-    lo, hi = objects.make(sample.object_name).bounds_m()
-    return min(sample.height_m - lo[2], hi[2] - sample.height_m)
+    return end_distance_m(sample.object_name, sample.height_m)
 
 
 def test_end_fraction_draws_near_the_ends_and_zero_changes_nothing(grasps) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +12,7 @@ import pytest
 import torch
 
 from perception.classify.__main__ import main
+from perception.classify.autolabel import end_distance_m
 from perception.classify.checkpoint import (
     CheckpointError,
     Classifier,
@@ -135,6 +137,24 @@ def test_cli_train_and_evaluate(toy: Path, tmp_path: Path, capsys: pytest.Captur
     assert result["frames"] == 4 * 8 * 4
     assert np.asarray(result["confusion"]).sum() == result["frames"]
     assert 0 <= result["accuracy"] <= 1
+    assert len(result["wrong_grasps"]) == round(32 * (1 - result["grasp_accuracy"]))
+    assert result["by_region"] == {}  # toy grasps say nothing of where they were held
+    # Auto-labelled grasps record the object and height: scored near an end and on the body.
+    labelled = tmp_path / "labelled"
+    shutil.copytree(toy, labelled)
+    manifest = json.loads((labelled / "manifest.json").read_text())
+    for entry in manifest["grasps"]:  # every other grasp 10 mm below a mug's rim
+        rim = end_distance_m("mug", 0.0)
+        entry["params"] = {
+            "object_name": "mug",
+            "height_m": rim - 0.01 * (1 + entry["grasp_id"] % 2),
+        }
+    (labelled / "manifest.json").write_text(json.dumps(manifest))
+    assert main(["evaluate", str(out), str(labelled), "--json", "--end-mm", "15"]) == 0
+    regions = json.loads(capsys.readouterr().out)["by_region"]
+    assert regions["near_end"]["grasps"] == regions["body"]["grasps"] == 16
+    assert main(["evaluate", str(out), str(labelled)]) == 0
+    assert "within 15 mm of an end:" in capsys.readouterr().out
     # Errors are one line naming the culprit, exit status 2.
     assert main(["evaluate", str(out), str(tmp_path)]) == 2
     assert "no manifest.json" in capsys.readouterr().err
