@@ -1,14 +1,15 @@
 """Command line of the tactile classifier.
 
     python -m perception.classify train DATASET [DATASET ...] --epochs E --out model.pt [knobs]
-    python -m perception.classify evaluate MODEL DATASET [--json]
+    python -m perception.classify evaluate MODEL DATASET [--json] [--end-mm 15]
     python -m perception.classify info DATASET
 
 ``train`` prints a progress bar (stderr), one log line per epoch (stdout, and as JSON
 lines in ``--log``, default ``OUT.log.jsonl``) and the confusion matrix of the
 validation split (30% of the grasps, by grasp) at the end; several datasets (of the same
-classes) train as one. ``evaluate`` scores a saved
-model on a held-out dataset and prints its confusion matrix.
+classes) train as one. ``evaluate`` scores a saved model on a held-out dataset: the
+confusion matrix, the accuracy per grasp, apart for grasps held within ``--end-mm`` of an
+object's end (where the objects look most alike), and the grasps it gets wrong.
 """
 
 from __future__ import annotations
@@ -119,6 +120,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
+    if not args.end_mm > 0:
+        raise ValueError(f"--end-mm must be > 0, got {args.end_mm}")
     if args.threads:
         torch.set_num_threads(args.threads)
     model, meta = load_checkpoint(args.model)

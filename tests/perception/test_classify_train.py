@@ -155,6 +155,8 @@ def test_cli_train_and_evaluate(toy: Path, tmp_path: Path, capsys: pytest.Captur
     assert regions["near_end"]["grasps"] == regions["body"]["grasps"] == 16
     assert main(["evaluate", str(out), str(labelled)]) == 0
     assert "within 15 mm of an end:" in capsys.readouterr().out
+    assert main(["evaluate", str(out), str(labelled), "--end-mm", "0"]) == 2
+    assert "--end-mm must be > 0" in capsys.readouterr().err
     # Errors are one line naming the culprit, exit status 2.
     assert main(["evaluate", str(out), str(tmp_path)]) == 2
     assert "no manifest.json" in capsys.readouterr().err
