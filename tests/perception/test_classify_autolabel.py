@@ -65,21 +65,18 @@ def test_heights_spread_along_the_objects(grasps) -> None:
         assert np.ptp(heights) > 0.2 * (hi[2] - lo[2])
 
 
-def _end_distance(sample) -> float:
-    return end_distance_m(sample.object_name, sample.height_m)
-
-
 def test_end_fraction_draws_near_the_ends_and_zero_changes_nothing(grasps) -> None:
     _, samples = grasps
     plain = GraspGenerator(GraspGeneratorParams(seed=11, end_fraction=0.0))
     assert plain.sample(5).to_params() == samples[5].to_params()
     ends = GraspGenerator(GraspGeneratorParams(seed=11, end_fraction=1.0, end_band_m=0.02))
-    near = [_end_distance(ends.sample(i)) for i in range(24)]
+    drawn = [ends.sample(i) for i in range(24)]
+    near = [end_distance_m(s.object_name, s.height_m) for s in drawn]
     assert all(0.006 <= d <= 0.02 for d in near)
-    spread = [_end_distance(s) for s in samples]
+    spread = [end_distance_m(s.object_name, s.height_m) for s in samples]
     assert np.median(spread) > 0.03  # the plain generator's grasps are mostly on the body
     # Both ends are drawn: heights below and above the object's middle.
-    heights = [ends.sample(i).height_m for i in range(24)]
+    heights = [s.height_m for s in drawn]
     assert min(heights) < 0 < max(heights)
 
 

@@ -143,8 +143,8 @@ def test_cli_train_and_evaluate(toy: Path, tmp_path: Path, capsys: pytest.Captur
     labelled = tmp_path / "labelled"
     shutil.copytree(toy, labelled)
     manifest = json.loads((labelled / "manifest.json").read_text())
-    for entry in manifest["grasps"]:  # every other grasp 10 mm below a mug's rim
-        rim = end_distance_m("mug", 0.0)
+    rim = end_distance_m("mug", 0.0)  # the mug's half length: its rim, from its middle
+    for entry in manifest["grasps"]:  # every other grasp 10 mm below the rim, the rest 20
         entry["params"] = {
             "object_name": "mug",
             "height_m": rim - 0.01 * (1 + entry["grasp_id"] % 2),
