@@ -7,7 +7,7 @@
 ``train`` prints a progress bar (stderr), one log line per epoch (stdout, and as JSON
 lines in ``--log``, default ``OUT.log.jsonl``) and the confusion matrix of the
 validation split (30% of the grasps, by grasp) at the end; several datasets (of the same
-classes) train as one. ``evaluate`` scores a saved model on a held-out dataset: the
+classes) train as one; ``--init MODEL`` fine-tunes a trained model on them. ``evaluate`` scores a saved model on a held-out dataset: the
 confusion matrix, the accuracy per grasp, apart for grasps held within ``--end-mm`` of an
 object's end (where the objects look most alike), and the grasps it gets wrong.
 """
@@ -40,8 +40,8 @@ from perception.classify.train import (
 )
 
 
-def _manifest_digest(root: Path) -> str:
-    return hashlib.sha256((root / MANIFEST).read_bytes()).hexdigest()
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
@@ -62,6 +62,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         subtract_mean=not args.no_mean,
     )
     spec = InputSpec(modality=config.modality, input_px=config.input_px)
+    init = load_checkpoint(args.init) if args.init else None
     started = time.monotonic()
     parts, sources = [], []
     for name in args.dataset:
@@ -81,7 +82,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         sources.append(
             {
                 "path": str(root),
-                "manifest_sha256": _manifest_digest(root),
+                "manifest_sha256": _sha256(root / MANIFEST),
                 "seeds": manifest.get("seeds", {}),
                 "counts_per_class": manifest.get("counts_per_class", {}),
             }
@@ -110,7 +111,13 @@ def _cmd_train(args: argparse.Namespace) -> int:
         "datasets": sources,
         "torch": torch.__version__,
     }
-    result = train(samples, config, on_epoch=on_epoch, training_record=record)
+    if init is not None:
+        record["init"] = {
+            "path": args.init,
+            "sha256": _sha256(Path(args.init)),
+            "training": dict(init[1].training),  # the start's own history, nested
+        }
+    result = train(samples, config, on_epoch=on_epoch, training_record=record, init=init)
     save_checkpoint(args.out, result.model, result.meta, half=not args.full_precision)
     print(f"trained in {result.train_secs:.0f}s; saved {args.out}")
     if result.confusion is not None:
@@ -236,6 +243,9 @@ def parser() -> argparse.ArgumentParser:
         "--no-swap-sides", action="store_true", help="do not swap the bubbles (augmentation)"
     )
     p.add_argument("--full-precision", action="store_true", help="store float32 weights")
+    p.add_argument(
+        "--init", default=None, help="start from this checkpoint's weights (fine-tuning)"
+    )
     p.set_defaults(func=_cmd_train)
     e = sub.add_parser("evaluate", help="score a model on a held-out dataset")
     e.add_argument("model")

@@ -8,6 +8,7 @@ copies of training frames in the validation set and flatter the model.
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 import sys
@@ -195,8 +196,13 @@ def train(
     progress_stream: IO[str] | None = None,
     on_epoch: Callable[[dict[str, float]], None] | None = None,
     training_record: dict[str, Any] | None = None,
+    init: tuple[nn.Module, ModelMeta] | None = None,
 ) -> TrainResult:
     """Train a ResNet18 on ``samples`` (inputs already of ``config``'s modality and size).
+
+    With ``init`` (a trained model and its meta) training starts from its weights and
+    keeps its mean image (the one its weights learnt with): fine-tuning on new data. The
+    given model itself is left untouched.
 
     Args:
         samples: network inputs, labels and grasp ids (see ``dataset.load_samples``).
@@ -204,9 +210,12 @@ def train(
         progress_stream: where the progress bar goes (default stderr).
         on_epoch: called with each epoch's log record.
         training_record: extra facts stored in the model's meta (command, dataset).
+        init: a model to start from, of ``config``'s modality, size and width and of the
+            samples' classes.
 
     Raises:
-        ValueError: inputs whose channel count or size does not fit ``config``.
+        ValueError: inputs whose channel count or size does not fit ``config``, or an
+            ``init`` model that does not fit ``config`` or the samples' classes.
     """
     from perception.classify.preprocess import InputSpec
 
@@ -222,8 +231,12 @@ def train(
     x_train, y_train = samples.x[train_mask], samples.labels[train_mask]
     x_val, y_val = samples.x[val_mask], samples.labels[val_mask]
     meta = ModelMeta.for_spec(spec, samples.classes, config.width)
-    model = build_model(meta)
-    if config.subtract_mean and len(x_train):
+    if init is not None:
+        _check_init(init[1], meta)
+        model = copy.deepcopy(init[0])  # the caller's model stays as it was
+    else:
+        model = build_model(meta)
+    if init is None and config.subtract_mean and len(x_train):
         # The mean training image, in float64 chunks (the inputs are float16).
         total = np.zeros(x_train.shape[1:], np.float64)
         for start in range(0, len(x_train), 256):
@@ -321,6 +334,14 @@ def train(
     )
     model.eval()
     return TrainResult(model, meta, history, confusion, train_secs, split)
+
+
+def _check_init(init: ModelMeta, wanted: ModelMeta) -> None:
+    """Refuse to fine-tune a model whose classes or inputs differ from the training's."""
+    for name in ("classes", "modality", "input_px", "width", "depth_center_m", "depth_scale_m"):
+        have, need = getattr(init, name), getattr(wanted, name)
+        if have != need:
+            raise ValueError(f"init model has {name} {have!r}, the training needs {need!r}")
 
 
 def append_log(path: str | Path, record: dict[str, Any]) -> None:

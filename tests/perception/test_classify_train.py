@@ -108,6 +108,35 @@ def test_bad_checkpoints_are_refused(tmp_path: Path) -> None:
         load_checkpoint(tmp_path / "bad.pt")
 
 
+def test_fine_tuning_starts_from_the_init_model(trained, toy: Path, tmp_path: Path) -> None:
+    samples = load_samples(toy, InputSpec(modality="depth", input_px=32))
+    config = TrainConfig(epochs=1, modality="depth", seed=1, **TINY)
+    start = {k: v.clone() for k, v in trained.model.state_dict().items()}
+    tuned = train(
+        samples, config, progress_stream=io.StringIO(), init=(trained.model, trained.meta)
+    )
+    # It begins where the trained model ended: one epoch keeps it far ahead of a fresh start.
+    fresh = train(samples, config, progress_stream=io.StringIO())
+    assert tuned.history[0]["train_loss"] < 0.8 * fresh.history[0]["train_loss"]
+    assert torch.equal(tuned.model.input_mean, start["input_mean"])  # its mean image kept
+    after = trained.model.state_dict()
+    assert all(torch.equal(after[k], v) for k, v in start.items())  # the start untouched
+    # A model of other inputs or classes is refused, naming what differs.
+    other = ModelMeta.for_spec(InputSpec(modality="ir", input_px=32), trained.meta.classes, 0.125)
+    with pytest.raises(ValueError, match="init model has modality 'ir'"):
+        train(samples, config, progress_stream=io.StringIO(), init=(build_model(other), other))
+    # The CLI records where it started.
+    base = tmp_path / "base.pt"
+    save_checkpoint(base, trained.model, trained.meta, half=True)
+    out = tmp_path / "tuned.pt"
+    args = ["train", str(toy), "--epochs", "1", "--out", str(out), "--init", str(base)]
+    assert main([*args, "--input-px", "32", "--width", "0.125", "--threads", "1"]) == 0
+    record = load_checkpoint(out)[1].training
+    assert record["init"]["path"] == str(base) and len(record["init"]["sha256"]) == 64
+    assert record["init"]["training"]["config"]["epochs"] == 20
+    assert main([*args, "--input-px", "32", "--width", "0.25"]) == 2  # another width
+
+
 def test_confusion_matrix() -> None:
     matrix = confusion_matrix(np.array([0, 0, 1, 2]), np.array([0, 1, 1, 2]), 3)
     assert matrix.tolist() == [[1, 1, 0], [0, 1, 0], [0, 0, 1]]
