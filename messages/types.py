@@ -154,6 +154,7 @@ class GroundTruth(Message):
     in_contact: bool
     shear_left_mm: Annotated[np.ndarray, Array("float64", (2,))]
     shear_right_mm: Annotated[np.ndarray, Array("float64", (2,))]
+    noise_seed: int  # the scene's seed: it draws the sensors' noise in this frame
 
 
 class Tick(Message):

@@ -444,4 +444,7 @@ class AutolabelWorld(Node):
         self.frames += 1
         stamp = stamp_of(snap, self.start_nanos)
         self.io.publish("state", to_message(snap, self.world.scene, stamp))
-        self.io.publish("ground_truth", ground_truth(snap, self.world.model.class_label, stamp))
+        truth = ground_truth(
+            snap, self.world.model.class_label, stamp, noise_seed=self.world.scene.seed
+        )
+        self.io.publish("ground_truth", truth)

@@ -4,8 +4,8 @@ Ports:
     inputs: ``left``, ``right`` (ToFImage): the bubbles' frames, paired by stamp;
         ``grasp`` (GraspState): frames count only while the grasp is stable, from the
         stamp it became stable; ``truth`` (GroundTruth, optional): the object's class
-        at each stamp (the simulator's; on hardware the supervisor's ``grasp_start``
-        names the object instead); ``event`` (TaskEvent from ``supervisor.autolabel``):
+        and the sensor-noise seed at each stamp (the simulator's; on hardware the
+        supervisor's ``grasp_start`` names the object instead, and there is no seed); ``event`` (TaskEvent from ``supervisor.autolabel``):
         ``run_start`` opens (or resumes) the dataset with its seeds and scene
         parameters, ``grasp_start`` / ``grasp_end`` bracket a grasp.
     outputs: ``progress`` (TaskEvent, task ``autolabel``): ``grasp_written`` (detail:
@@ -21,7 +21,10 @@ frames can trail by more than a whole grasp). A clean stop writes what is still 
 The format is :mod:`perception.classify.dataset` (an ``.npz`` per grasp, a JSON
 manifest); a grasp reaches the manifest only once its file is complete, so a stopped run
 resumes where the manifest ends. Of the stable frames, every ``frame_stride``-th pair is
-kept, at most ``max_frames_per_grasp`` (frames of one held grasp differ little).
+kept, at most ``max_frames_per_grasp`` (frames of one held grasp differ little). Each
+grasp's manifest entry has the supervisor's grasp parameters and, from the simulator's
+ground truth, ``sensor_noise_seed``: with the auto-labelling seed, all it takes to make
+the same grasps with the same noise again.
 """
 
 from __future__ import annotations
@@ -80,6 +83,7 @@ class _Grasp:
     end_nanos: int | None = None
     buffer: GraspBuffer = field(default_factory=GraspBuffer)
     labels: Counter[str] = field(default_factory=Counter)
+    noise_seeds: set[int] = field(default_factory=set)
     pairs_seen: int = 0
 
 
@@ -106,8 +110,8 @@ class DatasetWriterNode(Node):
         self.state_stable: list[bool] = []
         self.halves: OrderedDict[int, dict[str, ToFImage]] = OrderedDict()
         self.waiting: deque[tuple[ToFImage, ToFImage]] = deque()
-        # The simulator's class at recent stamps.
-        self.truth: OrderedDict[int, str] = OrderedDict()
+        # The simulator's ground truth at recent stamps.
+        self.truth: OrderedDict[int, GroundTruth] = OrderedDict()
 
     # -- run and grasp bracketing -------------------------------------------------------
 
@@ -170,8 +174,12 @@ class DatasetWriterNode(Node):
             detail = {"grasp_id": grasp.grasp_id, "labels": dict(grasp.labels)}
             self._progress("grasp_skipped", detail, stamp)
             return
+        params = dict(grasp.params)
+        if grasp.noise_seeds:  # one seed, unless the world was restarted with another
+            seeds = sorted(grasp.noise_seeds)
+            params["sensor_noise_seed"] = seeds[0] if len(seeds) == 1 else seeds
         try:
-            self.writer.write_grasp(grasp.grasp_id, label, grasp.buffer, grasp.params)
+            self.writer.write_grasp(grasp.grasp_id, label, grasp.buffer, params)
         except DatasetError as err:
             raise NodeError(f"{self.name}: grasp {grasp.grasp_id}: {err}") from err
         self._progress(
@@ -211,7 +219,7 @@ class DatasetWriterNode(Node):
         return index >= 0 and self.state_stable[index]
 
     def on_truth(self, msg: GroundTruth) -> None:
-        self.truth[msg.header.stamp_nanos] = msg.object_class
+        self.truth[msg.header.stamp_nanos] = msg
         while len(self.truth) > 1024:
             self.truth.popitem(last=False)
 
@@ -259,13 +267,14 @@ class DatasetWriterNode(Node):
         grasp.pairs_seen += 1
         if (grasp.pairs_seen - 1) % self.params.frame_stride:
             return
-        label = self.truth.get(left.header.stamp_nanos) or self.truth.get(right.header.stamp_nanos)
-        if label is None:
-            label = grasp.params.get("class_label")
+        truth = self.truth.get(left.header.stamp_nanos) or self.truth.get(right.header.stamp_nanos)
+        label = grasp.params.get("class_label") if truth is None else truth.object_class
         if label is None:
             self.io.log.warning("%s: no label for the frame at %d; skipped", self.name, stamp)
             return
         if left.depth_m.size == 0 or left.ir.size == 0:
             raise NodeError(f"{self.name}: frames need depth and IR (enable both sim effects)")
         grasp.labels[label] += 1
+        if truth is not None:
+            grasp.noise_seeds.add(truth.noise_seed)
         grasp.buffer.add(left.depth_m, right.depth_m, left.ir, right.ir, stamp)

@@ -99,7 +99,10 @@ class WorldNode(Node):
         self.contact_frames += any(snap.in_contact.values())
         self.io.publish("state", to_message(snap, self.scene, stamp))
         if "ground_truth" in self.world.effects:
-            self.io.publish("ground_truth", ground_truth(snap, self.world.model.class_label, stamp))
+            truth = ground_truth(
+                snap, self.world.model.class_label, stamp, noise_seed=self.scene.seed
+            )
+            self.io.publish("ground_truth", truth)
         if self.world.done:
             contact = (
                 f"{self.contact_frames} in contact"

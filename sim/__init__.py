@@ -85,8 +85,14 @@ def pressure(snap: WorldSnapshot, side: str, stamp_nanos: int) -> Pressure:
     )
 
 
-def ground_truth(snap: WorldSnapshot, object_class: str, stamp_nanos: int) -> GroundTruth:
-    """Ground truth; shear is the mean membrane shift in the contact, tool (y, z), mm."""
+def ground_truth(
+    snap: WorldSnapshot, object_class: str, stamp_nanos: int, *, noise_seed: int
+) -> GroundTruth:
+    """Ground truth; shear is the mean membrane shift in the contact, tool (y, z), mm.
+
+    ``noise_seed`` is the scene's seed, which draws the sensors' noise: a dataset made
+    from these frames can say which noise it holds.
+    """
     return GroundTruth(
         header=Header(stamp_nanos=stamp_nanos, frame_id="tool"),
         tool_from_object=np.array(snap.tool_from_object, dtype=np.float64),
@@ -94,6 +100,7 @@ def ground_truth(snap: WorldSnapshot, object_class: str, stamp_nanos: int) -> Gr
         in_contact=bool(any(snap.in_contact.values())),
         shear_left_mm=np.asarray(snap.shear_in_tool_m["left"], dtype=np.float64) * 1000.0,
         shear_right_mm=np.asarray(snap.shear_in_tool_m["right"], dtype=np.float64) * 1000.0,
+        noise_seed=int(noise_seed),
     )
 
 
@@ -129,7 +136,9 @@ class Simulator:
         if "pressure" in self.effects:
             instant.pressures = {s: pressure(snap, s, stamp) for s in SIDES}
         if "ground_truth" in self.effects:
-            instant.ground_truth = ground_truth(snap, self.world.model.class_label, stamp)
+            instant.ground_truth = ground_truth(
+                snap, self.world.model.class_label, stamp, noise_seed=self.scene.seed
+            )
             instant.masks = {s: f.contact_mask(stamp) for s, f in frames.items()}
         return instant
 

@@ -212,6 +212,9 @@ def _cmd_info(args: argparse.Namespace) -> int:
     for name, counts in manifest["counts_per_class"].items():
         print(f"  {name:<16} {counts['grasps']:>5} grasps {counts['frames']:>7} frames")
     print(f"  seeds {json.dumps(manifest.get('seeds', {}))}")
+    noise = [g.get("params", {}).get("sensor_noise_seed") for g in manifest["grasps"]]
+    recorded = sorted({json.dumps(seed) for seed in noise if seed is not None})
+    print(f"  sensor noise seeds of the grasps: {', '.join(recorded) or 'none recorded'}")
     return 0
 
 

@@ -183,6 +183,7 @@ REALISTIC: dict[type[Message], Callable[[], Message]] = {
         in_contact=True,
         shear_left_mm=np.array([0.6, -0.3]),
         shear_right_mm=np.array([-0.55, 0.28]),
+        noise_seed=7,
     ),
     Tick: lambda: Tick(
         header=_header(), value=3.25, payload=RNG.integers(0, 256, 1000, dtype=np.uint8)

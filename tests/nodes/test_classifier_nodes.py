@@ -245,7 +245,7 @@ def test_rpy_round_trip_including_gimbal_lock() -> None:
 
 
 def test_world_places_the_requested_object_and_closes_on_it() -> None:
-    node, io = make_node(AutolabelWorld, {"seed": 0}, name="world")
+    node, io = make_node(AutolabelWorld, {"seed": 13}, name="world")
     io.advance(0.2)
     assert io.published["state"] == []  # nothing until an object is placed
     request = _request()
@@ -257,6 +257,7 @@ def test_world_places_the_requested_object_and_closes_on_it() -> None:
     assert not any(first.in_contact)
     truth = io.published["ground_truth"][-1]
     assert truth.object_class == request.class_label
+    assert truth.noise_seed == first.seed == 13  # the seed the cameras draw noise with
     feed(node, "command", _close_on(request))
     io.advance(1.5)
     last = io.published["state"][-1]
@@ -279,7 +280,7 @@ def _event(event: str, detail: dict, stamp_ms: int = 0) -> TaskEvent:
     )
 
 
-def _truth(name: str, stamp_ms: int) -> GroundTruth:
+def _truth(name: str, stamp_ms: int, noise_seed: int = 21) -> GroundTruth:
     return GroundTruth(
         header=Header(stamp_nanos=stamp_ms * MS),
         tool_from_object=np.eye(4),
@@ -287,6 +288,7 @@ def _truth(name: str, stamp_ms: int) -> GroundTruth:
         in_contact=True,
         shear_left_mm=np.zeros(2),
         shear_right_mm=np.zeros(2),
+        noise_seed=noise_seed,
     )
 
 
@@ -323,6 +325,8 @@ def test_writer_keeps_stable_frames_labels_and_resumes(tmp_path: Path) -> None:
     assert [g["frames"] for g in manifest["grasps"]] == [3, 3]
     assert [g["object_class"] for g in manifest["grasps"]] == ["mug", "wine_glass"]
     assert manifest["seeds"] == {"autolabel": 5}
+    # The simulator's noise seed, from the ground truth, is kept with each grasp.
+    assert [g["params"]["sensor_noise_seed"] for g in manifest["grasps"]] == [21, 21]
     assert manifest["counts_per_class"]["mug"] == {"grasps": 1, "frames": 3}
     progress = [json.loads(e.detail) for e in io.published["progress"]]
     assert progress[0] == {"frames": 3, "grasp_id": 0, "object_class": "mug"}

@@ -177,8 +177,14 @@ def test_cli_train_and_evaluate(toy: Path, tmp_path: Path, capsys: pytest.Captur
         entry["params"] = {
             "object_name": "mug",
             "height_m": rim - 0.01 * (1 + entry["grasp_id"] % 2),
+            "sensor_noise_seed": 21,
         }
     (labelled / "manifest.json").write_text(json.dumps(manifest))
+    assert main(["info", str(toy)]) == 0
+    assert "sensor noise seeds of the grasps: none recorded" in capsys.readouterr().out
+    assert main(["info", str(labelled)]) == 0
+    info = capsys.readouterr().out
+    assert "32 grasps" in info and "sensor noise seeds of the grasps: 21" in info
     assert main(["evaluate", str(out), str(labelled), "--json", "--end-mm", "15"]) == 0
     regions = json.loads(capsys.readouterr().out)["by_region"]
     assert regions["near_end"]["grasps"] == regions["body"]["grasps"] == 16
