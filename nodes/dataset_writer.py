@@ -5,7 +5,8 @@ Ports:
         ``grasp`` (GraspState): frames count only while the grasp is stable, from the
         stamp it became stable; ``truth`` (GroundTruth, optional): the object's class
         and the sensor-noise seed at each stamp (the simulator's; on hardware the
-        supervisor's ``grasp_start`` names the object instead, and there is no seed); ``event`` (TaskEvent from ``supervisor.autolabel``):
+        supervisor's ``grasp_start`` names the object instead, and there is no seed);
+        ``event`` (TaskEvent from ``supervisor.autolabel``):
         ``run_start`` opens (or resumes) the dataset with its seeds and scene
         parameters, ``grasp_start`` / ``grasp_end`` bracket a grasp.
     outputs: ``progress`` (TaskEvent, task ``autolabel``): ``grasp_written`` (detail:

@@ -7,9 +7,10 @@
 ``train`` prints a progress bar (stderr), one log line per epoch (stdout, and as JSON
 lines in ``--log``, default ``OUT.log.jsonl``) and the confusion matrix of the
 validation split (30% of the grasps, by grasp) at the end; several datasets (of the same
-classes) train as one; ``--init MODEL`` fine-tunes a trained model on them. ``evaluate`` scores a saved model on a held-out dataset: the
-confusion matrix, the accuracy per grasp, apart for grasps held within ``--end-mm`` of an
-object's end (where the objects look most alike), and the grasps it gets wrong.
+classes) train as one; ``--init MODEL`` fine-tunes a trained model on them. ``evaluate``
+scores a saved model on a held-out dataset: the confusion matrix, the accuracy per grasp,
+apart for grasps held within ``--end-mm`` of an object's end (where the objects look most
+alike), and the grasps it gets wrong.
 """
 
 from __future__ import annotations
@@ -27,12 +28,13 @@ import numpy as np
 import torch
 
 from perception.classify.autolabel import end_distance_m
-from perception.classify.checkpoint import load_checkpoint, save_checkpoint
+from perception.classify.checkpoint import ModelMeta, load_checkpoint, save_checkpoint
 from perception.classify.dataset import MANIFEST, concat_samples, load_samples, read_manifest
 from perception.classify.preprocess import MODALITIES, InputSpec
 from perception.classify.train import (
     TrainConfig,
     append_log,
+    check_init,
     confusion_matrix,
     format_confusion,
     predict,
@@ -63,6 +65,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
     )
     spec = InputSpec(modality=config.modality, input_px=config.input_px)
     init = load_checkpoint(args.init) if args.init else None
+    if init is not None:  # before the datasets load (minutes): its inputs must fit
+        check_init(init[1], ModelMeta.for_spec(spec, init[1].classes, config.width))
     started = time.monotonic()
     parts, sources = [], []
     for name in args.dataset:
@@ -71,7 +75,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
         part = load_samples(
             root,
             spec,
-            classes=parts[0].classes if parts else None,
+            # A fine-tune keeps the start's label order.
+            classes=parts[0].classes if parts else (init[1].classes if init else None),
             max_frames_per_grasp=config.max_frames_per_grasp,
         )
         print(

@@ -232,7 +232,7 @@ def train(
     x_val, y_val = samples.x[val_mask], samples.labels[val_mask]
     meta = ModelMeta.for_spec(spec, samples.classes, config.width)
     if init is not None:
-        _check_init(init[1], meta)
+        check_init(init[1], meta)
         model = copy.deepcopy(init[0])  # the caller's model stays as it was
     else:
         model = build_model(meta)
@@ -336,8 +336,12 @@ def train(
     return TrainResult(model, meta, history, confusion, train_secs, split)
 
 
-def _check_init(init: ModelMeta, wanted: ModelMeta) -> None:
-    """Refuse to fine-tune a model whose classes or inputs differ from the training's."""
+def check_init(init: ModelMeta, wanted: ModelMeta) -> None:
+    """Refuse to fine-tune a model (``init``) whose classes or inputs differ from ``wanted``.
+
+    Raises:
+        ValueError: naming the first field that differs.
+    """
     for name in ("classes", "modality", "input_px", "width", "depth_center_m", "depth_scale_m"):
         have, need = getattr(init, name), getattr(wanted, name)
         if have != need:

@@ -108,7 +108,9 @@ def test_bad_checkpoints_are_refused(tmp_path: Path) -> None:
         load_checkpoint(tmp_path / "bad.pt")
 
 
-def test_fine_tuning_starts_from_the_init_model(trained, toy: Path, tmp_path: Path) -> None:
+def test_fine_tuning_starts_from_the_init_model(
+    trained, toy: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
     samples = load_samples(toy, InputSpec(modality="depth", input_px=32))
     config = TrainConfig(epochs=1, modality="depth", seed=1, **TINY)
     start = {k: v.clone() for k, v in trained.model.state_dict().items()}
@@ -134,7 +136,12 @@ def test_fine_tuning_starts_from_the_init_model(trained, toy: Path, tmp_path: Pa
     record = load_checkpoint(out)[1].training
     assert record["init"]["path"] == str(base) and len(record["init"]["sha256"]) == 64
     assert record["init"]["training"]["config"]["epochs"] == 20
-    assert main([*args, "--input-px", "32", "--width", "0.25"]) == 2  # another width
+    capsys.readouterr()
+    # Another width is refused before any dataset loads, naming the field.
+    assert main([*args, "--input-px", "32", "--width", "0.25"]) == 2
+    printed = capsys.readouterr()
+    assert "init model has width 0.125, the training needs 0.25" in printed.err
+    assert "frames loaded" not in printed.out
 
 
 def test_confusion_matrix() -> None:
