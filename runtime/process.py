@@ -210,8 +210,8 @@ class ZmqIO:
     def now_nanos(self) -> int:
         return time.time_ns()
 
-    def request_stop(self, reason: str) -> None:
-        self.control.send(protocol.pack("stop_request", reason=reason))
+    def request_stop(self, reason: str, *, exit_code: int = 0) -> None:
+        self.control.send(protocol.pack("stop_request", reason=reason, exit_code=exit_code))
 
     def wait_idle(self, timeout_secs: float) -> bool:
         if not self.lockstep:

@@ -10,7 +10,8 @@ node -> launcher
     heartbeat  {busy_secs, stats}                every ``HEARTBEAT_SECS``
     counts     {published, received}             lockstep: after each handled batch
     wait_idle  {}                                lockstep: reply when the graph is idle
-    stop_request {reason}                        a node asks the graph to stop
+    stop_request {reason, exit_code}             a node asks the graph to stop (exit_code:
+                                                 its verdict on the run, 0 = success)
     final      {stats}                           on a clean exit
 launcher -> node
     connect    {endpoints: {node: endpoint}}     where each input's publisher is
