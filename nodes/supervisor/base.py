@@ -108,8 +108,9 @@ class Task(Node):
             ),
         )
 
-    def event(self, event: str, detail: str = "") -> None:
-        if self.pose is not None and self.pose.status in ("ok", "recovered"):
+    def event(self, event: str, detail: str = "", *, with_pose: bool = True) -> None:
+        """Publish and log a TaskEvent; ``with_pose`` appends the last pose estimate."""
+        if with_pose and self.pose is not None and self.pose.status in ("ok", "recovered"):
             xyz_mm = self.pose.tool_from_object[:3, 3] * 1000
             detail += f" | pose xyz_mm=({xyz_mm[0]:.1f}, {xyz_mm[1]:.1f}, {xyz_mm[2]:.1f})"
         self.io.log.info("%s: %s %s", self.task, event, detail)
