@@ -8,6 +8,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from nodes.supervisor.sort import DEFAULT_BINS
 from runtime.bag import BagReader
@@ -118,3 +119,43 @@ def test_stacking_releases_within_a_few_millimetres_of_contact(tmp_path: Path) -
         json.loads(e.detail) for _, e in topics["supervisor/event"] if e.event == "summary"
     ]
     assert summary["outcome"] == "placed"
+
+
+@pytest.mark.parametrize(
+    ("graph", "inputs", "args"),
+    [
+        ("graphs/stacking.yaml", "grasp_monitor/grasp|shear/shear|world/placement", ()),
+        (
+            "graphs/dish_loading.yaml",
+            "grasp_monitor/grasp|classifier/probabilities|world/ground_truth",
+            ("--set", "supervisor.objects=2"),
+        ),
+    ],
+    ids=["stacking", "dish_loading"],
+)
+def test_a_task_records_and_replays_deterministically_in_lockstep(
+    tmp_path: Path, graph: str, inputs: str, args: tuple[str, ...]
+) -> None:
+    live = tmp_path / "live.mcap"
+    proc = launch(graph, *args, "--record", str(live), "--topics", f"^({inputs}|supervisor/.*)$")
+    assert proc.returncode == 0, proc.stdout[-3000:]
+    replays = []
+    for k in (1, 2):
+        out = tmp_path / f"replay{k}.mcap"
+        proc = launch(
+            "replay", str(live), "--replace", "supervisor", "--lockstep", "--record", str(out)
+        )
+        assert proc.returncode == 0, proc.stdout[-3000:]
+        replays.append(out)
+    same = launch("bag", "diff", str(replays[0]), str(replays[1]))
+    assert same.returncode == 0, same.stdout[-3000:]
+
+    def decisions(bag: Path) -> list[tuple[str, str]]:
+        return [
+            (e.event, e.detail)
+            for m in BagReader(bag).messages(["supervisor/event"])
+            if (e := m.decode()).event != "start"
+        ]
+
+    # The task decides in the replay what it decided live (its clock is its data's).
+    assert decisions(replays[0]) == decisions(live)
