@@ -24,8 +24,9 @@ run's seed (the seeds are in the table):
 Latencies are the recorder's receive time less the message's stamp, which is the
 simulated camera frame's capture time: the whole pipeline, world lag included. The
 world runs in real time; on a loaded machine everything trails (the figures say by
-how much). ``--runs N`` sets the scenes per task (seeds 0 .. N-1); ``--quick`` runs one
-stacking scene; ``--tasks a,b`` picks tasks.
+how much); ``--rate-scale 0.5`` runs every world at half real time (a loaded machine
+then keeps up; latencies stay wall-clock). ``--runs N`` sets the scenes per task (seeds
+0 .. N-1); ``--quick`` runs one stacking scene; ``--tasks a,b`` picks tasks.
 """
 
 from __future__ import annotations
@@ -50,7 +51,8 @@ TOPICS = (
     "^(supervisor/event|world/ground_truth|world/placement|pose/pose|shear/shear"
     "|classifier/probabilities)$"
 )
-RUN_TIMEOUT_SECS = 400
+RUN_TIMEOUT_SECS = 600
+RATE_SCALE = [1.0]  # world.rate_scale of every run (--rate-scale)
 
 
 def launch(graph: str, bag: Path, *args: str) -> tuple[int, str, dict[str, list], float]:
@@ -62,7 +64,11 @@ def launch(graph: str, bag: Path, *args: str) -> tuple[int, str, dict[str, list]
 
     start = time.monotonic()
     proc = subprocess.run(
-        [sys.executable, "launch.py", graph, *args, "--record", str(bag), "--topics", TOPICS],
+        [
+            *(sys.executable, "launch.py", graph, *args),
+            *("--set", f"world.rate_scale={RATE_SCALE[0]}"),
+            *("--record", str(bag), "--topics", TOPICS),
+        ],
         cwd=ROOT,
         capture_output=True,
         text=True,
@@ -88,8 +94,15 @@ def summary(topics: dict[str, list]) -> dict[str, Any]:
 
 
 def latencies_ms(topics: dict[str, list], topic: str) -> list[float]:
-    """Receive time less stamp of every message on ``topic`` (milliseconds)."""
-    return [(log - stamp) / 1e6 for stamp, log, _ in topics.get(topic, [])]
+    """Receive time less capture time of every message on ``topic`` (milliseconds).
+
+    A frame's stamp is the world's start plus its scene time; with the world at
+    ``rate_scale`` its wall-clock capture time is the start plus scene time / rate.
+    """
+    truth = topics.get("world/ground_truth", [])
+    start = truth[0][0] if truth else 0
+    rate = RATE_SCALE[0]
+    return [(log - start - (stamp - start) / rate) / 1e6 for stamp, log, _ in topics.get(topic, [])]
 
 
 def write_scene(template: str, out: Path, **changes: Any) -> str:
@@ -276,6 +289,7 @@ def aggregate(task: str, seeds: list[int], runs: list[dict[str, Any]]) -> Row:
         "seeds": ",".join(str(s) for s in seeds),
         "success_rate": float(np.mean([r["success"] for r in runs])),
         "wall_secs_median": median([r["wall_secs"] for r in runs]),
+        "rate_scale": RATE_SCALE[0],
     }
     if task == "dish_loading":
         objects = sum(r["objects"] for r in runs) or 1
@@ -350,10 +364,12 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(add_help=False)
     parser.add_argument("--runs", type=int, default=2, help="scenes per task (seeds 0..N-1)")
     parser.add_argument("--tasks", default=",".join(TASKS), help="comma-separated tasks")
+    parser.add_argument("--rate-scale", type=float, default=1.0, help="world.rate_scale")
     extra, rest = parser.parse_known_args()
+    RATE_SCALE[0] = extra.rate_scale
     chosen = tuple(t for t in extra.tasks.split(",") if t)
     unknown = sorted(set(chosen) - set(TASKS))
-    if unknown or extra.runs < 1:
+    if unknown or extra.runs < 1 or not extra.rate_scale > 0:
         sys.exit(f"bench.tasks: --tasks must name {TASKS} and --runs be >= 1, got {extra}")
     main(
         "tasks",

@@ -14,6 +14,9 @@ from nodes.supervisor.sort import DEFAULT_BINS
 from runtime.bag import BagReader
 from tests.test_graphs import launch
 
+# Each test starts whole graphs (tens of seconds each on a shared machine, more under load).
+pytestmark = pytest.mark.timeout(900)
+
 
 def events(out: str, task: str, event: str) -> list[str]:
     """The details of a task's events in the launcher's output (its log lines)."""
