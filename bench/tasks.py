@@ -171,12 +171,16 @@ def antagonism(seed: int, tmp: Path) -> list[dict[str, Any]]:
         )
         s = summary(topics)
         jolts = s.get("jolts", [])
+        tracked = bool(s.get("estimates"))  # errors of no estimate are no errors
         out.append(
             {
                 "solver": solver,
                 "success": code == 0 and bool(s.get("success")),
-                "axis_deg": [s["axis_deg"]["median"], s["axis_deg"]["p95"]] if s else [],
-                "offaxis_mm": [s["offaxis_mm"]["median"], s["offaxis_mm"]["p95"]] if s else [],
+                "estimates": s.get("estimates", 0),
+                "axis_deg": [s["axis_deg"]["median"], s["axis_deg"]["p95"]] if tracked else [],
+                "offaxis_mm": [s["offaxis_mm"]["median"], s["offaxis_mm"]["p95"]]
+                if tracked
+                else [],
                 "reacquire_secs": [
                     j["reacquire_secs"] for j in jolts if j["reacquire_secs"] is not None
                 ],
@@ -301,6 +305,7 @@ def aggregate(task: str, seeds: list[int], runs: list[dict[str, Any]]) -> Row:
         row["classify_latency_ms_median"] = median(lat)
         row["classify_latency_ms_p99"] = percentile(lat, 99)
     elif task == "antagonism":
+        row["estimates_median"] = median([r["estimates"] for r in runs])
         row["axis_deg_median"] = median(_flat(runs, "axis_deg", 0))
         row["axis_deg_p95"] = median(_flat(runs, "axis_deg", 1))
         row["offaxis_mm_median"] = median(_flat(runs, "offaxis_mm", 0))
