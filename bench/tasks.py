@@ -48,7 +48,7 @@ from bench.common import Row, main, median, percentile
 ROOT = Path(__file__).resolve().parents[1]
 TASKS = ("dish_loading", "antagonism", "handover", "stacking")
 TOPICS = (
-    "^(supervisor/event|world/ground_truth|world/placement|pose/pose|shear/shear"
+    "^(supervisor/event|world/state|world/ground_truth|world/placement|pose/pose|shear/shear"
     "|classifier/probabilities)$"
 )
 RUN_TIMEOUT_SECS = 600
@@ -97,10 +97,11 @@ def latencies_ms(topics: dict[str, list], topic: str) -> list[float]:
     """Receive time less capture time of every message on ``topic`` (milliseconds).
 
     A frame's stamp is the world's start plus its scene time; with the world at
-    ``rate_scale`` its wall-clock capture time is the start plus scene time / rate.
+    ``rate_scale`` its wall-clock capture time is the start plus scene time / rate. The
+    start is the stamp of the first recorded world state less its scene time.
     """
-    truth = topics.get("world/ground_truth", [])
-    start = truth[0][0] if truth else 0
+    states = topics.get("world/state", [])
+    start = states[0][0] - round(states[0][2].time_secs * 1e9) if states else 0
     rate = RATE_SCALE[0]
     return [(log - start - (stamp - start) / rate) / 1e6 for stamp, log, _ in topics.get(topic, [])]
 
@@ -350,6 +351,7 @@ COLUMNS = [
     "objects_per_minute",
     "classification_accuracy",
     "routing_accuracy",
+    "estimates_median",
     "axis_deg_median",
     "axis_deg_p95",
     "offaxis_mm_median",
