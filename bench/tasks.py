@@ -21,11 +21,11 @@ run's seed (the seeds are in the table):
   support 5-30 mm under it. Success: placed (not dropped). Release latency (touch to
   release), how far the arm went past contact, the gap and tilt, shear latency.
 
-Latencies are the recorder's receive time less the message's stamp, which is the
-simulated camera frame's capture time: the whole pipeline, world lag included. The
-world runs in real time; on a loaded machine everything trails (the figures say by
-how much); ``--rate-scale 0.5`` runs every world at half real time (a loaded machine
-then keeps up; latencies stay wall-clock). ``--runs N`` sets the scenes per task (seeds
+Latencies run from the recorder's receipt of a frame's world state (what the cameras
+render) to its receipt of the estimate made from that frame (same stamp): the whole
+pipeline on one clock. The world runs in real time; on a loaded machine everything
+trails (the figures say by how much); ``--rate-scale 0.5`` runs every world at half
+real time (a loaded machine then keeps up; latencies stay wall-clock). ``--runs N`` sets the scenes per task (seeds
 0 .. N-1); ``--quick`` runs one stacking scene; ``--tasks a,b`` picks tasks.
 """
 
@@ -94,16 +94,16 @@ def summary(topics: dict[str, list]) -> dict[str, Any]:
 
 
 def latencies_ms(topics: dict[str, list], topic: str) -> list[float]:
-    """Receive time less capture time of every message on ``topic`` (milliseconds).
+    """From each frame to each message on ``topic`` made from it (milliseconds).
 
-    A frame's stamp is the world's start plus its scene time; with the world at
-    ``rate_scale`` its wall-clock capture time is the start plus scene time / rate. The
-    start is the stamp of the first recorded world state less its scene time.
+    The frame's time is when the recorder received the world's state of that instant
+    (the state the cameras render; same stamp), the message's when it received the
+    message: the whole pipeline, on one clock, at any ``rate_scale``.
     """
-    states = topics.get("world/state", [])
-    start = states[0][0] - round(states[0][2].time_secs * 1e9) if states else 0
-    rate = RATE_SCALE[0]
-    return [(log - start - (stamp - start) / rate) / 1e6 for stamp, log, _ in topics.get(topic, [])]
+    frames = {stamp: log for stamp, log, _ in topics.get("world/state", [])}
+    return [
+        (log - frames[stamp]) / 1e6 for stamp, log, _ in topics.get(topic, []) if stamp in frames
+    ]
 
 
 def write_scene(template: str, out: Path, **changes: Any) -> str:
