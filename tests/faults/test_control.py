@@ -55,8 +55,10 @@ def test_forged_and_malformed_control_messages_are_refused(run) -> None:
     r = run({"a": ticker(rate_hz=50.0), "b": sink("a/tick")}, "--duration", "4")
     endpoint = control_endpoint(r.tmpdir)
     r.wait_for("all nodes ready")
-    for identity, parts in FORGERIES:
-        forge(endpoint, identity, *parts)
+    for i, (identity, parts) in enumerate(FORGERIES):
+        # A ROUTER refuses a second peer with an identity in use: make each one unique
+        # (the part after '#' named the heartbeat socket; the node is the part before).
+        forge(endpoint, identity + f"#{i}".encode(), *parts)
     code = r.finish(timeout=60)
     log = r.log
     assert code == 0, log
