@@ -8,12 +8,12 @@ import msgpack
 import pytest
 
 from messages.base import Header
-from messages.codec import encode
+from messages.codec import encode, pack_single
 from messages.errors import NodeError
 from messages.types import Pressure, Tick
 from nodes.recorder import Recorder
 from nodes.replay import Replay
-from runtime.bag import BagReader, BagWriter, pack_frames
+from runtime.bag import BagReader, BagWriter
 from runtime.params import build_params
 from runtime.testing import FakeIO, make_node
 
@@ -247,11 +247,13 @@ def test_replay_bad_params(bag: Path) -> None:
         Replay.ports(params)
 
 
-def test_pack_frames_matches_recorder_payload(bag: Path) -> None:
-    """What replay publishes is exactly what was recorded."""
+def test_replay_publishes_the_recorded_frames_byte_for_byte(bag: Path) -> None:
+    """The bag holds one MessagePack value; unpacked, it is the wire frames as recorded."""
     with BagReader(bag) as r:
         m = next(iter(r.messages(["a/tick"])))
-        assert bytes(m.payload) == pack_frames(encode("a/tick", tick(0))[1:])
+        assert bytes(m.payload) == pack_single(encode("a/tick", tick(0))[1:])
+        wire = [bytes(memoryview(f).cast("B")) for f in encode("a/tick", tick(0))]
+        assert [bytes(f) for f in m.wire_frames()] == wire
 
 
 def test_replay_fast_bounds_messages_in_flight(bag: Path) -> None:
