@@ -540,6 +540,9 @@ def replay_main(argv: Sequence[str]) -> int:
     parser.add_argument("--lockstep", action="store_true", help="deterministic: wait for idle")
     parser.add_argument("--record", type=Path, default=None, metavar="OUT.mcap")
     parser.add_argument("--record-topics", default=None, metavar="REGEX")
+    parser.add_argument(
+        "--overwrite", action="store_true", help="with --record: replace a finished bag"
+    )
     parser.add_argument("--duration", type=float, default=None, metavar="SECS")
     parser.add_argument(
         "--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"]
@@ -591,6 +594,7 @@ def replay_main(argv: Sequence[str]) -> int:
         source=f"{args.bag} (replay)",
         record=args.record,
         topics=args.record_topics,
+        overwrite=args.overwrite,
         # Counts are tracked in every mode, so that the replay node, when it has published
         # everything, can wait for the graph to drain before it asks it to stop.
         lockstep=True,

@@ -141,9 +141,9 @@ class BagWriter:
             yield
         except OSError as err:
             self._failed = (
-                f"{self.path}: cannot write: {_why(err)}; recording stopped. The bag holds "
+                f"{self.path}: cannot write: {_why(err)}; recording stopped. The bag keeps "
                 f"the {self.flushed_messages} message(s) written before the last flush "
-                "(a complete bag: `launch.py bag recover`)"
+                "(`launch.py bag recover` copies them into a complete bag)"
             )
             raise BagError(self._failed) from err
 

@@ -275,6 +275,8 @@ def test_restarted_recorder_keeps_the_interrupted_bag(tmp_path: Path) -> None:
     assert path.read_bytes() == complete[:-30]
     with BagReader(tmp_path / "rec.1.mcap") as r:
         assert [m.sequence for m in r.messages()] == [1]
-    node, io = make_node(Recorder, {"path": str(tmp_path / "rec.1.mcap")})  # complete: reused
-    node.teardown()
+    finished = (tmp_path / "rec.1.mcap").read_bytes()
+    with pytest.raises(ValueError, match=r"rec\.1\.mcap' is a finished bag; pass --overwrite"):
+        make_node(Recorder, {"path": str(tmp_path / "rec.1.mcap")})
+    assert (tmp_path / "rec.1.mcap").read_bytes() == finished
     assert not (tmp_path / "rec.1.1.mcap").exists() and not (tmp_path / "rec.2.mcap").exists()
