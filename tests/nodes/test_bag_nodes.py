@@ -16,6 +16,7 @@ from nodes.replay import Replay
 from runtime.bag import BagReader, BagWriter
 from runtime.params import build_params
 from runtime.testing import FakeIO, make_node
+from tests.runtime.bad_bags import bag_with_undecodable
 
 MS = 1_000_000
 
@@ -280,3 +281,24 @@ def test_restarted_recorder_keeps_the_interrupted_bag(tmp_path: Path) -> None:
         make_node(Recorder, {"path": str(tmp_path / "rec.1.mcap")})
     assert (tmp_path / "rec.1.mcap").read_bytes() == finished
     assert not (tmp_path / "rec.1.1.mcap").exists() and not (tmp_path / "rec.2.mcap").exists()
+
+
+def test_replay_skips_and_counts_messages_it_cannot_decode(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    path = bag_with_undecodable(tmp_path / "bad.mcap", 8, {2: "cut", 5: "field"})
+    node, io = make_replay({"path": str(path), "fast": True})
+    io.advance(0.001)
+    assert published(io, "a/tick") == [0.0, 1.0, 3.0, 4.0, 6.0, 7.0]
+    assert node.skipped == 2
+    assert io.stop_reason is not None
+    assert "replayed 6 messages" in io.stop_reason and "2 skipped" in io.stop_reason
+    assert "bad.mcap: topic a/tick: message at offset" in caplog.text
+
+
+def test_replay_strict_stops_at_the_first_message_it_cannot_decode(tmp_path: Path) -> None:
+    path = bag_with_undecodable(tmp_path / "bad.mcap", 8, {5: "field"})
+    node, io = make_replay({"path": str(path), "fast": True, "strict": True})
+    with pytest.raises(NodeError, match=r"cannot decode \(strict\): .*bad\.mcap: topic a/tick"):
+        io.advance(0.001)
+    assert published(io, "a/tick") == [0.0, 1.0, 2.0, 3.0, 4.0]
