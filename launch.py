@@ -2,7 +2,7 @@
 
 python launch.py GRAPH [--check] [--set NODE.PARAM=VALUE ...] [--swap NODE=IMPL ...]
                        [--only NODE,NODE] [--duration SECS] [--log-level LEVEL]
-                       [--record OUT.mcap [--topics REGEX]] [--lockstep]
+                       [--record OUT.mcap [--topics REGEX] [--overwrite]] [--lockstep]
 python launch.py nodes                       list every node implementation
 python launch.py bag info|echo|diff ...      inspect bags (see docs/bags.md)
 python launch.py replay BAG [--replace NODE=IMPL ...] [...]
@@ -46,6 +46,9 @@ def run_main(argv: list[str]) -> int:
     parser.add_argument(
         "--topics", default=None, metavar="REGEX", help="with --record: topics to keep"
     )
+    parser.add_argument(
+        "--overwrite", action="store_true", help="with --record: replace a finished bag"
+    )
     parser.add_argument("--lockstep", action="store_true", help="deterministic replay mode")
     args = parser.parse_args(argv)
     import nodes  # noqa: F401 - the index of node implementations (no node module)
@@ -72,6 +75,7 @@ def run_main(argv: list[str]) -> int:
         source=source,
         record=args.record,
         topics=args.topics,
+        overwrite=args.overwrite,
         lockstep=args.lockstep,
         duration_secs=args.duration,
         log_level=args.log_level,

@@ -600,9 +600,16 @@ def refuse_remote_host(node: str, host: str) -> None:
 
 
 def add_recorder(
-    doc: dict[str, Any], path: Path, topics: str | None, command_line: str, source: str = ""
+    doc: dict[str, Any],
+    path: Path,
+    topics: str | None,
+    command_line: str,
+    source: str = "",
+    *,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
-    """Return ``doc`` with a ``recorder`` node subscribed to every topic matching ``topics``."""
+    """Return ``doc`` with a ``recorder`` node subscribed to every topic matching ``topics``
+    (``overwrite``: it may replace a finished bag at ``path``)."""
     graph = check(doc)
     pattern = re.compile(topics or ".*")
     chosen = sorted(t for t in graph.providers() if pattern.search(t))
@@ -619,6 +626,7 @@ def add_recorder(
             "graph_yaml": yaml.safe_dump(graph.document, sort_keys=False),
             "graph_source": source,
             "command_line": command_line,
+            "overwrite": overwrite,
         },
         "inputs": {
             f"t{i}": {"from": t, "policy": "queue", "queue_size": 10000}
@@ -635,6 +643,7 @@ def launch(
     source: str,
     record: Path | None = None,
     topics: str | None = None,
+    overwrite: bool = False,
     lockstep: bool = False,
     duration_secs: float | None = None,
     log_level: str = "INFO",
@@ -643,7 +652,14 @@ def launch(
     """Check and run a graph document; returns the exit code (2 when the check fails)."""
     try:
         if record is not None:
-            graph = add_recorder(graph, record, topics, command_line or " ".join(sys.argv), source)
+            graph = add_recorder(
+                graph,
+                record,
+                topics,
+                command_line or " ".join(sys.argv),
+                source,
+                overwrite=overwrite,
+            )
         checked = check(graph, source=source)
         launcher = Launcher(
             checked, lockstep=lockstep, duration_secs=duration_secs, log_level=log_level
