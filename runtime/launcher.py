@@ -34,7 +34,7 @@ import zmq
 
 from messages.errors import GraphError
 from runtime import protocol
-from runtime.graph import Graph, NodeSpec, check
+from runtime.graph import RUNDIR_PREFIX, Graph, NodeSpec, check, ipc_path
 from runtime.registry import class_path
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
@@ -100,7 +100,7 @@ class Launcher:
         self.stopped_at = 0.0
         self._print_lock = threading.Lock()
         self._signals = 0
-        self.rundir = Path(tempfile.mkdtemp(prefix="sbg-"))
+        self.rundir = Path(tempfile.mkdtemp(prefix=RUNDIR_PREFIX))
         self.ctx: zmq.Context[Any] = zmq.Context()
         self.control = self.ctx.socket(zmq.ROUTER)
         self.control.setsockopt(zmq.LINGER, 0)
@@ -127,7 +127,7 @@ class Launcher:
             return proc.endpoint
         if proc.spec.host:
             return f"tcp://{proc.spec.host}:*"
-        return f"ipc://{self.rundir}/{proc.spec.name}.pub"
+        return f"ipc://{ipc_path(self.rundir, proc.spec.name)}"
 
     def _spawn(self, proc: _Proc) -> None:
         spec = proc.spec
@@ -548,7 +548,7 @@ def add_recorder(
     pattern = re.compile(topics or ".*")
     chosen = sorted(t for t in graph.providers() if pattern.search(t))
     if not chosen:
-        raise GraphError(f"--topics {topics!r} matches no topic of the graph")
+        raise GraphError(f"--record-topics {topics!r} matches no topic of the graph")
     doc = yaml.safe_load(yaml.safe_dump(doc))
     name = "recorder"
     while name in doc["nodes"]:
