@@ -403,7 +403,8 @@ def build_replay_graph(
     for name, impl in swap.items():
         if name not in nodes:
             raise GraphError(
-                f"--swap {name}: the graph has no node {name!r} (nodes: {', '.join(nodes)})"
+                f"{bag_path}: --swap {name}: the graph has no node {name!r} "
+                f"(nodes: {', '.join(nodes)})"
             )
         if impl and impl != nodes[name].get("impl"):
             nodes[name]["impl"] = impl
