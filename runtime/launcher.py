@@ -41,7 +41,7 @@ import zmq
 
 from messages.errors import GraphError
 from runtime import protocol
-from runtime.graph import Graph, NodeSpec, check
+from runtime.graph import RUNDIR_PREFIX, Graph, NodeSpec, check, ipc_path
 from runtime.protocol import ControlError
 from runtime.registry import class_path
 from runtime.summary import add_stats, table
@@ -56,7 +56,6 @@ TERM_GRACE_SECS = 2.0
 SIGNAL_STOP_GRACE_SECS = 1.0
 SIGNAL_TERM_GRACE_SECS = 0.5
 LOG_TAIL_LINES = 20
-RUNDIR_PREFIX = "sbg-"
 _REFUSED_LOG_FIRST = 10
 _REFUSED_LOG_EVERY = 100
 
@@ -162,7 +161,8 @@ class Launcher:
             return proc.endpoint
         if proc.spec.host:
             return f"tcp://{proc.spec.host}:*"
-        return f"ipc://{self.rundir}/{proc.spec.name}.pub"
+        assert self.rundir is not None, "the run folder is made before any node starts"
+        return f"ipc://{ipc_path(self.rundir, proc.spec.name)}"
 
     def _spawn(self, proc: _Proc) -> None:
         spec = proc.spec
@@ -614,7 +614,7 @@ def add_recorder(
     pattern = re.compile(topics or ".*")
     chosen = sorted(t for t in graph.providers() if pattern.search(t))
     if not chosen:
-        raise GraphError(f"--topics {topics!r} matches no topic of the graph")
+        raise GraphError(f"--record-topics {topics!r} matches no topic of the graph")
     doc = yaml.safe_load(yaml.safe_dump(doc))
     name = "recorder"
     while name in doc["nodes"]:
