@@ -27,7 +27,7 @@ one is scored counts as 180 degrees. The true motion follows the material (see
 :func:`truth`). ``mag_err_px`` compares the mean shear in pixels with the true mean
 image motion; ``torsion_err_deg`` is scored on twisted frames.
 
-Target (issue 5): median direction error < 2 deg and 95th percentile < 5 deg at
+Target: median direction error < 2 deg and 95th percentile < 5 deg at
 >= 300 frames/s per bubble on one core.
 """
 
@@ -327,7 +327,7 @@ def settings(quick: bool) -> list[tuple[str, ShearParams]]:
     fb, dis = FarnebackParams, DisParams
     out = [
         ("fb L3 w15 (OpenCV sample)", ShearParams(farneback=fb())),
-        ("fb L3 w45 (FACTS)", ShearParams(farneback=fb(winsize=45))),
+        ("fb L3 w45 (facts)", ShearParams(farneback=fb(winsize=45))),
         ("fb L3 w31 p7", ShearParams(farneback=fb(winsize=31, poly_n=7, poly_sigma=1.5))),
         ("warm fb L3 w15", ShearParams(warm_start=True, farneback=fb())),
         ("half fb L3 w15", ShearParams(scale=0.5, farneback=fb())),

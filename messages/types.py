@@ -1,6 +1,6 @@
 """Every message type of the pipeline, declared once. Units are in the field names.
 
-Conventions (DESIGN.md): SI units; poses ``a_from_b`` as 4x4 float64 homogeneous
+Conventions (docs/design.md): SI units; poses ``a_from_b`` as 4x4 float64 homogeneous
 matrices; quaternions, where they appear, are ``(w, x, y, z)``; depth is float32
 metres with NaN for invalid pixels; IR is uint16 amplitude; ``sensor`` is ``"left"``
 or ``"right"``.

@@ -10,7 +10,7 @@ image against each bubble's no-contact reference, thresholded. Here, per bubble:
 2. Difference ``reference - depth`` (contact pushes the membrane towards the camera, so
    depth falls), NaN pixels excluded, thresholded at ``threshold_m``.
 3. A small morphological opening, then connected components under ``min_component_px``
-   dropped (FACTS.md: 4.8-8.5 mm thresholds, ~150 px blobs, a small opening).
+   dropped (docs/facts.md: 4.8-8.5 mm thresholds, ~150 px blobs, a small opening).
 4. The kept pixels back-projected with the camera intrinsics and moved into the tool frame
    with ``geometry.gripper.tool_from_sensor(side, width_m)`` at the measured opening.
 
@@ -33,7 +33,7 @@ class ContactParams:
     """Contact filter knobs.
 
     Attributes:
-        threshold_m: depth decrease that counts as contact (FACTS.md: 4.8-8.5 mm).
+        threshold_m: depth decrease that counts as contact (docs/facts.md: 4.8-8.5 mm).
         min_component_px: connected components smaller than this are dropped.
         opening_px: side of the square opening kernel (0 or 1: no opening).
         max_points: the grasp cloud is subsampled (evenly) to at most this many points.

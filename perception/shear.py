@@ -38,7 +38,7 @@ Positive torsion is a right-handed rotation about ``n`` (without depth: about th
 optical axis, in the image from +x towards +y). All values are means over the visible
 membrane: the part outside the contact does not move, so they are smaller than the
 object's own shift and twist. Depth is z-depth in metres along the optical
-axis, NaN where invalid (DESIGN.md).
+axis, NaN where invalid (docs/design.md).
 """
 
 from __future__ import annotations
@@ -69,7 +69,7 @@ def _require(condition: bool, name: str, value: object, what: str) -> None:
 class FarnebackParams:
     """Farneback's knobs (``cv2.calcOpticalFlowFarneback``).
 
-    Defaults are OpenCV's sample parameters that FACTS.md cites (pyramid scale 0.5,
+    Defaults are OpenCV's sample parameters that docs/facts.md cites (pyramid scale 0.5,
     3 levels, window 15, 3 iterations, poly_n 5, sigma 1.2); ``bench/shear.py`` sweeps them.
     """
 
@@ -134,7 +134,7 @@ class ShearParams:
         warm_start: start each frame's flow from the previous frame's (same reference).
         border_px: full-resolution pixels dropped at each image edge.
         min_depth_m: nearer depth is invalid. The driver already marks pixels outside
-            its working range (FACTS.md: 4-11 cm of *range*) as NaN; z-depth is shorter
+            its working range (docs/facts.md: 4-11 cm of *range*) as NaN; z-depth is shorter
             than range off-axis, so these bounds are loose and only catch gross outliers.
         max_depth_m: farther depth is invalid.
         min_ir: IR below this is invalid (the driver reports invalid pixels as 0).
@@ -252,7 +252,7 @@ class ShearResult:
 
 
 def stretch_ir(ir: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
-    """IR amplitude to 8 bits around mean +- 2 sigma of the valid pixels (FACTS.md).
+    """IR amplitude to 8 bits around mean +- 2 sigma of the valid pixels (docs/facts.md).
 
     Invalid pixels become mid-grey (128) so that they add no edges for the flow. An image
     without valid pixels, or a flat one (all saturated), becomes uniformly 128.

@@ -299,7 +299,7 @@ class BubbleRenderer:
         r = frame["range_m"]
         amp = frame["amplitude"]
         h, w = r.shape
-        # Range noise: ~1% of range at the reference amplitude (FACTS.md), growing as
+        # Range noise: ~1% of range at the reference amplitude (docs/facts.md), growing as
         # the return weakens (shot-noise limited: sigma ~ 1 / sqrt(amplitude)).
         sigma = (
             noise.range_sigma_fraction

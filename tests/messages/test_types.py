@@ -1,6 +1,6 @@
 """Every message type of messages.types round-trips through the codec with a realistic instance.
 
-Instances use the figures of FACTS.md: 224 x 172 ToF images (depth float32 metres with NaN
+Instances use the figures of docs/facts.md: 224 x 172 ToF images (depth float32 metres with NaN
 for invalid pixels, IR uint16), a pico-flexx-like field of view of about 62 x 45 degrees,
 about 1 kPa of inflation, the WSG 50's stroke and force.
 """
