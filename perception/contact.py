@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from geometry.camera import PinholeCamera
-from geometry.gripper import DEFAULT_GRIPPER, SIDES, GripperGeometry
+from geometry.gripper import SIDES
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -115,11 +115,8 @@ class GraspCloud:
 class ContactPatcher:
     """Holds the free-bubble references and turns depth pairs into grasp clouds."""
 
-    def __init__(
-        self, params: ContactParams | None = None, gripper: GripperGeometry = DEFAULT_GRIPPER
-    ) -> None:
+    def __init__(self, params: ContactParams | None = None) -> None:
         self.params = params or ContactParams()
-        self.gripper = gripper
         self._refs: dict[str, _Reference] = {}
 
     def has_reference(self, side: str) -> bool:
@@ -147,26 +144,27 @@ class ContactPatcher:
         return None if ref is None else ref.mean()
 
     def extract(
-        self,
-        frames: dict[str, tuple[np.ndarray, PinholeCamera]],
-        width_m: float,
+        self, frames: dict[str, tuple[np.ndarray, PinholeCamera, np.ndarray]]
     ) -> GraspCloud:
-        """The grasp cloud from each side's ``(depth_m, camera)``; sides without a
-        reference contribute an empty mask and no points."""
+        """The grasp cloud from each side's ``(depth_m, camera, tool_from_sensor)``.
+
+        ``tool_from_sensor`` is the camera's 4x4 pose in the tool frame when the frame was
+        taken: the geometry of the data itself (``ToFImage.tool_from_sensor``), not a
+        default mount. Sides without a reference contribute an empty mask and no points.
+        """
         chunks: list[np.ndarray] = []
         sides: list[np.ndarray] = []
         masks: dict[str, np.ndarray] = {}
         for k, side in enumerate(SIDES):
             if side not in frames:
                 continue
-            depth, camera = frames[side]
+            depth, camera, pose = frames[side]
             ref = self.reference(side)
             if ref is None or ref.shape != np.shape(depth):
                 masks[side] = np.zeros(np.shape(depth), dtype=bool)
                 continue
             mask = contact_mask(depth, ref, self.params)
             masks[side] = mask
-            pose = self.gripper.tool_from_sensor(side, float(width_m))
             pts = mask_points_in_tool(depth, mask, camera, pose)
             chunks.append(pts)
             sides.append(np.full(len(pts), k, dtype=np.uint8))

@@ -115,7 +115,7 @@ def _shear() -> ShearEstimate:
         magnitude_px=magnitude,
         direction=shear_px / magnitude,
         direction_defined=True,
-        shear_mm=shear_px * 0.4,
+        shear_m=shear_px * 0.4e-3,
         torsion_rad=0.02,
     )
 
@@ -181,8 +181,8 @@ REALISTIC: dict[type[Message], Callable[[], Message]] = {
         tool_from_object=_tool_from_object(),
         object_class="mug",
         in_contact=True,
-        shear_left_mm=np.array([0.6, -0.3]),
-        shear_right_mm=np.array([-0.55, 0.28]),
+        shear_left_m=np.array([0.6e-3, -0.3e-3]),
+        shear_right_m=np.array([-0.55e-3, 0.28e-3]),
         noise_seed=7,
     ),
     Tick: lambda: Tick(
@@ -220,7 +220,7 @@ EDGES: dict[str, Callable[[], Message]] = {
         magnitude_px=0.0,
         direction=np.zeros(2),
         direction_defined=False,
-        shear_mm=np.zeros(2),
+        shear_m=np.zeros(2),
         has_reference=False,
     ),
     "no classes": lambda: ClassProbabilities(
