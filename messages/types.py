@@ -8,7 +8,7 @@ or ``"right"``.
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, get_args
+from typing import Annotated, Literal
 
 import msgspec
 import numpy as np
@@ -24,13 +24,6 @@ PoseStatus = Literal["ok", "recovered", "suspect", "no_patch", "failed"]
 ``recovered`` (a restart from other seeds fitted after the prior's fit did not),
 ``suspect`` (no start fitted well; the lowest-cost pose is returned), ``no_patch``
 (too few contact points to fit), ``failed`` (the solver gave no finite pose)."""
-
-ProcessState = Literal["new", "hello", "ready", "running", "exited", "waiting_restart", "failed"]
-"""A node process's state in the launcher: started (``new``), announced (``hello``),
-set up (``ready``), ``running``, ``exited``, ``waiting_restart`` (backing off before a
-restart), ``failed`` (gave up)."""
-
-PROCESS_STATES: tuple[str, ...] = get_args(ProcessState)
 
 F32Image = Annotated[np.ndarray, Array("float32", (None, None))]
 U16Image = Annotated[np.ndarray, Array("uint16", (None, None))]

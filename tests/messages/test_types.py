@@ -14,6 +14,7 @@ import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import get_args
 
 import msgpack
 import msgspec
@@ -25,6 +26,7 @@ import messages.types
 from messages import (
     ClassProbabilities,
     ContactPatch,
+    FrameDecodeError,
     GraspState,
     GripperCommand,
     GripperState,
@@ -43,6 +45,7 @@ from messages import (
     describe,
     encode,
 )
+from messages.types import PoseStatus
 
 WIDTH_PX, HEIGHT_PX = 224, 172
 RNG = np.random.default_rng(20201025)
@@ -362,3 +365,15 @@ def test_realistic_frames_are_the_expected_size() -> None:
     assert sizes[2] == WIDTH_PX * HEIGHT_PX * 4
     assert sizes[3] == WIDTH_PX * HEIGHT_PX * 2
     assert sizes[1] < 512
+
+
+def test_states_on_the_wire_are_checked_on_decode() -> None:
+    """GraspState.event and PoseEstimate.status are Literal types: a misspelt state is
+    refused at the receiving edge (and mypy refuses it where the message is built)."""
+    good = GraspState(header=Header(stamp_nanos=1), stable=True, event="stable")
+    _, back = decode(encode("grasp/grasp", good))
+    assert isinstance(back, GraspState) and back.event == "stable"
+    bad = GraspState(header=Header(stamp_nanos=1), stable=True, event="stabel")  # type: ignore[arg-type]
+    with pytest.raises(FrameDecodeError, match="event"):
+        decode(encode("grasp/grasp", bad))
+    assert set(get_args(PoseStatus)) >= {"ok", "recovered", "suspect", "no_patch", "failed"}
