@@ -152,8 +152,8 @@ def test_plain_mcap_reader_needs_no_project_code(tmp_path: Path) -> None:
     fp = ToFImage.schema().fingerprint
     for i, row in enumerate(rows):
         assert row[:6] == ["left_camera/image", "msgpack", "ToFImage", fp, "ToFImage", i]
-        assert row[6] == ["depth_m", "ir"]
-        assert row[7] == [17 * 22 * 4, 17 * 22 * 2]
+        assert row[6] == ["depth_m", "ir", "tool_from_sensor"]
+        assert row[7] == [17 * 22 * 4, 17 * 22 * 2, 4 * 4 * 8]
 
 
 def test_header_decodes_with_plain_msgpack(tmp_path: Path) -> None:
