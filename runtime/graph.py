@@ -4,10 +4,10 @@ A graph file (YAML, read with a duplicate-key-refusing ``safe_load``, see
 :mod:`runtime.graphfile`)::
 
     nodes:
-      camera: {impl: synthetic.source, params: {rate_hz: 30}}
+      contact_patch: {impl: contact_patch, inputs: {left: left_camera/image, ...}}
       pose:
         impl: pose_estimator.ipopt            # registered name, or module:Class
-        params: {tol: 1.0e-6}
+        params: {object: mug, max_points: 4000}
         inputs: {patch: {from: contact_patch/patch, policy: latest}}
         restart: {policy: on-failure, max_restarts: 3, backoff_secs: 0.5}
         required: true                        # a final crash stops the graph

@@ -10,7 +10,7 @@ import yaml
 
 import nodes.recorder  # noqa: F401  (registers the implementations the graphs name)
 import nodes.replay  # noqa: F401
-import nodes.synthetic  # noqa: F401
+import tests.synthetic_nodes  # noqa: F401  (registers the synthetic nodes)
 from messages.base import Header
 from messages.errors import GraphError
 from messages.types import Tick, ToFImage
