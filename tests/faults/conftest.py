@@ -132,4 +132,4 @@ def ticker(**params: float | str) -> dict:
 
 
 def sink(topic: str, **extra: object) -> dict:
-    return {"impl": "synthetic.sink", "inputs": {"tick": topic}, **extra}
+    return {"impl": "tests.synthetic_nodes:SyntheticSink", "inputs": {"tick": topic}, **extra}
