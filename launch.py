@@ -3,8 +3,10 @@
 python launch.py GRAPH [--check] [--set NODE.PARAM=VALUE ...] [--swap NODE=IMPL ...]
                        [--only NODE,NODE] [--duration SECS] [--log-level LEVEL]
                        [--record OUT.mcap [--topics REGEX]] [--lockstep]
+                       [--view [OUT.rrd | foxglove]]
 python launch.py nodes                       list every node implementation
 python launch.py bag info|echo|diff ...      inspect bags (see docs/bags.md)
+python launch.py bag view|export|video ...   look at bags (see docs/viewing.md)
 python launch.py replay BAG [--replace NODE=IMPL ...] [...]
 """
 
@@ -40,6 +42,14 @@ def run_main(argv: list[str]) -> int:
         "--topics", default=None, metavar="REGEX", help="with --record: topics to keep"
     )
     parser.add_argument("--lockstep", action="store_true", help="deterministic replay mode")
+    parser.add_argument(
+        "--view",
+        nargs="?",
+        const="spawn",
+        default=None,
+        metavar="OUT.rrd|foxglove",
+        help="add a viewer: a Rerun window, an .rrd file, or a Foxglove live server",
+    )
     args = parser.parse_args(argv)
     source = str(args.graph)
     try:
@@ -48,6 +58,10 @@ def run_main(argv: list[str]) -> int:
         doc = graphs.apply_overrides(
             doc, sets=args.sets, swaps=args.swaps, only=only, source=source
         )
+        if args.view is not None:
+            from viz.cli import add_viewer
+
+            doc = add_viewer(doc, args.view, source=source)
         checked = graphs.check(doc, source=source)
     except GraphError as err:
         print(f"graph check failed:\n{err}", file=sys.stderr)
@@ -81,6 +95,10 @@ def main(argv: list[str] | None = None) -> int:
     nodes.import_all()
     if argv[:1] == ["nodes"]:
         return list_nodes()
+    if argv[:1] == ["bag"] and argv[1:2] in (["view"], ["export"], ["video"]):
+        from viz.cli import main as viz_main
+
+        return viz_main(argv[1], argv[2:])
     if argv[:1] == ["bag"]:
         from runtime.bagtool import main as bag_main
 
