@@ -25,7 +25,7 @@ import yaml
 
 from messages.base import Message
 from messages.errors import BagError, GraphError
-from messages.types import ToFImage
+from messages.types import GraspState, TaskEvent, ToFImage
 from runtime.bag import BagReader
 from runtime.graph import check
 from viz.mosaic import MosaicState
@@ -106,7 +106,6 @@ def video_bag(
     fps: float = 0.0,
     scale: int = 2,
     stills: Path | None = None,
-    n_stills: int = 3,
     object_name: str = "",
 ) -> tuple[int, tuple[int, int]]:
     """Render one mosaic per camera instant into ``out`` (MP4); returns (frames, (h, w)).
@@ -114,7 +113,7 @@ def video_bag(
     A frame is drawn when a camera image with a newer stamp arrives, from everything
     received before it, so both bubbles' images of one instant are in the same frame.
     ``fps`` 0 takes the cameras' rate from the stamps. ``stills`` (a folder) receives
-    ``n_stills`` PNG frames spread over the run.
+    PNG frames: the first, the first one after each grasp or task event, and the last.
     """
     skipped = Decoded(Counter())
     with BagReader(path) as reader:
@@ -125,7 +124,7 @@ def video_bag(
     if fps <= 0:
         span = (stamps[-1] - stamps[0]) * 1e-9
         fps = (len(stamps) - 1) / span if len(stamps) > 1 and span > 0 else 30.0
-    keep = {round(i * (len(stamps) - 1) / max(n_stills - 1, 1)) for i in range(n_stills)}
+    keep = {0, len(stamps) - 1}  # frame indices to save as stills; events add theirs
     state = MosaicState(object_name=object_name)
     writer: Any = None
     frames = 0
@@ -155,6 +154,8 @@ def video_bag(
                 if pending is not None and msg.header.stamp_nanos > pending:
                     emit()
                 pending = max(pending or 0, msg.header.stamp_nanos)
+            elif isinstance(msg, TaskEvent) or (isinstance(msg, GraspState) and msg.event):
+                keep.add(frames)
             state.update(topic, msg)
         if pending is not None:
             emit()

@@ -201,7 +201,12 @@ def test_video_has_one_frame_per_camera_instant(run: tuple[Path, Path], tmp_path
         frames += 1
     video.release()
     assert frames == len(stamps)
-    assert len(list(stills.glob("*.png"))) == 3
+    with BagReader(bag) as reader:
+        events = sum(1 for _ in reader.messages(["supervisor/event"]))
+    pngs = sorted(stills.glob("*.png"))
+    assert 2 <= len(pngs) <= 2 + events + 2  # first, last, one per task or grasp event
+    for png in pngs:
+        assert cv2.imread(str(png)).shape == (BAR_PX + 3 * height, 2 * width, 3)
 
 
 def test_bag_commands_name_a_bad_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
