@@ -44,6 +44,10 @@ class Pareto:
     # The row columns (and values) the default node's implementation and parameters (its
     # Params dataclass, defaults filled in) correspond to.
     want: Callable[[str, dict[str, Any]], dict[str, Any]] = lambda impl, params: {}
+    # Rows with a cost but no error (the simulator's effect sets): drawn as bars of
+    # ``time`` per ``bars`` label instead.
+    bars: str = ""
+    bars_keep: Callable[[Row], bool] = lambda row: False
 
 
 PARETO: dict[str, Pareto] = {
@@ -97,6 +101,8 @@ PARETO: dict[str, Pareto] = {
         keep=lambda r: r.get("sweep") == "membrane",
         error_label="depth error against the finest membrane, RMS (mm)",
         time_label="both bubbles' render, median (ms per frame)",
+        bars="effects",
+        bars_keep=lambda r: r.get("sweep") == "effects",
     ),
 }
 
@@ -259,6 +265,25 @@ def plot_pareto(
     plt.close(fig)
 
 
+def plot_bars(name: str, spec: Pareto, rows: Sequence[Row], path: Path) -> None:
+    """The cost of each row that has no error (``spec.bars`` labels, ``spec.time`` values)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    kept = [r for r in rows if spec.bars_keep(r)]
+    fig, ax = plt.subplots(figsize=(6.4, 0.35 * len(kept) + 1.2))
+    ax.barh([str(r[spec.bars]) for r in kept], [float(r[spec.time]) for r in kept], color="C0")
+    ax.invert_yaxis()
+    ax.set_xlabel(spec.time_label or spec.time)
+    ax.set_title(f"{name}: cost of each {spec.bars} set")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
 def _pareto_section(sweep: Sweep, spec: Pareto, out: Path, root: Path) -> list[str]:
     kept = [i for i, r in enumerate(sweep.rows) if spec.keep(r)]
     if not kept or any(spec.time not in sweep.rows[i] for i in kept):
@@ -270,6 +295,13 @@ def _pareto_section(sweep: Sweep, spec: Pareto, out: Path, root: Path) -> list[s
     front = [kept[i] for i in pareto_front(points)]
     rel = image.relative_to(out.parent).as_posix()
     lines = [f"![{sweep.name}: error against time]({rel})", ""]
+    if any(spec.bars_keep(r) for r in sweep.rows):
+        bars = image.with_name(f"{sweep.name}_{spec.bars}.png")
+        plot_bars(sweep.name, spec, sweep.rows, bars)
+        lines += [
+            f"![{sweep.name}: cost per {spec.bars} set]({bars.relative_to(out.parent).as_posix()})",
+            "",
+        ]
     lines.append(
         "Pareto front (fastest first): "
         + "; ".join(

@@ -24,6 +24,7 @@ import numpy as np
 from foxglove import channels as fc
 from foxglove import messages as fm
 
+from geometry.gripper import tool_from_sensor
 from geometry.se3 import quat_from_matrix
 from messages.base import Message
 from messages.types import (
@@ -35,7 +36,6 @@ from messages.types import (
     PoseEstimate,
     ToFImage,
 )
-from viz.shapes import tool_from_sensor
 
 JSON_ARRAY_LIMIT = 64
 _CHANNELS = {

@@ -26,6 +26,7 @@ from collections import Counter
 import numpy as np
 import rerun as rr
 
+from geometry.gripper import tool_from_sensor
 from messages.base import Message
 from messages.types import (
     ClassProbabilities,
@@ -41,7 +42,7 @@ from messages.types import (
     TaskEvent,
     ToFImage,
 )
-from viz.shapes import object_mesh, tool_from_sensor
+from viz.shapes import object_mesh
 
 TIMELINE = "stamp"
 BUBBLE_COLORS = np.array([[66, 135, 245], [245, 130, 48]], dtype=np.uint8)  # left, right
@@ -88,7 +89,7 @@ class RerunLogger:
         self.shapes: dict[str, tuple[int, int]] = {}
         self.intrinsics: dict[str, tuple[float, ...]] = {}
         self.pose_status = "ok"
-        self.meshes_logged: set[str] = set()
+        self.meshes_logged: set[tuple[str, str]] = set()
         self.logged: Counter[str] = Counter()
         self.skipped: Counter[str] = Counter()
 
@@ -178,7 +179,7 @@ class RerunLogger:
         self.rec.log(entity, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]))
         mesh = object_mesh(name) if name else None
         if mesh is not None and (entity, name) not in self.meshes_logged:
-            self.meshes_logged.add((entity, name))  # type: ignore[arg-type]
+            self.meshes_logged.add((entity, name))
             self.rec.log(
                 f"{entity}/mesh",
                 rr.Mesh3D(

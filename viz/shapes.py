@@ -52,7 +52,9 @@ def _revolve(radius_m: np.ndarray, z_m: np.ndarray) -> Mesh:
     return Mesh(vertices.astype(np.float32), np.asarray(tris, dtype=np.uint32))
 
 
-def _arc(radius_m: float, z_center_m: float, start: float, stop: float) -> tuple[list, list]:
+def _arc(
+    radius_m: float, z_center_m: float, start: float, stop: float
+) -> tuple[list[float], list[float]]:
     t = np.linspace(start, stop, ARC_STEPS + 1)
     return list(radius_m * np.cos(t)), list(z_center_m + radius_m * np.sin(t))
 

@@ -65,6 +65,9 @@ def test_page_plots_error_against_time_and_finds_the_defaults(tmp_path: Path) ->
         }
         for d in (1, 2, 4)
         for m in (1, 3)
+    ] + [
+        {"sweep": "effects", "effects": e, "ms_per_frame": t}
+        for e, t in [("+ir", 8.0), ("+shear", 18.0)]
     ]
     sweeps = [
         report.Sweep(name="shear", command="python -m bench.shear", rows=shear, secs=1.0),
@@ -91,6 +94,8 @@ def test_page_plots_error_against_time_and_finds_the_defaults(tmp_path: Path) ->
     assert "warm half fb: 6.5 ms_per_frame_median, 0.46 dir_err_deg_median (on the front)" in page
     assert "slow and bad" not in page.split("Pareto front")[1].split("\n")[0]
     assert "resolution_divisor = 4, march_steps = 3" in page
+    assert (out.parent / "img" / "performance" / "sim_effects.png").is_file()
+    assert "(img/performance/sim_effects.png)" in page
     assert "This sweep failed in this run: exit code 1: boom" in page
     assert "**99.50%**" in page and "200 grasps" in page
 
