@@ -89,12 +89,12 @@ class RerunViewer(_DecodingViewer):
     def setup(self) -> None:
         import rerun as rr
 
-        from viz.rerun_log import RerunLogger
+        from viz.rerun_log import RerunLogger, spawn_viewer
 
         super().setup()
         self.rec = rr.RecordingStream("softbubble", recording_id=self.name)
         if self.params.target == "spawn":
-            self.rec.spawn()
+            spawn_viewer(self.rec)
         else:
             Path(self.params.target).parent.mkdir(parents=True, exist_ok=True)
             self.rec.save(self.params.target)

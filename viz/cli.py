@@ -63,13 +63,13 @@ def view_bag(path: Path, out: Path | None, *, object_name: str = "") -> Counter[
     """Log a bag into Rerun: into ``out`` (.rrd) or a spawned viewer. Returns counts per type."""
     import rerun as rr
 
-    from viz.rerun_log import RerunLogger
+    from viz.rerun_log import RerunLogger, spawn_viewer
 
     rec = rr.RecordingStream("softbubble", recording_id=path.stem)
     if out is not None:
         rec.save(out)
     else:
-        rec.spawn()
+        spawn_viewer(rec)
     logger = RerunLogger(rec, object_name=object_name)
     skipped = Decoded(Counter())
     for topic, _, msg in bag_messages(path, skipped):

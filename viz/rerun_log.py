@@ -21,7 +21,9 @@ counted in :attr:`RerunLogger.skipped`.
 
 from __future__ import annotations
 
+import sys
 from collections import Counter
+from pathlib import Path
 
 import numpy as np
 import rerun as rr
@@ -57,6 +59,16 @@ def mask_centroid(mask: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray
         rows, cols = np.nonzero(mask)
         return np.array([cols.mean(), rows.mean()])
     return np.array([(shape[1] - 1) / 2.0, (shape[0] - 1) / 2.0])
+
+
+def spawn_viewer(rec: rr.RecordingStream) -> None:
+    """Start a Rerun viewer and stream ``rec`` to it.
+
+    The viewer is the ``rerun`` executable installed next to this Python (``rerun-sdk``
+    puts it there), so it is found without an activated virtual environment.
+    """
+    beside = Path(sys.executable).with_name("rerun")
+    rr.spawn(executable_path=str(beside) if beside.is_file() else None, recording=rec)
 
 
 def _owned(array: np.ndarray) -> np.ndarray:
