@@ -48,6 +48,8 @@ class Pareto:
     # ``time`` per ``bars`` label instead.
     bars: str = ""
     bars_keep: Callable[[Row], bool] = lambda row: False
+    # A caveat the rows call for, or "".
+    note: Callable[[Sequence[Row]], str] = lambda rows: ""
 
 
 PARETO: dict[str, Pareto] = {
@@ -92,6 +94,13 @@ PARETO: dict[str, Pareto] = {
         graph="graphs/sort.yaml",
         impl_prefix="classifier.",
         want=lambda impl, p: _checkpoint_knobs(p["model"], p["modality"]),
+        note=lambda rows: (
+            "These rows are trained and scored on bench.classifier's toy dataset (the "
+            "auto-labelled datasets it sweeps on, CLASSIFIER_TRAIN and CLASSIFIER_TEST, are "
+            "not on this machine): their times hold, their errors say nothing of the task."
+            if any(r.get("data") == "toy" for r in rows)
+            else ""
+        ),
     ),
     "sim": Pareto(
         time="ms_per_frame",
@@ -295,6 +304,8 @@ def _pareto_section(sweep: Sweep, spec: Pareto, out: Path, root: Path) -> list[s
     front = [kept[i] for i in pareto_front(points)]
     rel = image.relative_to(out.parent).as_posix()
     lines = [f"![{sweep.name}: error against time]({rel})", ""]
+    if spec.note(sweep.rows):
+        lines += [spec.note(sweep.rows), ""]
     if any(spec.bars_keep(r) for r in sweep.rows):
         bars = image.with_name(f"{sweep.name}_{spec.bars}.png")
         plot_bars(sweep.name, spec, sweep.rows, bars)

@@ -69,7 +69,19 @@ def test_page_plots_error_against_time_and_finds_the_defaults(tmp_path: Path) ->
         {"sweep": "effects", "effects": e, "ms_per_frame": t}
         for e, t in [("+ir", 8.0), ("+shear", 18.0)]
     ]
+    toy = [
+        {
+            "data": "toy",
+            "modality": m,
+            "input_px": 32,
+            "width": 0.125,
+            "accuracy": a,
+            "infer_ms_median": t,
+        }
+        for m, a, t in [("depth", 0.9, 1.0), ("both", 0.95, 2.0)]
+    ]
     sweeps = [
+        report.Sweep(name="classifier", command="python -m bench.classifier", rows=toy),
         report.Sweep(name="shear", command="python -m bench.shear", rows=shear, secs=1.0),
         report.Sweep(name="sim", command="python -m bench.sim", rows=sim_rows, secs=1.0),
         report.Sweep(name="bags", command="python -m bench.bags", error="exit code 1: boom"),
@@ -97,6 +109,7 @@ def test_page_plots_error_against_time_and_finds_the_defaults(tmp_path: Path) ->
     assert (out.parent / "img" / "performance" / "sim_effects.png").is_file()
     assert "(img/performance/sim_effects.png)" in page
     assert "This sweep failed in this run: exit code 1: boom" in page
+    assert "toy dataset" in page
     assert "**99.50%**" in page and "200 grasps" in page
 
 
