@@ -3,8 +3,10 @@
 python launch.py GRAPH [--check] [--set NODE.PARAM=VALUE ...] [--swap NODE=IMPL ...]
                        [--only NODE,NODE] [--duration SECS] [--log-level LEVEL]
                        [--record OUT.mcap [--record-topics REGEX] [--overwrite]] [--lockstep]
+                       [--view [OUT.rrd | foxglove]]
 python launch.py nodes [IMPL]                list implementations, or one's ports and params
 python launch.py bag info|echo|diff ...      inspect bags (see docs/bags.md)
+python launch.py bag view|export|video ...   look at bags (see docs/viewing.md)
 python launch.py replay BAG [--swap NODE[=IMPL] ...] [...]
 """
 
@@ -59,6 +61,14 @@ def run_parser() -> argparse.ArgumentParser:
     )
     add_run_options(parser, swap_metavar="NODE=IMPL", swap_help="another implementation")
     parser.add_argument("--only", default="", metavar="NODE,NODE", help="run only these nodes")
+    parser.add_argument(
+        "--view",
+        nargs="?",
+        const="spawn",
+        default=None,
+        metavar="OUT.rrd|foxglove",
+        help="add a viewer: a Rerun window, an .rrd file, or a Foxglove live server",
+    )
     add_deprecated(parser, "--topics", "--record-topics", "record_topics")
     return parser
 
@@ -77,6 +87,10 @@ def run_main(argv: list[str]) -> int:
         doc = graphs.apply_overrides(
             doc, sets=args.sets, swaps=args.swaps, only=only, source=source
         )
+        if args.view is not None:
+            from viz.cli import add_viewer
+
+            doc = add_viewer(doc, args.view, source=source)
         checked = graphs.check(doc, source=source)
     except GraphError as err:
         print(f"graph check failed:\n{err}", file=sys.stderr)
@@ -122,6 +136,10 @@ def nodes_main(argv: list[str]) -> int:
 
 
 def bag_main(argv: list[str]) -> int:
+    if argv[:1] in (["view"], ["export"], ["video"]):
+        from viz.cli import main as viz_main
+
+        return viz_main(argv[0], argv[1:])
     from runtime.bagtool import main as bag_tool
 
     return bag_tool(argv)
@@ -137,7 +155,10 @@ def replay_main(argv: list[str]) -> int:
 # name -> (what --help says, handler): each reads the rest of the command line.
 SUBCOMMANDS: dict[str, tuple[str, Callable[[list[str]], int]]] = {
     "nodes": ("list node implementations; `nodes IMPL`: its ports and parameters", nodes_main),
-    "bag": ("inspect bags: bag info|echo|diff|recover (see docs/bags.md)", bag_main),
+    "bag": (
+        "bags: info|echo|diff|recover (docs/bags.md), view|export|video (docs/viewing.md)",
+        bag_main,
+    ),
     "replay": ("replay a bag through its graph, some nodes swapped (docs/bags.md)", replay_main),
 }
 
