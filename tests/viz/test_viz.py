@@ -23,6 +23,7 @@ from mcap.reader import make_reader
 from rerun.chunk import RrdReader
 
 import launch
+import nodes  # noqa: F401 - the index of node implementations
 from geometry.camera import PinholeCamera
 from geometry.objects import NAMES, make
 from messages.base import Header
@@ -225,7 +226,7 @@ def test_view_option_adds_a_viewer_on_every_topic() -> None:
     assert {i["from"] for i in node["inputs"].values()} == topics
     assert add_viewer(doc, "foxglove")["nodes"]["viewer"]["impl"] == "viewer.foxglove"
     check(viewed)
-    with pytest.raises(GraphError, match=r"node .viewer.\.params: `target` must be"):
+    with pytest.raises(GraphError, match=r"node .viewer.\.params\.target: must be"):
         check(add_viewer(doc, "out.txt"))
 
 
