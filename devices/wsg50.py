@@ -328,3 +328,27 @@ def query_payload(period_ms: int = 0) -> bytes:
 def move_payload(width_mm: float, speed_mm_per_s: float, *, stop_on_block: bool = True) -> bytes:
     """Payload of MOVE: flags (bit 1: stop on block), width, speed."""
     return struct.pack("<B", 0x02 if stop_on_block else 0x00) + f32(width_mm, speed_mm_per_s)
+
+
+# The WSG 50's published limits: stroke, finger speed, grip force.
+MAX_WIDTH_M = 0.110
+MAX_SPEED_M_PER_S = 0.420
+MAX_FORCE_N = 80.0
+COMMANDS = ("move", "grasp", "release", "stop", "home")
+
+
+def command_refusal(command: str, *, width_m: float, speed_m_per_s: float, force_n: float) -> str:
+    """Why the WSG 50 would refuse a ``GripperCommand`` (field and value), or ``""``."""
+    if command not in COMMANDS:
+        return f"unknown command {command!r}; valid: {', '.join(COMMANDS)}"
+    if command in ("stop", "home"):
+        return ""
+    if not 0.0 <= width_m <= MAX_WIDTH_M:
+        return f"{command}: `width_m` must be in 0..{MAX_WIDTH_M} m, got {width_m!r}"
+    if not 0.0 < speed_m_per_s <= MAX_SPEED_M_PER_S:
+        return (
+            f"{command}: `speed_m_per_s` must be in (0, {MAX_SPEED_M_PER_S}], got {speed_m_per_s!r}"
+        )
+    if not 0.0 < force_n <= MAX_FORCE_N:
+        return f"{command}: `force_n` must be in (0, {MAX_FORCE_N}] N, got {force_n!r}"
+    return ""
