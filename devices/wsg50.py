@@ -137,7 +137,7 @@ class GraspState(enum.IntEnum):
 
 
 # GripperState.state for each grasping state.
-STATE_NAMES = {
+STATE_NAMES: dict[int, str] = {
     GraspState.IDLE: "idle",
     GraspState.GRASPING: "moving",
     GraspState.NO_PART: "fault",
