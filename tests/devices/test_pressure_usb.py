@@ -13,7 +13,7 @@ from devices.abp import COUNTS_MAX, COUNTS_MIN, PSI_PA, AbpStatus, decode
 from messages.errors import NodeError
 from nodes.pressure import UsbPressure
 from runtime.testing import FakeIO, make_node
-from tests.devices.usb_emulator import EmulatedBackend, EmulatedBridge, abp_bytes
+from sim.mcp2221_emulator import EmulatedBackend, EmulatedBridge, abp_bytes
 
 
 def _counts(counts: int, status: int = 0) -> bytes:

@@ -1,5 +1,7 @@
 """A pyusb backend that emulates MCP2221A bridges with Honeywell ABP sensors behind them.
 
+Used by the tests of ``pressure.usb`` and by ``python -m bench.drivers``.
+
 It works at the USB transfer level (``usb.backend.IBackend``): descriptors, string
 descriptors over control transfers, a kernel driver bound to the HID interface, and
 64-byte interrupt reports answered as the MCP2221A datasheet describes. Behind each
