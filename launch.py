@@ -2,7 +2,7 @@
 
 python launch.py GRAPH [--check] [--set NODE.PARAM=VALUE ...] [--swap NODE=IMPL ...]
                        [--only NODE,NODE] [--duration SECS] [--log-level LEVEL]
-                       [--record OUT.mcap [--topics REGEX]] [--lockstep]
+                       [--record OUT.mcap [--topics REGEX] [--overwrite]] [--lockstep]
 python launch.py nodes                       list every node implementation
 python launch.py bag info|echo|diff ...      inspect bags (see docs/bags.md)
 python launch.py replay BAG [--replace NODE=IMPL ...] [...]
@@ -12,14 +12,21 @@ from __future__ import annotations
 
 import argparse
 import shlex
+import signal
 import sys
 from pathlib import Path
 
-import nodes
-from messages.errors import GraphError
-from runtime import graph as graphs
-from runtime.launcher import launch
-from runtime.registry import known, resolve
+# What each command needs is imported when it runs: ``--help`` and ``bag info`` never
+# import a node module, ``--check`` only those the graph names (docs/runtime.md).
+
+
+def _interrupted(signum: int, frame: object) -> None:
+    """Ctrl-C or SIGTERM outside a running graph: end now, quietly, with 128 + N.
+
+    Installed before anything heavy is imported, so a signal during start-up is never a
+    traceback; the launcher installs its own handlers while it supervises a graph.
+    """
+    raise SystemExit(128 + signum)
 
 
 def run_main(argv: list[str]) -> int:
@@ -39,8 +46,16 @@ def run_main(argv: list[str]) -> int:
     parser.add_argument(
         "--topics", default=None, metavar="REGEX", help="with --record: topics to keep"
     )
+    parser.add_argument(
+        "--overwrite", action="store_true", help="with --record: replace a finished bag"
+    )
     parser.add_argument("--lockstep", action="store_true", help="deterministic replay mode")
     args = parser.parse_args(argv)
+    import nodes  # noqa: F401 - the index of node implementations (no node module)
+    from messages.errors import GraphError
+    from runtime import graph as graphs
+    from runtime.launcher import launch
+
     source = str(args.graph)
     try:
         doc = graphs.load_document(args.graph)
@@ -60,6 +75,7 @@ def run_main(argv: list[str]) -> int:
         source=source,
         record=args.record,
         topics=args.topics,
+        overwrite=args.overwrite,
         lockstep=args.lockstep,
         duration_secs=args.duration,
         log_level=args.log_level,
@@ -68,6 +84,10 @@ def run_main(argv: list[str]) -> int:
 
 
 def list_nodes() -> int:
+    import nodes
+    from runtime.registry import known, resolve
+
+    nodes.import_all()
     for name in known():
         cls = resolve(name)
         ins = ", ".join(f"{p}:{t.__name__}" for p, t in cls.inputs.items()) or "-"
@@ -78,7 +98,6 @@ def list_nodes() -> int:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    nodes.import_all()
     if argv[:1] == ["nodes"]:
         return list_nodes()
     if argv[:1] == ["bag"]:
@@ -86,6 +105,7 @@ def main(argv: list[str] | None = None) -> int:
 
         return bag_main(argv[1:])
     if argv[:1] == ["replay"]:
+        import nodes  # noqa: F401 - the index of node implementations
         from runtime.bagtool import replay_main
 
         return replay_main(argv[1:])
@@ -93,4 +113,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    signal.signal(signal.SIGINT, _interrupted)
+    signal.signal(signal.SIGTERM, _interrupted)
     sys.exit(main())

@@ -8,7 +8,7 @@ or ``"right"``.
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, ClassVar
 
 import msgspec
 import numpy as np
@@ -33,6 +33,9 @@ class ToFImage(Message):
     cx_px: float
     cy_px: float
 
+    finite_fields: ClassVar[tuple[str, ...]] = ("depth_m", "fx_px", "fy_px", "cx_px", "cy_px")
+    nan_marks_invalid: ClassVar[frozenset[str]] = frozenset({"depth_m"})
+
 
 class Pressure(Message):
     """A bubble's internal pressure, gauge (over ambient)."""
@@ -40,6 +43,8 @@ class Pressure(Message):
     header: Header
     sensor: str
     pressure_pa: float
+
+    finite_fields: ClassVar[tuple[str, ...]] = ("pressure_pa",)
 
 
 class GripperState(Message):
@@ -50,6 +55,8 @@ class GripperState(Message):
     speed_m_per_s: float
     force_n: float
     state: str = "idle"  # idle | moving | holding | fault
+
+    finite_fields: ClassVar[tuple[str, ...]] = ("width_m", "speed_m_per_s", "force_n")
 
 
 class GripperCommand(Message):
