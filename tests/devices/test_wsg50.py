@@ -151,7 +151,8 @@ def test_client_drives_the_emulator() -> None:
             assert client.opening_m() == pytest.approx(0.08)
             assert client.grasp(0.05, 0.2).wait(5) == Status.E_SUCCESS
             assert client.grasp_state() == GraspState.HOLDING
-            assert client.speed_m_per_s() == 0.0  # holding still
+            time.sleep(0.05)  # a few steps of holding still
+            assert client.speed_m_per_s() == 0.0
             assert client.force_n() == pytest.approx(15.0, abs=0.5)
             # The next streamed opening: a 50 mm part, 15 N at 5 N/mm.
             assert client.opening_m() == pytest.approx(0.047, abs=5e-4)
