@@ -30,7 +30,7 @@ from collections.abc import Callable
 from bench.common import Row, main, median, percentile
 from devices.abp import PSI_PA, AbpSensor
 from devices.mcp2221 import MCP2221
-from devices.wsg50 import Cmd, encode_frame, f32, move_payload, query_payload
+from devices.wsg50 import Cmd, FrameDecoder, encode_frame, f32, move_payload, query_payload
 from devices.wsg50_client import WSG50Client
 from sim.gripper import GripperDynamics
 from sim.mcp2221_emulator import EmulatedBackend, EmulatedBridge, abp_bytes
@@ -60,16 +60,20 @@ def _times_us(call: Callable[[], object], calls: int) -> list[float]:
     return out
 
 
-def _raw_exchange(sock: socket.socket, frame: bytes, answer_size: int) -> None:
+def _raw_exchange(sock: socket.socket, frame: bytes, until: int) -> None:
+    """Send ``frame`` on a bare socket; read frames until one of command ``until`` arrives
+    (a motion's end may come first)."""
     sock.sendall(frame)
-    got = 0
-    while got < answer_size:
-        got += len(sock.recv(answer_size - got))
+    decoder = FrameDecoder()
+    while True:
+        for item in decoder.feed(sock.recv(4096)):
+            if item.command == until:
+                return
 
 
 def _wsg50_rows(server: WSG50Server, calls: int, stream_secs: float) -> list[Row]:
     rows: list[Row] = []
-    raw = socket.create_connection(("127.0.0.1", server.port))
+    raw = socket.create_connection(("127.0.0.1", server.port), timeout=5.0)
     raw.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
     with WSG50Client("127.0.0.1", server.port) as client:
 
@@ -77,34 +81,31 @@ def _wsg50_rows(server: WSG50Server, calls: int, stream_secs: float) -> list[Row
             client.move(0.1, 0.4)
             client.stop()
 
-        cases: list[tuple[str, Callable[[], object], bytes, int]] = [
-            ("GET_OPENING", client.opening_m, encode_frame(Cmd.GET_OPENING, query_payload()), 12),
+        move = encode_frame(Cmd.MOVE, move_payload(100.0, 400.0))
+        stop = encode_frame(Cmd.STOP)
+
+        def raw_move_then_stop() -> None:
+            _raw_exchange(raw, move, Cmd.MOVE)  # E_CMD_PENDING
+            _raw_exchange(raw, stop, Cmd.STOP)  # after the motion's end
+
+        query = encode_frame(Cmd.GET_OPENING, query_payload())
+        limit = encode_frame(Cmd.SET_FORCE_LIMIT, f32(20.0))
+        cases: list[tuple[str, Callable[[], object], Callable[[], object]]] = [
+            ("GET_OPENING", client.opening_m, lambda: _raw_exchange(raw, query, Cmd.GET_OPENING)),
             (
                 "SET_FORCE_LIMIT",
                 lambda: client.set_force_limit(20.0),
-                encode_frame(Cmd.SET_FORCE_LIMIT, f32(20.0)),
-                10,
+                lambda: _raw_exchange(raw, limit, Cmd.SET_FORCE_LIMIT),
             ),
-            ("MOVE+STOP", move_then_stop, b"", 0),
+            ("MOVE+STOP", move_then_stop, raw_move_then_stop),
         ]
-        for name, call, frame, answer in cases:
-            # Interleave ours and the raw socket so both see the same load.
+        for name, call, bare_call in cases:
+            # Interleaved, so ours and the bare socket see the same load.
             ours: list[float] = []
             bare: list[float] = []
             for _ in range(calls):
                 ours += _times_us(call, 1)
-                if frame:
-                    bare += _times_us(lambda f=frame, n=answer: _raw_exchange(raw, f, n), 1)
-            if name == "MOVE+STOP":
-                # A motion start on the raw socket: PENDING, then STOP's answer and the
-                # motion's E_CMD_ABORTED.
-                move = encode_frame(Cmd.MOVE, move_payload(100.0, 400.0))
-                stop = encode_frame(Cmd.STOP)
-                for _ in range(calls):
-                    start = time.perf_counter()
-                    _raw_exchange(raw, move, 10)
-                    _raw_exchange(raw, stop, 20)
-                    bare.append((time.perf_counter() - start) * 1e6)
+                bare += _times_us(bare_call, 1)
             rows.append(
                 {
                     "case": "wsg50_rtt",
