@@ -19,6 +19,8 @@
         simulated clock. outputs: ``state`` (GripperState): the opening, speed, force
         and grasping state streamed by the device (auto-update every ``1/rate_hz``),
         published at that rate with the wall clock when there is no world.
+    With ``home_on_start`` setup homes the gripper and waits for it (up to
+    ``motion_timeout_secs``) before the node reports ready.
     A refused command, a failed motion (no part found, axis blocked) or a lost
     connection is logged with the device's status; the client reconnects with back-off
     and restores the streams. Setup fails, naming the address, if the gripper cannot be
@@ -126,7 +128,8 @@ class WSG50Gripper(Node):
             for command in _STREAMS:
                 self.client.stream(command, period_ms)
             if p.home_on_start:
-                self._start(self.client.home)
+                # Ready only once referenced: a command must not cut the homing short.
+                self.client.home().wait(p.motion_timeout_secs)
         except DeviceError as err:
             self.client.disconnect()
             raise NodeError(

@@ -48,15 +48,27 @@ def test_wsg50_node_grasps_and_reports_the_device_state(caplog: pytest.LogCaptur
         )
         try:
             feed(node, "command", _command("grasp", force_n=12.0))
+            # The streams are sampled one by one: wait until the state and force agree.
             _run_until(
-                io, lambda: io.published["state"] and io.published["state"][-1].state == "holding"
+                io,
+                lambda: (
+                    io.published["state"]
+                    and io.published["state"][-1].state == "holding"
+                    and io.published["state"][-1].force_n > 11.0
+                ),
             )
             state = io.published["state"][-1]
             assert state.state == "holding"
             assert state.force_n == pytest.approx(12.0, abs=0.5)
             assert state.width_m == pytest.approx(0.06 - 12.0 / 5000.0, abs=5e-4)
             feed(node, "command", _command("release", width_m=0.1))
-            _run_until(io, lambda: io.published["state"][-1].state == "idle")
+            _run_until(
+                io,
+                lambda: (
+                    io.published["state"][-1].state == "idle"
+                    and io.published["state"][-1].width_m > 0.099
+                ),
+            )
             assert io.published["state"][-1].width_m == pytest.approx(0.1)
             feed(node, "command", _command("grasp", force_n=200.0))  # over the WSG's 80 N
             assert "`force_n` must be in (0, 80.0] N, got 200.0" in caplog.text
@@ -64,6 +76,20 @@ def test_wsg50_node_grasps_and_reports_the_device_state(caplog: pytest.LogCaptur
         finally:
             node.teardown()
     assert "GRASP done: E_SUCCESS" in caplog.text
+
+
+def test_wsg50_node_homes_on_start_before_it_is_ready(caplog: pytest.LogCaptureFixture) -> None:
+    with running_emulator() as server:
+        server.stepped(
+            lambda: server.dynamics.command("move", width_m=0.03, speed_m_per_s=0.4, force_n=80.0)
+        )
+        time.sleep(0.2)  # the jaws close to 30 mm first
+        params = {"address": "127.0.0.1", "port": server.port, "home_on_start": True}
+        node, _ = make_node(WSG50Gripper, params)
+        try:
+            assert node.client.opening_m() == pytest.approx(0.11)
+        finally:
+            node.teardown()
 
 
 def test_wsg50_node_without_a_gripper_fails_naming_the_address() -> None:
