@@ -226,11 +226,12 @@ def rewrite(err: Exception, cls: type[Any], values: Mapping[str, Any]) -> ParamE
     # A class's own check: "`name` must be ..., got ..." or "`name`: why" (at its level).
     owner, defaults = _field_of(cls, at)
     first = _FIELD_FIRST.match(msg)
+    base = f"{at}." if at else ""
     if owner is not None and first and first["name"] in defaults:
-        path = f"{at}.{first['name']}" if at else first["name"]
+        path = base + first["name"]
         rest = first["rest"]
         if first["sep"] == " " and not rest.startswith("must"):
-            return ParamError("", f"{path}: {msg}" if at else msg)
+            return _several(msg, base, defaults, values)
         rest = re.sub(r",? got .*$", "", rest, flags=re.S) if rest.startswith("must") else rest
         found, value = _lookup(values, path)
         if not found:
@@ -238,7 +239,22 @@ def rewrite(err: Exception, cls: type[Any], values: Mapping[str, Any]) -> ParamE
         if not rest.startswith("must") and str(value) in rest:
             found = False  # the class's message already shows the value
         return ParamError(path, rest, value, has_value=found)
-    return ParamError("", f"{at}: {msg}" if at else msg)
+    return _several(msg, base, defaults, values)
+
+
+def _several(
+    msg: str, base: str, defaults: dict[str, Any], values: Mapping[str, Any]
+) -> ParamError:
+    """A message about no one field: the values of the fields it names are appended."""
+    named = [n for n in dict.fromkeys(re.findall(r"[A-Za-z_]\w*", msg)) if n in defaults]
+    shown = []
+    for name in named:
+        found, value = _lookup(values, base + name)
+        shown.append(f"{base}{name}={(value if found else defaults[name])!r}")
+    text = f"{base.rstrip('.')}: {msg}" if base else msg
+    return ParamError(
+        "", f"{text}, got {', '.join(shown)}" if shown and " got " not in msg else text
+    )
 
 
 def build_params(cls: type[Any], values: Mapping[str, Any] | None) -> Any:
