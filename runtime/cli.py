@@ -98,6 +98,10 @@ def _ports(cls: type[Node]) -> tuple[str, str]:
     return ins or "-", outs or "-"
 
 
+def _clip(text: str, width: int = 40) -> str:
+    return text if len(text) <= width else text[: width - 3] + "..."
+
+
 def node_table(names: Sequence[str]) -> str:
     """One line per implementation: its inputs (optional ones in brackets) and outputs."""
     lines = []
@@ -134,7 +138,8 @@ def node_details(impl: str) -> str:
     rows += [
         (p.path, p.type, repr(p.default), p.unit or "-", "; ".join(p.limits) or "-") for p in params
     ]
-    widths = [min(max(len(r[i]) for r in rows), 40) for i in range(4)]
+    rows = [tuple(_clip(cell) for cell in row) for row in rows]
+    widths = [max(len(r[i]) for r in rows) for i in range(4)]
     for row in rows:
         lines.append(
             "  "

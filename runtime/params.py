@@ -295,6 +295,14 @@ _UNITS = (
 _PROBES: dict[type, tuple[Any, ...]] = {int: (-(10**9), 10**9), float: (-1e9, 1e9), str: ("?",)}
 
 
+class _Required:
+    def __repr__(self) -> str:
+        return "(required)"
+
+
+REQUIRED = _Required()  # the default of a parameter that has none
+
+
 @dataclasses.dataclass(frozen=True)
 class ParamInfo:
     """One parameter as ``launch.py nodes IMPL`` shows it."""
@@ -348,18 +356,39 @@ def _attribute_docs(cls: type[Any]) -> dict[str, str]:
 
 
 def _probe(cls: type[Any], name: str, kind: type) -> tuple[str, ...]:
-    """The limits the class's own check states for ``name``, found by trying far-out values."""
+    """The limits the class's own check states for ``name``, found by trying far-out values.
+
+    Required string fields get a placeholder, so that a class with a required path still
+    reaches its other checks.
+    """
+    hints = field_hints(cls)
+    base: dict[str, Any] = {
+        f.name: "?"
+        for f in dataclasses.fields(cls)
+        if _default(f) is dataclasses.MISSING and _base_type(hints[f.name]) is str
+    }
     rules: list[str] = []
     for value in _PROBES[kind]:
+        values = {**base, name: value}
         try:
-            msgspec.convert({name: value}, cls, strict=False)
+            msgspec.convert(values, cls, strict=False)
         except (msgspec.ValidationError, ValueError, TypeError) as err:
-            found = rewrite(err, cls, {name: value})
+            found = rewrite(err, cls, values)
             if found.path == name and found.rule.startswith("must be "):
                 rule = found.rule.removeprefix("must be ")
                 if rule not in rules:
                     rules.append(rule)
     return tuple(rules)
+
+
+def _base_type(hint: Any) -> Any:
+    """``int`` for ``int``, ``int | None`` and ``Annotated[int, ...]``; None for other unions."""
+    if typing.get_origin(hint) is Annotated:
+        hint = typing.get_args(hint)[0]
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        options = [a for a in typing.get_args(hint) if a is not type(None)]
+        return options[0] if len(options) == 1 else None
+    return hint
 
 
 def describe(cls: type[Any], prefix: str = "") -> list[ParamInfo]:
@@ -373,18 +402,15 @@ def describe(cls: type[Any], prefix: str = "") -> list[ParamInfo]:
         if nested is not None:
             out += describe(nested, f"{prefix}{f.name}.")
             continue
-        base = typing.get_args(hint)[0] if typing.get_origin(hint) is Annotated else hint
-        union = typing.get_origin(base) in (typing.Union, types.UnionType)
-        options = [a for a in typing.get_args(base) if a is not type(None)] if union else [base]
-        kind = options[0] if len(options) == 1 and options[0] in _PROBES else None
+        kind = _base_type(hint)
         default = _default(f)
         out.append(
             ParamInfo(
                 path=f"{prefix}{f.name}",
                 type=_type_text(hint),
-                default="(required)" if default is dataclasses.MISSING else default,
+                default=REQUIRED if default is dataclasses.MISSING else default,
                 unit=unit_of(f.name),
-                limits=_probe(cls, f.name, kind) if kind is not None else (),
+                limits=_probe(cls, f.name, kind) if kind in _PROBES else (),
                 doc=docs.get(f.name, ""),
             )
         )
