@@ -134,18 +134,13 @@ def node_details(impl: str) -> str:
     if not params:
         lines.append("  no parameters")
         return "\n".join(lines)
-    rows = [("param", "type", "default", "unit", "limits")]
-    rows += [
-        (p.path, p.type, repr(p.default), p.unit or "-", "; ".join(p.limits) or "-") for p in params
-    ]
-    rows = [tuple(_clip(cell) for cell in row) for row in rows]
+    rows = [["param", "type", "default", "unit"]]
+    rows += [[p.path, p.type, _clip(repr(p.default)), p.unit or "-"] for p in params]
+    limits = ["limits"] + ["; ".join(p.limits) or "-" for p in params]
     widths = [max(len(r[i]) for r in rows) for i in range(4)]
-    for row in rows:
-        lines.append(
-            "  "
-            + "  ".join(f"{cell:{w}}" for cell, w in zip(row[:4], widths, strict=True))
-            + f"  {row[4]}"
-        )
+    for row, limit in zip(rows, limits, strict=True):
+        cells = "  ".join(f"{cell:{w}}" for cell, w in zip(row, widths, strict=True))
+        lines.append(f"  {cells}  {limit}")
     documented = [p for p in params if p.doc]
     if documented:
         lines.append("")
