@@ -2,7 +2,7 @@
 
 python launch.py GRAPH [--check] [--set NODE.PARAM=VALUE ...] [--swap NODE=IMPL ...]
                        [--only NODE,NODE] [--duration SECS] [--log-level LEVEL]
-                       [--record OUT.mcap [--record-topics REGEX]] [--lockstep]
+                       [--record OUT.mcap [--record-topics REGEX] [--overwrite]] [--lockstep]
 python launch.py nodes [IMPL]                list implementations, or one's ports and params
 python launch.py bag info|echo|diff ...      inspect bags (see docs/bags.md)
 python launch.py replay BAG [--swap NODE[=IMPL] ...] [...]
@@ -10,22 +10,36 @@ python launch.py replay BAG [--swap NODE[=IMPL] ...] [...]
 
 from __future__ import annotations
 
-import argparse
-import shlex
+import signal
 import sys
-from collections.abc import Callable
-from pathlib import Path
 
-import nodes
-from messages.errors import GraphError
-from runtime import graph as graphs
-from runtime.cli import add_deprecated, add_run_options, node_details, node_table
-from runtime.launcher import launch
-from runtime.registry import known
+
+def _interrupted(signum: int, frame: object) -> None:
+    """Ctrl-C or SIGTERM outside a running graph: end now, quietly, with 128 + N.
+
+    Installed before anything else is imported, so a signal during start-up is never a
+    traceback; the launcher installs its own handlers while it supervises a graph.
+    """
+    raise SystemExit(128 + signum)
+
+
+if __name__ == "__main__":
+    signal.signal(signal.SIGINT, _interrupted)
+    signal.signal(signal.SIGTERM, _interrupted)
+
+import argparse  # noqa: E402 - after the signal handlers, on purpose
+import shlex  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+# What each command needs is imported when it runs: ``--help`` and ``bag info`` never
+# import a node module, ``--check`` only those the graph names (docs/runtime.md).
 
 
 def run_parser() -> argparse.ArgumentParser:
     """The parser of ``launch.py GRAPH ...``; its help lists the subcommands too."""
+    from runtime.cli import add_deprecated, add_run_options
+
     width = max(len(name) for name in SUBCOMMANDS)
     epilog = "subcommands (python launch.py COMMAND --help for each):\n" + "\n".join(
         f"  {name:{width}}  {summary}" for name, (summary, _) in SUBCOMMANDS.items()
@@ -51,6 +65,11 @@ def run_parser() -> argparse.ArgumentParser:
 
 def run_main(argv: list[str]) -> int:
     args = run_parser().parse_args(argv)
+    import nodes  # noqa: F401 - the index of node implementations (no node module)
+    from messages.errors import GraphError
+    from runtime import graph as graphs
+    from runtime.launcher import launch
+
     source = str(args.graph)
     try:
         doc = graphs.load_document(args.graph)
@@ -70,6 +89,7 @@ def run_main(argv: list[str]) -> int:
         source=source,
         record=args.record,
         topics=args.record_topics,
+        overwrite=args.overwrite,
         lockstep=args.lockstep,
         duration_secs=args.duration,
         log_level=args.log_level,
@@ -85,7 +105,12 @@ def nodes_main(argv: list[str]) -> int:
     )
     parser.add_argument("impl", nargs="?", help="a registered name or module:Class")
     args = parser.parse_args(argv)
+    import nodes
+    from runtime.cli import node_details, node_table
+    from runtime.registry import known
+
     if args.impl is None:
+        nodes.import_all()
         print(node_table(known()))
         return 0
     try:
@@ -103,6 +128,7 @@ def bag_main(argv: list[str]) -> int:
 
 
 def replay_main(argv: list[str]) -> int:
+    import nodes  # noqa: F401 - the index of node implementations
     from runtime.bagtool import replay_main as replay
 
     return replay(argv)
@@ -118,7 +144,6 @@ SUBCOMMANDS: dict[str, tuple[str, Callable[[list[str]], int]]] = {
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    nodes.import_all()
     if argv and argv[0] in SUBCOMMANDS:
         return SUBCOMMANDS[argv[0]][1](argv[1:])
     return run_main(argv)

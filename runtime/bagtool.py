@@ -2,17 +2,20 @@
 
 python launch.py bag info FILE [--graph]
 python launch.py bag recover FILE OUT
-python launch.py bag echo FILE --topic T [--limit N] [--full]
-python launch.py bag diff A B [--topic T ...] [--rtol R] [--atol A] [--ignore FIELD ...]
+python launch.py bag echo FILE --topic T [--limit N] [--full] [--strict]
+python launch.py bag diff A B [--topic T ...] [--rtol R] [--atol A] [--ignore FIELD ...] [--strict]
 python launch.py replay FILE [--graph G] [--swap NODE[=IMPL] ...] [--rate X | --fast]
                         [--loop] [--start S] [--end E] [--replay-topics RE] [--remap A=B ...]
-                        [--lockstep] [--record OUT [--record-topics RE]] [--duration S]
+                        [--lockstep] [--strict] [--record OUT [--record-topics RE] [--overwrite]]
+                        [--duration S]
                         [--set NODE.PARAM=VALUE ...] [--print-graph]
 
 ``bag diff`` compares messages of a topic in order, field by field, decoded from each bag's
 stored description (no project classes needed); numbers and arrays with ``numpy.isclose``
 tolerances (NaN equals NaN). It exits 0 when there is no difference, 1 when there is, 2 on
-an error. ``replay`` runs the graph stored in the bag (or ``--graph``) with the nodes named
+an error. ``bag echo`` and ``bag diff`` skip a message that cannot be decoded, say so and
+go on (echo exits 1, diff counts it as a difference); ``--strict`` stops at it (exit 2).
+``replay`` runs the graph stored in the bag (or ``--graph``) with the nodes named
 in ``--swap`` (and everything downstream of them) live, and a ``replay`` node publishing
 the recorded topics they need (see :func:`build_replay_graph`).
 """
@@ -162,19 +165,38 @@ def _graph_nodes(text: str) -> list[str]:
 
 
 def echo_lines(
-    path: Path, topic: str, *, limit: int | None = None, full: bool = False
+    path: Path,
+    topic: str,
+    *,
+    limit: int | None = None,
+    full: bool = False,
+    strict: bool = False,
+    skipped: list[str] | None = None,
 ) -> Iterator[str]:
-    """Each message of ``topic``, decoded without project classes, arrays summarized."""
+    """Each message of ``topic``, decoded without project classes, arrays summarized.
+
+    A message that cannot be decoded prints one ``SKIPPED`` line and is added to
+    ``skipped``; with ``strict`` its :class:`BagError` ends the echo instead.
+    """
     with BagReader(path) as reader:
         reader.require_topics([topic])
         for index, msg in enumerate(reader.messages([topic])):
             if limit is not None and index >= limit:
                 return
-            fields = msg.decode_plain()
-            yield (
+            head = (
                 f"--- {topic} #{index} {msg.channel.schema.type_name} seq {msg.sequence} "
                 f"log {_stamp(msg.log_time_nanos)} {msg.position()}"
             )
+            try:
+                fields = msg.decode_plain()
+            except BagError as err:
+                if strict:
+                    raise
+                if skipped is not None:
+                    skipped.append(str(err))
+                yield f"{head} SKIPPED, cannot decode: {err}"
+                continue
+            yield head
             for name, value in fields.items():
                 yield f"{name}: {_show(value, full)}"
 
@@ -287,8 +309,13 @@ def diff_bags(
     rtol: float = 1e-9,
     atol: float = 0.0,
     ignore: Sequence[str] = (),
+    strict: bool = False,
 ) -> list[Difference]:
-    """Per-message differences of the decoded fields of ``topics`` (default: every topic)."""
+    """Per-message differences of the decoded fields of ``topics`` (default: every topic).
+
+    A message that cannot be decoded on either side is one ``(undecodable)`` difference
+    and the comparison goes on; with ``strict`` its :class:`BagError` ends the diff.
+    """
     skip = frozenset(ignore)
     with BagReader(path_a) as ra, BagReader(path_b) as rb:
         if topics:
@@ -310,9 +337,15 @@ def diff_bags(
                 if ta != tb:
                     out.append(Difference(topic, index, "(type)", f"{ta} vs {tb}"))
                     continue
-                found = compare_values(
-                    ma.decode_plain(), mb.decode_plain(), rtol=rtol, atol=atol, ignore=skip
-                )
+                try:
+                    plain_a = ma.decode_plain()
+                    plain_b = mb.decode_plain()
+                except BagError as err:
+                    if strict:
+                        raise
+                    out.append(Difference(topic, index, "(undecodable)", str(err)))
+                    continue
+                found = compare_values(plain_a, plain_b, rtol=rtol, atol=atol, ignore=skip)
                 out += [Difference(topic, index, name, detail) for name, detail in found]
         return out
 
@@ -332,6 +365,7 @@ class ReplayOptions:
     topics: str = ""
     remap: dict[str, str] = field(default_factory=dict)
     lockstep: bool = False
+    strict: bool = False  # stop at a message that cannot be decoded (default: skip, count)
 
     def __post_init__(self) -> None:
         if self.rate <= 0:
@@ -471,6 +505,7 @@ def build_replay_graph(
         "topics": exact_topics(bag_names),
         "remap": {bag: pub for pub, bag in replayed.items() if pub != bag},
         "lockstep": options.lockstep,
+        "strict": options.strict,
     }
     if options.end_secs is not None:
         params["end_secs"] = options.end_secs
@@ -514,6 +549,9 @@ def replay_main(argv: Sequence[str]) -> int:
         "--replay-topics", default="", metavar="REGEX", help="the bag topics to replay"
     )
     parser.add_argument("--remap", action="append", default=[], metavar="BAG_TOPIC=TOPIC")
+    parser.add_argument(
+        "--strict", action="store_true", help="stop at a message that cannot be decoded"
+    )
     parser.add_argument("--print-graph", action="store_true", help="print the graph; run nothing")
     add_deprecated(parser, "--replace", "--swap", "swaps", append=True)
     add_deprecated(parser, "--topics", "--replay-topics", "replay_topics")
@@ -539,6 +577,7 @@ def replay_main(argv: Sequence[str]) -> int:
             topics=args.replay_topics,
             remap=_pairs(args.remap, "--remap"),
             lockstep=args.lockstep,
+            strict=args.strict,
         )
         replay_graph = build_replay_graph(
             graph, args.bag, _pairs(args.swaps, "--swap", allow_bare=True), options
@@ -560,6 +599,7 @@ def replay_main(argv: Sequence[str]) -> int:
         source=f"{args.bag} (replay)",
         record=args.record,
         topics=args.record_topics,
+        overwrite=args.overwrite,
         # Counts are tracked in every mode, so that the replay node, when it has published
         # everything, can wait for the graph to drain before it asks it to stop.
         lockstep=True,
@@ -584,6 +624,9 @@ def main(argv: Sequence[str]) -> int:
     p_echo.add_argument("--topic", required=True)
     p_echo.add_argument("--limit", type=int, default=None)
     p_echo.add_argument("--full", action="store_true", help="print arrays in full")
+    p_echo.add_argument(
+        "--strict", action="store_true", help="stop at a message that cannot be decoded"
+    )
     p_recover = sub.add_parser("recover", help="rewrite a damaged or cut bag with a summary")
     p_recover.add_argument("file", type=Path)
     p_recover.add_argument("out", type=Path)
@@ -597,6 +640,9 @@ def main(argv: Sequence[str]) -> int:
         "--ignore", action="append", default=[], metavar="FIELD", help="e.g. header.stamp_nanos"
     )
     p_diff.add_argument("--max-lines", type=int, default=50)
+    p_diff.add_argument(
+        "--strict", action="store_true", help="stop at a message that cannot be decoded"
+    )
     args = parser.parse_args(list(argv))
     try:
         if args.command == "info":
@@ -609,11 +655,28 @@ def main(argv: Sequence[str]) -> int:
             print(f"{args.out}: {copied} message(s) recovered from {args.file}")
             return 0
         if args.command == "echo":
-            for line in echo_lines(args.file, args.topic, limit=args.limit, full=args.full):
+            skipped: list[str] = []
+            lines = echo_lines(
+                args.file,
+                args.topic,
+                limit=args.limit,
+                full=args.full,
+                strict=args.strict,
+                skipped=skipped,
+            )
+            for line in lines:
                 print(line)
-            return 0
+            if skipped:
+                print(f"bag echo: {len(skipped)} message(s) could not be decoded", file=sys.stderr)
+            return 1 if skipped else 0
         diffs = diff_bags(
-            args.a, args.b, args.topic or None, rtol=args.rtol, atol=args.atol, ignore=args.ignore
+            args.a,
+            args.b,
+            args.topic or None,
+            rtol=args.rtol,
+            atol=args.atol,
+            ignore=args.ignore,
+            strict=args.strict,
         )
     except BagError as err:
         print(f"bag {args.command}: {err}", file=sys.stderr)

@@ -54,7 +54,7 @@ def add_deprecated(
 
 
 def add_run_options(parser: argparse.ArgumentParser, *, swap_help: str, swap_metavar: str) -> None:
-    """``--set``, ``--swap``, ``--record``, ``--record-topics``, ``--lockstep``,
+    """``--set``, ``--swap``, ``--record``, ``--record-topics``, ``--overwrite``, ``--lockstep``,
     ``--duration`` and ``--log-level``, as ``launch.py GRAPH`` and ``launch.py replay`` take them.
     """
     parser.add_argument(
@@ -74,6 +74,9 @@ def add_run_options(parser: argparse.ArgumentParser, *, swap_help: str, swap_met
         default=None,
         metavar="REGEX",
         help="with --record: the topics to keep (re.search; default all)",
+    )
+    parser.add_argument(
+        "--overwrite", action="store_true", help="with --record: replace a finished bag"
     )
     parser.add_argument(
         "--lockstep",

@@ -4,10 +4,10 @@ A graph file (YAML, read with a duplicate-key-refusing ``safe_load``, see
 :mod:`runtime.graphfile`)::
 
     nodes:
-      camera: {impl: synthetic.source, params: {rate_hz: 30}}
+      contact_patch: {impl: contact_patch, inputs: {left: left_camera/image, ...}}
       pose:
         impl: pose_estimator.ipopt            # registered name, or module:Class
-        params: {tol: 1.0e-6}
+        params: {object: mug, max_points: 4000}
         inputs: {patch: {from: contact_patch/patch, policy: latest}}
         restart: {policy: on-failure, max_restarts: 3, backoff_secs: 0.5}
         required: true                        # a final crash stops the graph
@@ -53,7 +53,8 @@ NODE_KEYS = {"impl", "params", "inputs", "restart", "required", "host", "hang_ti
 TOP_KEYS = {"nodes", "name", "description"}
 MAX_QUEUE_SIZE = 2**31 - 1  # ZeroMQ's high-water mark is a C int
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_\-]*")
-RUNDIR_PREFIX = "sbg-"  # the launcher's run directory: tempfile.mkdtemp(prefix=RUNDIR_PREFIX)
+# The launcher's run directory: tempfile.mkdtemp(prefix=f"{RUNDIR_PREFIX}{pid}-").
+RUNDIR_PREFIX = "sbg-"
 
 
 def ipc_path(rundir: str | Path, name: str) -> str:
@@ -62,7 +63,8 @@ def ipc_path(rundir: str | Path, name: str) -> str:
 
 
 def _longest_ipc_path(name: str) -> str:
-    rundir = Path(tempfile.gettempdir()) / (RUNDIR_PREFIX + "x" * 8)  # mkdtemp adds 8 chars
+    # the largest Linux pid has 7 digits; mkdtemp adds 8 characters
+    rundir = Path(tempfile.gettempdir()) / (RUNDIR_PREFIX + "9" * 7 + "-" + "x" * 8)
     return ipc_path(rundir, name)
 
 

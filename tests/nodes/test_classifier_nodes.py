@@ -287,8 +287,8 @@ def _truth(name: str, stamp_ms: int, noise_seed: int = 21) -> GroundTruth:
         tool_from_object=np.eye(4),
         object_class=name,
         in_contact=True,
-        shear_left_mm=np.zeros(2),
-        shear_right_mm=np.zeros(2),
+        shear_left_m=np.zeros(2),
+        shear_right_m=np.zeros(2),
         noise_seed=noise_seed,
     )
 

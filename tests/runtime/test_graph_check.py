@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 
 import nodes.recorder  # noqa: F401 - registers the recorder
-import nodes.synthetic  # noqa: F401 - registers the synthetic nodes
 from messages.errors import GraphError
 from runtime import graph as graphs
 from runtime.registry import known
+from tests.synthetic_nodes import IMPLS  # registers the synthetic nodes too
 
 ROOT = Path(__file__).resolve().parents[2]
 PRESSURE = "tests.runtime.nodes_for_tests:PressureSource"
@@ -159,7 +159,9 @@ def test_overrides_set_swap_only(tmp_path: Path) -> None:
 def test_check_command_starts_nothing_and_exits_2(tmp_path: Path) -> None:
     path = tmp_path / "bad.yaml"
     path.write_text(
-        "nodes:\n  sink: {impl: synthetic.sink}\n  src: {impl: synthetic.source, params: {count: -1}}\n"
+        # launch.py registers only production nodes: the test nodes by module:Class.
+        f"nodes:\n  sink: {{impl: '{IMPLS['synthetic.sink']}'}}\n"
+        f"  src: {{impl: '{IMPLS['synthetic.source']}', params: {{count: -1}}}}\n"
     )
     proc = subprocess.run(
         [sys.executable, "launch.py", str(path)],
