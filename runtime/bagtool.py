@@ -528,7 +528,9 @@ def _pairs(values: Sequence[str], flag: str, *, allow_bare: bool = False) -> dic
 def replay_main(argv: Sequence[str]) -> int:
     """``launch.py replay ...``: build the replay graph and run it (exit code)."""
     parser = argparse.ArgumentParser(
-        prog="python launch.py replay", description=__doc__.split("\n")[0]
+        prog="python launch.py replay",
+        description="Replay a bag through its graph (or --graph), the nodes named in --swap "
+        "and everything downstream of them live (see docs/bags.md).",
     )
     parser.add_argument("bag", type=Path)
     parser.add_argument("--graph", type=Path, default=None, help="graph file (default: the bag's)")

@@ -101,6 +101,10 @@ def _ports(cls: type[Node]) -> tuple[str, str]:
     return ins or "-", outs or "-"
 
 
+def _clip(text: str, width: int = 40) -> str:
+    return text if len(text) <= width else text[: width - 3] + "..."
+
+
 def node_table(names: Sequence[str]) -> str:
     """One line per implementation: its inputs (optional ones in brackets) and outputs."""
     lines = []
@@ -133,17 +137,13 @@ def node_details(impl: str) -> str:
     if not params:
         lines.append("  no parameters")
         return "\n".join(lines)
-    rows = [("param", "type", "default", "unit", "limits")]
-    rows += [
-        (p.path, p.type, repr(p.default), p.unit or "-", "; ".join(p.limits) or "-") for p in params
-    ]
-    widths = [min(max(len(r[i]) for r in rows), 40) for i in range(4)]
-    for row in rows:
-        lines.append(
-            "  "
-            + "  ".join(f"{cell:{w}}" for cell, w in zip(row[:4], widths, strict=True))
-            + f"  {row[4]}"
-        )
+    rows = [["param", "type", "default", "unit"]]
+    rows += [[p.path, p.type, _clip(repr(p.default)), p.unit or "-"] for p in params]
+    limits = ["limits"] + ["; ".join(p.limits) or "-" for p in params]
+    widths = [max(len(r[i]) for r in rows) for i in range(4)]
+    for row, limit in zip(rows, limits, strict=True):
+        cells = "  ".join(f"{cell:{w}}" for cell, w in zip(row, widths, strict=True))
+        lines.append(f"  {cells}  {limit}")
     documented = [p for p in params if p.doc]
     if documented:
         lines.append("")

@@ -226,11 +226,12 @@ def rewrite(err: Exception, cls: type[Any], values: Mapping[str, Any]) -> ParamE
     # A class's own check: "`name` must be ..., got ..." or "`name`: why" (at its level).
     owner, defaults = _field_of(cls, at)
     first = _FIELD_FIRST.match(msg)
+    base = f"{at}." if at else ""
     if owner is not None and first and first["name"] in defaults:
-        path = f"{at}.{first['name']}" if at else first["name"]
+        path = base + first["name"]
         rest = first["rest"]
         if first["sep"] == " " and not rest.startswith("must"):
-            return ParamError("", f"{path}: {msg}" if at else msg)
+            return _several(msg, base, defaults, values)
         rest = re.sub(r",? got .*$", "", rest, flags=re.S) if rest.startswith("must") else rest
         found, value = _lookup(values, path)
         if not found:
@@ -238,7 +239,22 @@ def rewrite(err: Exception, cls: type[Any], values: Mapping[str, Any]) -> ParamE
         if not rest.startswith("must") and str(value) in rest:
             found = False  # the class's message already shows the value
         return ParamError(path, rest, value, has_value=found)
-    return ParamError("", f"{at}: {msg}" if at else msg)
+    return _several(msg, base, defaults, values)
+
+
+def _several(
+    msg: str, base: str, defaults: dict[str, Any], values: Mapping[str, Any]
+) -> ParamError:
+    """A message about no one field: the values of the fields it names are appended."""
+    named = [n for n in dict.fromkeys(re.findall(r"[A-Za-z_]\w*", msg)) if n in defaults]
+    shown = []
+    for name in named:
+        found, value = _lookup(values, base + name)
+        shown.append(f"{base}{name}={(value if found else defaults[name])!r}")
+    text = f"{base.rstrip('.')}: {msg}" if base else msg
+    return ParamError(
+        "", f"{text}, got {', '.join(shown)}" if shown and " got " not in msg else text
+    )
 
 
 def build_params(cls: type[Any], values: Mapping[str, Any] | None) -> Any:
@@ -277,6 +293,14 @@ _UNITS = (
     ("_bytes", "bytes"),
 )
 _PROBES: dict[type, tuple[Any, ...]] = {int: (-(10**9), 10**9), float: (-1e9, 1e9), str: ("?",)}
+
+
+class _Required:
+    def __repr__(self) -> str:
+        return "(required)"
+
+
+REQUIRED = _Required()  # the default of a parameter that has none
 
 
 @dataclasses.dataclass(frozen=True)
@@ -332,18 +356,39 @@ def _attribute_docs(cls: type[Any]) -> dict[str, str]:
 
 
 def _probe(cls: type[Any], name: str, kind: type) -> tuple[str, ...]:
-    """The limits the class's own check states for ``name``, found by trying far-out values."""
+    """The limits the class's own check states for ``name``, found by trying far-out values.
+
+    Required string fields get a placeholder, so that a class with a required path still
+    reaches its other checks.
+    """
+    hints = field_hints(cls)
+    base: dict[str, Any] = {
+        f.name: "?"
+        for f in dataclasses.fields(cls)
+        if _default(f) is dataclasses.MISSING and _base_type(hints[f.name]) is str
+    }
     rules: list[str] = []
     for value in _PROBES[kind]:
+        values = {**base, name: value}
         try:
-            msgspec.convert({name: value}, cls, strict=False)
+            msgspec.convert(values, cls, strict=False)
         except (msgspec.ValidationError, ValueError, TypeError) as err:
-            found = rewrite(err, cls, {name: value})
+            found = rewrite(err, cls, values)
             if found.path == name and found.rule.startswith("must be "):
                 rule = found.rule.removeprefix("must be ")
                 if rule not in rules:
                     rules.append(rule)
     return tuple(rules)
+
+
+def _base_type(hint: Any) -> Any:
+    """``int`` for ``int``, ``int | None`` and ``Annotated[int, ...]``; None for other unions."""
+    if typing.get_origin(hint) is Annotated:
+        hint = typing.get_args(hint)[0]
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        options = [a for a in typing.get_args(hint) if a is not type(None)]
+        return options[0] if len(options) == 1 else None
+    return hint
 
 
 def describe(cls: type[Any], prefix: str = "") -> list[ParamInfo]:
@@ -357,18 +402,15 @@ def describe(cls: type[Any], prefix: str = "") -> list[ParamInfo]:
         if nested is not None:
             out += describe(nested, f"{prefix}{f.name}.")
             continue
-        base = typing.get_args(hint)[0] if typing.get_origin(hint) is Annotated else hint
-        union = typing.get_origin(base) in (typing.Union, types.UnionType)
-        options = [a for a in typing.get_args(base) if a is not type(None)] if union else [base]
-        kind = options[0] if len(options) == 1 and options[0] in _PROBES else None
+        kind = _base_type(hint)
         default = _default(f)
         out.append(
             ParamInfo(
                 path=f"{prefix}{f.name}",
                 type=_type_text(hint),
-                default="(required)" if default is dataclasses.MISSING else default,
+                default=REQUIRED if default is dataclasses.MISSING else default,
                 unit=unit_of(f.name),
-                limits=_probe(cls, f.name, kind) if kind is not None else (),
+                limits=_probe(cls, f.name, kind) if kind in _PROBES else (),
                 doc=docs.get(f.name, ""),
             )
         )

@@ -423,3 +423,31 @@ def test_check_imports_only_the_modules_the_graph_names(tmp_path: Path) -> None:
         "tests.runtime.nodes_for_tests",
         "tests.synthetic_nodes",
     ]
+
+
+def test_every_registered_implementation_reports_bad_params_in_the_one_style() -> None:
+    import nodes
+    from runtime.params import ParamError, build_params, describe
+    from runtime.registry import resolve
+
+    nodes.import_all()
+    checked = 0
+    for impl in known():
+        params_cls = resolve(impl).Params
+        for info in describe(params_cls):
+            if info.type not in ("int", "float", "int | None", "float | None"):
+                continue
+            values: dict = {}
+            inner = values
+            *parents, leaf = info.path.split(".")
+            for key in parents:
+                inner = inner.setdefault(key, {})
+            inner[leaf] = -(10**9)
+            try:
+                build_params(params_cls, values)
+            except ParamError as err:
+                text = str(err)
+                assert "Expected" not in text and "$." not in text, (impl, text)
+                assert ", got " in text or err.rule.startswith("is required"), (impl, text)
+                checked += 1
+    assert checked > 50
