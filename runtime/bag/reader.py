@@ -82,19 +82,6 @@ class BagMessage:
             raise BagError(f"{self.where()}: header is not a frame header")
         return obj
 
-    def check(self) -> None:
-        """Raise :class:`BagError` unless the message unpacks and carries its channel's type."""
-        frames = self.frames()
-        head = self.header()
-        schema = self.channel.schema
-        if head["type"] != schema.type_name or head.get("fp") != schema.fingerprint:
-            raise BagError(
-                f"{self.where()}: carries {head['type']} {head.get('fp')}, the channel "
-                f"{schema.type_name} {schema.fingerprint}"
-            )
-        if len(frames) - 1 != len(head["arrays"]):
-            raise BagError(f"{self.where()}: header and arrays disagree")
-
     def decode_plain(self) -> dict[str, Any]:
         """Decode without today's classes: scalar fields as plain values, arrays as numpy views.
 
