@@ -195,6 +195,9 @@ class BagReader:
 
     def close(self) -> None:
         """Unmap the file (messages still referenced keep it mapped until they are freed)."""
+        self.chunks = []  # these records hold views on the map
+        self._loose = []
+        self._schemas = {}
         try:
             self._view.release()
             self._mm.close()
