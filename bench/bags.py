@@ -83,7 +83,7 @@ FULL = Sizes(frames_per_camera=450, repeats=3, live_secs=10.0, zstd=True)
 
 def camera_frames(count: int) -> list[tuple[str, list[Any]]]:
     """``count`` frames per camera, encoded, alternating left and right (distinct pixels)."""
-    from nodes.bench_nodes import bench_images
+    from bench.nodes import bench_images
 
     depth_m, ir = bench_images(ROWS, COLS)
     out = []
@@ -356,9 +356,10 @@ def run_replay(bag: Path, workdir: Path, lockstep: bool, work_secs: float, fan_i
 
 
 def run(quick: bool) -> list[Row]:
+    import bench.nodes  # noqa: F401  (registers bench.image_source and bench.image_sink)
     import nodes
 
-    nodes.import_all()  # the default graph's nodes, the bench nodes, recorder and replay
+    nodes.import_all()  # the default graph's nodes, recorder and replay
 
     sizes = QUICK if quick else FULL
     with tempfile.TemporaryDirectory(prefix="bench_bags_") as tmp:

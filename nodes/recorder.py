@@ -1,9 +1,9 @@
 """The ``recorder`` node: writes every message it receives, undecoded, into an MCAP bag.
 
 Ports:
-    inputs: any, named freely in the graph (``{t0: left_camera/image, t1: pose/estimate}``);
+    inputs: any, named freely in the graph (``{t0: left_camera/image, t1: pose/pose}``);
         a raw-input node, so each message arrives as its multipart frames and any type is
-        accepted. ``launch.py GRAPH --record OUT.mcap [--topics RE]`` adds one for you.
+        accepted. ``launch.py GRAPH --record OUT.mcap [--record-topics RE]`` adds one for you.
     outputs: none.
 
 Wire format in the bag: see :mod:`runtime.bag` (one channel per topic, the frames as

@@ -23,7 +23,7 @@ so downstream nodes that use message stamps behave exactly as they did live. Pac
   The launcher must run the graph with ``lockstep=True`` for the runtime to track idleness.
 
 ``start_secs``/``end_secs`` cut the bag (seconds from its first message), ``topics`` selects
-topics (a regex, ``re.search`` like ``launch.py --topics``), ``remap`` renames them (``{bag_topic: published_topic}``), and
+topics (a regex, ``re.search`` like ``launch.py --record-topics``), ``remap`` renames them (``{bag_topic: published_topic}``), and
 ``loop`` starts over at the end. When done (and not looping) the node waits for the graph
 to drain and asks it to stop.
 
@@ -107,7 +107,7 @@ def replay_topics(params: ReplayParams) -> dict[str, tuple[str, type[Message]]]:
             raise ValueError(
                 f"{params.path}: topic {topic}: channel at offset {channel.offset} carries "
                 f"{schema.type_name}, and {why}; the graph cannot accept it "
-                "(leave the topic out with topics/--topics, or read it with `bag echo`)"
+                "(leave the topic out with topics/--replay-topics, or read it with `bag echo`)"
             )
         if published in out:
             raise ValueError(

@@ -1,6 +1,6 @@
 """Point-to-point ICP against a sampled model surface: the baseline soft-bubble code uses.
 
-FACTS.md: public pipelines run Open3D point-to-point ICP with a 5 mm correspondence
+docs/facts.md: public pipelines run Open3D point-to-point ICP with a 5 mm correspondence
 distance and up to 1000 iterations. Here the model surface is sampled once (uniform
 by area, object frame) into a k-d tree; each iteration pairs every tool point, moved
 by the current ``object_from_tool``, with its nearest model point within
@@ -15,9 +15,9 @@ from __future__ import annotations
 import functools
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from geometry.fields import Field
 from perception.pose.common import (
@@ -28,10 +28,13 @@ from perception.pose.common import (
     scaled_information,
 )
 
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
+
 
 @dataclass(frozen=True, kw_only=True)
 class IcpParams:
-    """Knobs of the ICP baseline (defaults from FACTS.md, iterations capped lower)."""
+    """Knobs of the ICP baseline (defaults from docs/facts.md, iterations capped lower)."""
 
     max_correspondence_m: float = 0.005
     max_iterations: int = 100
@@ -50,6 +53,8 @@ class IcpParams:
 
 @functools.lru_cache(maxsize=8)
 def _model_tree(fld: Field, n: int) -> tuple[np.ndarray, cKDTree]:
+    from scipy.spatial import cKDTree  # only when ICP runs: 0.4 s a node need not pay
+
     pts = fld.sample_surface(n, np.random.default_rng(12345))
     return pts, cKDTree(pts)
 

@@ -657,7 +657,7 @@ def test_other_spellings_of_the_declared_dtype_are_accepted(spelling: str) -> No
 def test_decode_header_alone() -> None:
     wire = decode_header(_tof_frames()[1])
     assert (wire.type, wire.fp) == ("ToFImage", ToFImage.schema().fingerprint)
-    assert [row[0] for row in wire.arrays] == ["depth_m", "ir"]
+    assert [row[0] for row in wire.arrays] == ["depth_m", "ir", "tool_from_sensor"]
     with pytest.raises(FrameDecodeError):
         decode_header(b"\x93garbage")
 
@@ -745,7 +745,11 @@ def test_fast_and_slow_encode_paths_send_the_same_bytes(
                 "cx_px": 112.0,
                 "cy_px": 86.0,
             },
-            "arrays": [["depth_m", "<f4", [172, 224]], ["ir", "<u2", [172, 224]]],
+            "arrays": [
+                ["depth_m", "<f4", [172, 224]],
+                ["ir", "<u2", [172, 224]],
+                ["tool_from_sensor", "<f8", [4, 4]],
+            ],
         }
     )
     assert bytes(fast[2]) == depth.tobytes() and bytes(fast[3]) == ir.tobytes()

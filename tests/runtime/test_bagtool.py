@@ -10,7 +10,7 @@ import yaml
 
 import nodes.recorder  # noqa: F401  (registers the implementations the graphs name)
 import nodes.replay  # noqa: F401
-import nodes.synthetic  # noqa: F401
+import tests.synthetic_nodes  # noqa: F401  (registers the synthetic nodes)
 from messages.base import Header
 from messages.errors import GraphError
 from messages.types import Tick, ToFImage
@@ -135,7 +135,7 @@ def test_replay_main_prints_the_graph_from_the_bag(
     code = replay_main(
         [
             str(bag),
-            "--replace",
+            "--swap",
             "relay=synthetic.relay",
             "--fast",
             "--start",
@@ -148,7 +148,7 @@ def test_replay_main_prints_the_graph_from_the_bag(
     assert set(graph["nodes"]) == {"relay", "merge", "sink", "replay"}
     assert graph["nodes"]["replay"]["params"]["fast"] is True
     assert graph["nodes"]["replay"]["params"]["start_secs"] == 0.5
-    assert replay_main([str(bag), "--replace", "ghost", "--print-graph"]) == 2
+    assert replay_main([str(bag), "--swap", "ghost", "--print-graph"]) == 2
     assert "no node 'ghost'" in capsys.readouterr().err
 
 
@@ -272,7 +272,7 @@ def test_swapped_impl_drops_old_params_and_set_applies(
     bag = make_bag(tmp_path / "a.mcap")
     graph = build_replay_graph(GRAPH, bag, {"relay": f"{__name__}:PlainRelay"})
     assert graph["nodes"]["relay"]["params"] == {}
-    code = replay_main([str(bag), "--replace", "relay", "--set", "relay.add=7", "--print-graph"])
+    code = replay_main([str(bag), "--swap", "relay", "--set", "relay.add=7", "--print-graph"])
     assert code == 0
     assert yaml.safe_load(capsys.readouterr().out)["nodes"]["relay"]["params"] == {"add": 7}
 
