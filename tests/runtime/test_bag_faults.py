@@ -19,7 +19,6 @@ import numpy as np
 import pytest
 
 import nodes.recorder  # noqa: F401  (registers the implementations the graphs name)
-import nodes.synthetic  # noqa: F401
 from messages.base import Header
 from messages.codec import encode
 from messages.errors import BagError, NodeError
