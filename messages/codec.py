@@ -14,6 +14,10 @@ join. Arrays are sent from their own memory (no copy when already contiguous and
 little-endian) and received as read-only views on the ZeroMQ frames' buffers.
 Every way a frame can be wrong raises :class:`FrameDecodeError` (or its subclass
 :class:`FingerprintMismatchError`); nothing else escapes :func:`decode`.
+
+Bags store the same content as ONE MessagePack value per message (:func:`pack_single`,
+:func:`unpack_single`, at the end of this module), so any MessagePack library reads a
+recorded message whole; the live wire stays multipart and zero-copy.
 """
 
 from __future__ import annotations

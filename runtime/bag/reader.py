@@ -31,6 +31,7 @@ from messages.errors import BagError, FrameDecodeError
 from runtime.bag.packing import unpack
 from runtime.bag.scan import ChunkRef, Scanner, Warn, chunk_records, walk_chunk
 from runtime.bag.schema import ChannelInfo, TopicSchema
+from runtime.bag.writer import TopicCounts
 
 log = logging.getLogger(__name__)
 
@@ -80,19 +81,6 @@ class BagMessage:
         if not isinstance(obj, dict) or not {"type", "fields", "arrays"} <= set(obj):
             raise BagError(f"{self.where()}: header is not a frame header")
         return obj
-
-    def check(self) -> None:
-        """Raise :class:`BagError` unless the message unpacks and carries its channel's type."""
-        frames = self.frames()
-        head = self.header()
-        schema = self.channel.schema
-        if head["type"] != schema.type_name or head.get("fp") != schema.fingerprint:
-            raise BagError(
-                f"{self.where()}: carries {head['type']} {head.get('fp')}, the channel "
-                f"{schema.type_name} {schema.fingerprint}"
-            )
-        if len(frames) - 1 != len(head["arrays"]):
-            raise BagError(f"{self.where()}: header and arrays disagree")
 
     def decode_plain(self) -> dict[str, Any]:
         """Decode without today's classes: scalar fields as plain values, arrays as numpy views.
@@ -145,19 +133,15 @@ class BagMessage:
             raise BagError(f"{self.where()}: {err}") from err
 
 
-@dataclass
-class TopicStats:
+@dataclass(kw_only=True)
+class TopicStats(TopicCounts):
     """Per-topic figures from a full pass over a bag."""
 
     topic: str
     type_name: str
     fingerprint: str
-    messages: int = 0
-    bytes: int = 0
     first_log_nanos: int = 0
     last_log_nanos: int = 0
-    seq_gaps: int = 0
-    last_seq: int | None = None
 
     @property
     def rate_hz(self) -> float:
@@ -211,6 +195,9 @@ class BagReader:
 
     def close(self) -> None:
         """Unmap the file (messages still referenced keep it mapped until they are freed)."""
+        self.chunks = []  # these records hold views on the map
+        self._loose = []
+        self._schemas = {}
         try:
             self._view.release()
             self._mm.close()
@@ -429,17 +416,19 @@ class BagReader:
             s = out.get(m.topic)
             if s is None:
                 schema = m.channel.schema
-                s = out[m.topic] = TopicStats(m.topic, schema.type_name, schema.fingerprint)
+                s = out[m.topic] = TopicStats(
+                    topic=m.topic, type_name=schema.type_name, fingerprint=schema.fingerprint
+                )
                 s.first_log_nanos = m.log_time_nanos
             s.messages += 1
             s.bytes += m.payload.nbytes
             s.last_log_nanos = m.log_time_nanos
-            if s.last_seq is not None and m.sequence > s.last_seq + 1:
-                s.seq_gaps += m.sequence - s.last_seq - 1
-            s.last_seq = m.sequence
+            s.see(m.sequence)
         for channel in self.channels.values():
             if channel.topic not in out:
                 out[channel.topic] = TopicStats(
-                    channel.topic, channel.schema.type_name, channel.schema.fingerprint
+                    topic=channel.topic,
+                    type_name=channel.schema.type_name,
+                    fingerprint=channel.schema.fingerprint,
                 )
         return out

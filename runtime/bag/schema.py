@@ -99,12 +99,18 @@ def unit_of(name: str) -> str | None:
     return None
 
 
-def _note(type_name: str, name: str) -> str | None:
-    if f"{type_name}.{name}" in NOTES:
-        return NOTES[f"{type_name}.{name}"]
-    if name in NOTES:
-        return NOTES[name]
-    return POSE_NOTE if "_from_" in name else None
+def _meaning(type_name: str, name: str) -> dict[str, str]:
+    """The ``unit`` and ``note`` of a field, where its name or :data:`NOTES` give them."""
+    out = {}
+    unit = unit_of(name)
+    if unit:
+        out["unit"] = unit
+    note = NOTES.get(f"{type_name}.{name}") or NOTES.get(name)
+    if note is None and "_from_" in name:
+        note = POSE_NOTE
+    if note:
+        out["note"] = note
+    return out
 
 
 def _scalar_type(desc: Any) -> str:
@@ -125,14 +131,7 @@ def _fields(type_name: str, prefix: str, described: list[Any], out: dict[str, An
             continue
         if isinstance(desc, dict) and "array" in desc:
             continue
-        entry: dict[str, Any] = {"type": _scalar_type(desc)}
-        unit = unit_of(name)
-        if unit:
-            entry["unit"] = unit
-        note = _note(type_name, name)
-        if note:
-            entry["note"] = note
-        out[path] = entry
+        out[path] = {"type": _scalar_type(desc), **_meaning(type_name, name)}
 
 
 def _arrays(type_name: str, described: list[Any]) -> dict[str, Any]:
@@ -147,13 +146,8 @@ def _arrays(type_name: str, described: list[Any]) -> dict[str, Any]:
             "byte_order": "little" if dtype.itemsize > 1 else "n/a (1 byte)",
             "order": "C (row-major)",
             "shape": desc["array"]["shape"],  # null = any length on that axis
+            **_meaning(type_name, name),
         }
-        unit = unit_of(name)
-        if unit:
-            entry["unit"] = unit
-        note = _note(type_name, name)
-        if note:
-            entry["note"] = note
         out[name] = entry
     return out
 

@@ -1050,9 +1050,10 @@ def test_bad_stored_value_raises_frame_decode_error(case: str) -> None:
 
 def test_pack_single_refuses_frames_that_disagree_with_their_header() -> None:
     frames = _tof_frames()
+    arrays = len(frames) - 2
     with pytest.raises(FrameDecodeError, match="buffer of"):
         pack_single([*frames[1:-1], frames[-1][:-1]])
-    with pytest.raises(FrameDecodeError, match="3 arrays, got 2"):
+    with pytest.raises(FrameDecodeError, match=f"{arrays} arrays, got {arrays - 1}"):
         pack_single(frames[1:-1])
     with pytest.raises(FrameDecodeError, match="bad frame header"):
         pack_single([b"\xc1", *frames[2:]])
