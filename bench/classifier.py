@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bench.common import Row, main, median, one_core
+from bench.common import Row, main, median, one_core, progress
 from perception.classify.checkpoint import Classifier
 from perception.classify.dataset import load_samples, read_grasp, read_manifest
 from perception.classify.preprocess import MODALITIES, InputSpec, frame_input
@@ -94,7 +94,8 @@ def run(quick: bool) -> list[Row]:
             epochs, frames_per_grasp, grasps, repeats = 4, 2, 160, 30
         frame = _first_frame(test_dir)
         rows = []
-        for modality, px, width in grid:
+        points = progress(grid, "bench.classifier", label=lambda g: f"{g[0]} {g[1]} px w{g[2]}")
+        for modality, px, width in points:
             spec = InputSpec(modality=modality, input_px=px)
             samples = load_samples(
                 train_dir, spec, max_frames_per_grasp=frames_per_grasp, max_grasps=grasps

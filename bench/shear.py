@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 import sim
-from bench.common import Row, main, median, one_core, percentile
+from bench.common import Row, main, median, one_core, percentile, progress
 from geometry.camera import PinholeCamera
 from geometry.gripper import SIDES
 from messages.types import ToFImage
@@ -351,7 +351,8 @@ def run(quick: bool) -> list[Row]:
     """Every setting on the same sequences."""
     one_core()
     seqs = sequences(quick)
-    return [evaluate(name, params, seqs) for name, params in settings(quick)]
+    sweep = progress(settings(quick), "bench.shear", label=lambda point: point[0])
+    return [evaluate(name, params, seqs) for name, params in sweep]
 
 
 def plot(rows: list[Row], path: Path) -> None:
