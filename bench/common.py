@@ -135,6 +135,21 @@ def percentile(values: Sequence[float], q: float) -> float:
     return float(np.percentile(np.asarray(values, dtype=float), q)) if len(values) else float("nan")
 
 
+def plain_log_ticks(ax: Any, which: str) -> None:
+    """Log scale on the ``which`` axes (``"x"``, ``"y"`` or ``"xy"``) of a matplotlib
+    ``ax``, labelled at 1-2-3-5 steps in plain numbers: by default matplotlib labels the
+    minor ticks of a log axis that spans less than a decade, and those labels overlap."""
+    from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter
+
+    steps = [m * 10.0**e for e in range(-4, 6) for m in (1, 2, 3, 5)]
+    for name in which:
+        getattr(ax, f"set_{name}scale")("log")
+        axis = getattr(ax, f"{name}axis")
+        axis.set_major_locator(FixedLocator(steps))
+        axis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+        axis.set_minor_formatter(NullFormatter())
+
+
 def format_table(rows: Sequence[Row], columns: Sequence[str] | None = None) -> str:
     """A plain fixed-width table; floats to 4 significant digits."""
     if not rows:
