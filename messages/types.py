@@ -8,7 +8,7 @@ or ``"right"``.
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 import msgspec
 import numpy as np
@@ -59,6 +59,9 @@ class ToFImage(Message):
     cy_px: float
     tool_from_sensor: Pose4x4 = msgspec.field(default_factory=_unknown_pose)
 
+    finite_fields: ClassVar[tuple[str, ...]] = ("depth_m", "fx_px", "fy_px", "cx_px", "cy_px")
+    nan_marks_invalid: ClassVar[frozenset[str]] = frozenset({"depth_m"})
+
 
 class Pressure(Message):
     """A bubble's internal pressure, gauge (over ambient)."""
@@ -66,6 +69,8 @@ class Pressure(Message):
     header: Header
     sensor: str
     pressure_pa: float
+
+    finite_fields: ClassVar[tuple[str, ...]] = ("pressure_pa",)
 
 
 class GripperState(Message):
@@ -76,6 +81,8 @@ class GripperState(Message):
     speed_m_per_s: float
     force_n: float
     state: str = "idle"  # idle | moving | holding | fault
+
+    finite_fields: ClassVar[tuple[str, ...]] = ("width_m", "speed_m_per_s", "force_n")
 
 
 class GripperCommand(Message):

@@ -7,18 +7,25 @@ heartbeat stops, or that stays busy in one handler longer than its
 ``hang_timeout_secs``, is handled by its restart policy (``never``, or
 ``on-failure`` with exponential back-off and a cap); when a node marked
 ``required`` fails for good, the graph stops with a non-zero exit and that node's
-last log lines. Stopping (Ctrl-C, SIGTERM, ``--duration``, a node's request):
-every node is asked to stop, then terminated after a grace period, then killed;
-children die with the launcher even on SIGKILL (``PR_SET_PDEATHSIG``).
+last log lines. A node that is starting (first start or restart) has
+``STARTUP_TIMEOUT_SECS`` to say ready; the heartbeat rule applies once it runs.
+Stopping (Ctrl-C, SIGTERM, ``--duration``, a node's request): every node is asked to
+stop, then terminated after a grace period, then killed; after a signal the whole
+stop takes at most ``SIGNAL_STOP_SECS`` and the exit code is 128 + the signal's
+number. Children die with the launcher even on SIGKILL (``runtime.child``), and the
+last of them removes the run folder. Control messages are signed with a per-run
+secret and checked (``runtime.protocol``); a bad one is counted and logged.
 """
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import os
 import re
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -34,8 +41,10 @@ import zmq
 
 from messages.errors import GraphError
 from runtime import protocol
-from runtime.graph import Graph, NodeSpec, check
+from runtime.graph import RUNDIR_PREFIX, Graph, NodeSpec, check, ipc_path
+from runtime.protocol import ControlError
 from runtime.registry import class_path
+from runtime.summary import add_stats, table
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 STARTUP_TIMEOUT_SECS = 300.0
@@ -43,13 +52,20 @@ HEARTBEAT_TIMEOUT_SECS = 5.0
 DRAIN_SECS = 3.0
 STOP_GRACE_SECS = 5.0
 TERM_GRACE_SECS = 2.0
+# After Ctrl-C or SIGTERM: "stop", then SIGTERM, then SIGKILL, all within 2 s.
+SIGNAL_STOP_GRACE_SECS = 1.0
+SIGNAL_TERM_GRACE_SECS = 0.5
 LOG_TAIL_LINES = 20
+_REFUSED_LOG_FIRST = 10
+_REFUSED_LOG_EVERY = 100
 
 
 @dataclass
 class _Proc:
     spec: NodeSpec
     popen: subprocess.Popen[bytes] | None = None
+    rid: bytes | None = None  # the ROUTER id of the node's main control socket
+    spawned_at: float = 0.0
     endpoint: str | None = None
     state: str = "new"  # new | hello | ready | running | exited | waiting_restart | failed
     restarts: int = 0
@@ -98,15 +114,33 @@ class Launcher:
         self.idle_waiters: list[bytes] = []
         self.started_at = 0.0
         self.stopped_at = 0.0
+        self.refused = 0  # control messages that failed the checks
         self._print_lock = threading.Lock()
-        self._signals = 0
-        self.rundir = Path(tempfile.mkdtemp(prefix="sbg-"))
-        self.ctx: zmq.Context[Any] = zmq.Context()
+        self._signals: list[int] = []
+        self.secret = protocol.new_secret()
+        for spec in graph.nodes.values():
+            if spec.host is not None:
+                refuse_remote_host(spec.name, spec.host)
+        self.rundir: Path | None = None
+        self.ctx: zmq.Context[Any] | None = None
+
+    def _open(self) -> None:
+        """The run folder (for ``ipc://`` endpoints) and the control socket."""
+        _sweep_stale_rundirs()
+        self.rundir = Path(tempfile.mkdtemp(prefix=f"{RUNDIR_PREFIX}{os.getpid()}-"))
+        self.ctx = zmq.Context()
         self.control = self.ctx.socket(zmq.ROUTER)
         self.control.setsockopt(zmq.LINGER, 0)
         self.control.setsockopt(zmq.ROUTER_MANDATORY, 1)
         self.control_endpoint = f"ipc://{self.rundir}/control"
         self.control.bind(self.control_endpoint)
+
+    def _close(self) -> None:
+        if self.ctx is not None:
+            self.control.close(linger=0)
+            self.ctx.term()
+        if self.rundir is not None:
+            shutil.rmtree(self.rundir, ignore_errors=True)
 
     # -- output ----------------------------------------------------------------
     def say(self, text: str, node: str = "launch") -> None:
@@ -127,7 +161,8 @@ class Launcher:
             return proc.endpoint
         if proc.spec.host:
             return f"tcp://{proc.spec.host}:*"
-        return f"ipc://{self.rundir}/{proc.spec.name}.pub"
+        assert self.rundir is not None, "the run folder is made before any node starts"
+        return f"ipc://{ipc_path(self.rundir, proc.spec.name)}"
 
     def _spawn(self, proc: _Proc) -> None:
         spec = proc.spec
@@ -149,6 +184,8 @@ class Launcher:
             "expected_subscribers": dict(self.expected[spec.name]),
             "bind": self._bind_endpoint(proc),
             "control": self.control_endpoint,
+            "secret": self.secret.hex(),
+            "rundir": str(self.rundir),
             "parent_pid": os.getpid(),
             "lockstep": self.lockstep,
             "barrier_topics": sorted(self.barrier_topics & set(spec.topics.values())),
@@ -159,23 +196,27 @@ class Launcher:
             filter(None, [str(PROJECT_ROOT), env.get("PYTHONPATH")])
         )
         env["PYTHONUNBUFFERED"] = "1"
+        # Its own process group: a Ctrl-C at the terminal reaches the launcher only,
+        # which stops the nodes in order.
         popen = subprocess.Popen(
-            [sys.executable, "-m", "runtime.process"],
+            [sys.executable, "-m", "runtime.child"],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             cwd=os.getcwd(),
             env=env,
+            process_group=0,
         )
         assert popen.stdin is not None and popen.stdout is not None
         popen.stdin.write(json.dumps(child_spec).encode())
         popen.stdin.close()
         threading.Thread(target=self._pump, args=(proc, popen.stdout), daemon=True).start()
         proc.popen = popen
+        proc.rid = None
         proc.state = "new"
-        proc.last_heartbeat = time.monotonic()
+        proc.spawned_at = proc.last_heartbeat = time.monotonic()
         proc.busy_secs = 0.0
-        proc.stats_base = _add_stats(proc.stats_base, proc.stats)
+        proc.stats_base = add_stats(proc.stats_base, proc.stats)
         proc.stats = {}
 
     def _reap(self) -> None:
@@ -234,20 +275,42 @@ class Launcher:
         self.say(f"node {proc.spec.name!r} {why}; killed")
 
     # -- control messages --------------------------------------------------------
-    def _send(self, name: str, kind: str, **body: Any) -> None:
+    def _send_to(self, rid: bytes | None, kind: str, **body: Any) -> None:
+        if rid is None:
+            return  # not connected yet: it has not said hello
         try:
-            self.control.send_multipart([name.encode(), protocol.pack(kind, **body)])
+            self.control.send_multipart([rid, *protocol.pack(self.secret, kind, **body)])
         except zmq.ZMQError:
             pass  # the node is gone; its exit is handled by _reap
 
-    def _on_message(self, ident: bytes, raw: bytes) -> None:
-        name, _, suffix = ident.decode().partition("#")
-        proc = self.procs.get(name)
-        if proc is None:
+    def _send(self, name: str, kind: str, **body: Any) -> None:
+        self._send_to(self.procs[name].rid, kind, **body)
+
+    def _refuse(self, why: str) -> None:
+        """Count and log a control message that failed the checks; never fatal."""
+        self.refused += 1
+        if self.refused <= _REFUSED_LOG_FIRST or self.refused % _REFUSED_LOG_EVERY == 0:
+            self.say(f"control: refused message #{self.refused}: {why}")
+
+    def _on_frames(self, frames: list[bytes]) -> None:
+        rid, rest = frames[0], frames[1:]
+        try:
+            msg = protocol.unpack(self.secret, rest, from_node=True)
+        except ControlError as err:
+            self._refuse(str(err))
             return
-        msg = protocol.unpack(raw)
+        proc = self.procs.get(msg["node"])
+        if proc is None or proc.popen is None or proc.popen.returncode is not None:
+            self._refuse(f"signed, but from no running node ({msg['node']!r:.40})")
+            return
+        self._on_message(proc, rid, msg)
+
+    def _on_message(self, proc: _Proc, rid: bytes, msg: dict[str, Any]) -> None:
+        name = proc.spec.name
         kind = msg["kind"]
         proc.last_heartbeat = time.monotonic()
+        if kind != "heartbeat":  # the heartbeat thread has a socket of its own
+            proc.rid = rid
         if kind == "hello":
             proc.endpoint = msg["endpoint"]
             proc.state = "hello"
@@ -270,7 +333,7 @@ class Launcher:
             proc.counts_published = msg["published"]
             proc.counts_received = msg["received"]
         elif kind == "wait_idle":
-            self.idle_waiters.append(ident)
+            self.idle_waiters.append(rid)
         elif kind == "stop_request":
             reason = msg.get("reason", "")
             if self.lockstep and self.graph.nodes[name].inputs:
@@ -300,16 +363,13 @@ class Launcher:
         if self.control.poll(timeout_ms):
             while True:
                 try:
-                    ident, raw = self.control.recv_multipart(zmq.NOBLOCK)
+                    frames = self.control.recv_multipart(zmq.NOBLOCK)
                 except zmq.Again:
                     break
-                self._on_message(ident, raw)
+                self._on_frames(frames)
         if self.idle_waiters and self._graph_idle():
-            for ident in self.idle_waiters:
-                try:
-                    self.control.send_multipart([ident, protocol.pack("idle")])
-                except zmq.ZMQError:
-                    pass
+            for rid in self.idle_waiters:
+                self._send_to(rid, "idle")
             self.idle_waiters.clear()
 
     # -- run ---------------------------------------------------------------------
@@ -318,15 +378,17 @@ class Launcher:
             self.stop_reason = reason
 
     def _on_signal(self, signum: int, frame: Any) -> None:
-        self._signals += 1
+        self._signals.append(signum)
         self._request_stop(f"signal {signal.Signals(signum).name}")
-        if self._signals >= 3:  # an impatient user: no more grace
+        if len(self._signals) >= 3:  # an impatient user: no more grace
             for proc in self.procs.values():
                 if proc.popen is not None and proc.popen.returncode is None:
                     proc.popen.kill()
 
     def _startup(self) -> bool:
         for proc in self.procs.values():
+            if self.stop_reason is not None:
+                return False
             self._spawn(proc)
         deadline = time.monotonic() + STARTUP_TIMEOUT_SECS
         connected = False
@@ -373,7 +435,13 @@ class Launcher:
             for proc in self.procs.values():
                 if proc.state == "waiting_restart" and now >= proc.restart_at:
                     self._spawn(proc)
-                elif proc.state in ("running", "new", "hello", "ready"):
+                elif proc.state in ("new", "hello", "ready"):
+                    # A restart is a start: the same allowance as the first one (it may be
+                    # importing torch or building a solver, and sends no heartbeat yet).
+                    if now - proc.spawned_at > STARTUP_TIMEOUT_SECS:
+                        self._kill_hung(proc, f"did not start within {STARTUP_TIMEOUT_SECS:.0f} s")
+                        proc.spawned_at = now
+                elif proc.state == "running":
                     if now - proc.last_heartbeat > HEARTBEAT_TIMEOUT_SECS:
                         self._kill_hung(
                             proc, f"sent no heartbeat for {HEARTBEAT_TIMEOUT_SECS:.0f} s"
@@ -395,7 +463,7 @@ class Launcher:
         """
         asked = time.monotonic()
         end = asked + DRAIN_SECS
-        while time.monotonic() < end and self._signals == 0:
+        while time.monotonic() < end and not self._signals:
             self._serve(50)
             self._reap()
             running = [p for p in self.procs.values() if p.state == "running"]
@@ -421,10 +489,14 @@ class Launcher:
             p for p in self.procs.values() if p.popen is not None and p.popen.returncode is None
         ]
         for proc in live:
-            self._send(proc.spec.name, "stop")
+            if proc.rid is None:  # still importing: it cannot hear "stop" yet
+                _signal(proc, signal.SIGTERM)
+            else:
+                self._send(proc.spec.name, "stop")
+        hurry = bool(self._signals)
         for signum, grace in (
-            (None, STOP_GRACE_SECS),
-            (signal.SIGTERM, TERM_GRACE_SECS),
+            (None, SIGNAL_STOP_GRACE_SECS if hurry else STOP_GRACE_SECS),
+            (signal.SIGTERM, SIGNAL_TERM_GRACE_SECS if hurry else TERM_GRACE_SECS),
             (signal.SIGKILL, 5.0),
         ):
             live = [
@@ -435,10 +507,7 @@ class Launcher:
             if signum is not None:
                 self.say(f"{len(live)} node(s) still running: sending {signum.name}")
                 for proc in live:
-                    try:
-                        os.kill(proc.popen.pid, signum)  # type: ignore[union-attr]
-                    except ProcessLookupError:
-                        pass
+                    _signal(proc, signum)
             end = time.monotonic() + grace
             while time.monotonic() < end and any(p.popen.returncode is None for p in live):  # type: ignore[union-attr]
                 self._serve(50)
@@ -449,6 +518,7 @@ class Launcher:
         """Start, supervise until something stops the graph, shut down, print the report."""
         old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         try:
+            self._open()
             self.say(f"starting {len(self.procs)} node(s) from {self.graph.source}")
             if self._startup():
                 self.started_at = time.monotonic()
@@ -461,37 +531,18 @@ class Launcher:
             self._shutdown()
             self.say(self.report())
         finally:
+            self._close()
             for s, handler in old.items():
                 signal.signal(s, handler)
-            self.control.close(linger=0)
-            self.ctx.term()
-            shutil.rmtree(self.rundir, ignore_errors=True)
+        if self._signals and self.exit_code == 0:
+            self.exit_code = 128 + self._signals[0]
         return self.exit_code
 
     # -- the end-of-run table ----------------------------------------------------
-    def totals(self) -> tuple[dict[str, dict[str, float]], dict[str, dict[str, Any]]]:
-        """Per topic (messages, rate, dropped, superseded, bad frames) and per node figures."""
-        elapsed = max(
-            (self.stopped_at or time.monotonic()) - (self.started_at or time.monotonic()), 1e-9
-        )
-        topics: dict[str, dict[str, float]] = {}
-        for proc in self.procs.values():
-            stats = _add_stats(proc.stats_base, proc.stats)
-            for topic, count in stats.get("published", {}).items():
-                row = topics.setdefault(
-                    topic, {"messages": 0, "dropped": 0, "superseded": 0, "bad_frames": 0}
-                )
-                row["messages"] += count
-        for proc in self.procs.values():
-            stats = _add_stats(proc.stats_base, proc.stats)
-            for inp in stats.get("inputs", {}).values():
-                row = topics.setdefault(
-                    inp["topic"], {"messages": 0, "dropped": 0, "superseded": 0, "bad_frames": 0}
-                )
-                for key in ("dropped", "superseded", "bad_frames"):
-                    row[key] += inp[key]
-        for row in topics.values():
-            row["rate_hz"] = row["messages"] / elapsed
+    def report(self) -> str:
+        """Per topic (messages, rate, dropped, superseded, bad, non-finite) and per node."""
+        elapsed = (self.stopped_at or time.monotonic()) - (self.started_at or time.monotonic())
+        stats = {name: add_stats(p.stats_base, p.stats) for name, p in self.procs.items()}
         nodes = {
             name: {
                 "restarts": p.restarts,
@@ -500,55 +551,70 @@ class Launcher:
             }
             for name, p in self.procs.items()
         }
-        return topics, nodes
-
-    def report(self) -> str:
-        topics, nodes = self.totals()
-        lines = [
-            f"{'topic':40} {'messages':>9} {'rate_hz':>9} {'dropped':>8} {'superseded':>10} {'bad':>5}"
-        ]
-        for topic in sorted(topics):
-            r = topics[topic]
-            lines.append(
-                f"{topic:40} {int(r['messages']):9d} {r['rate_hz']:9.1f} {int(r['dropped']):8d} "
-                f"{int(r['superseded']):10d} {int(r['bad_frames']):5d}"
-            )
-        lines.append("")
-        lines.append(f"{'node':28} {'restarts':>8} {'cpu_secs':>9} {'exit':>5}")
-        for name in sorted(nodes):
-            n = nodes[name]
-            lines.append(f"{name:28} {n['restarts']:8d} {n['cpu_secs']:9.2f} {str(n['exit']):>5}")
-        return "\n".join(lines)
+        text = table(stats, nodes, elapsed)
+        if self.refused:
+            text += f"\ncontrol: refused {self.refused} message(s) (malformed or not signed)"
+        return text
 
 
-def _add_stats(base: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
-    """Sum two stats snapshots (of two incarnations of one node)."""
-    if not base:
-        return dict(more)
-    if not more:
-        return dict(base)
-    published = dict(base.get("published", {}))
-    for topic, count in more.get("published", {}).items():
-        published[topic] = published.get(topic, 0) + count
-    inputs = {port: dict(v) for port, v in base.get("inputs", {}).items()}
-    for port, v in more.get("inputs", {}).items():
-        if port in inputs:
-            for key in ("received", "dropped", "superseded", "bad_frames"):
-                inputs[port][key] += v[key]
-        else:
-            inputs[port] = dict(v)
-    return {"published": published, "inputs": inputs}
+def _signal(proc: _Proc, signum: int) -> None:
+    if proc.popen is not None and proc.popen.returncode is None:
+        try:
+            os.kill(proc.popen.pid, signum)
+        except ProcessLookupError:
+            pass
+
+
+def _sweep_stale_rundirs() -> None:
+    """Remove run folders of launchers that died without cleaning up (SIGKILL before any
+    node could): ``sbg-PID-*`` of this user whose PID is gone."""
+    for path in Path(tempfile.gettempdir()).glob(f"{RUNDIR_PREFIX}*-*"):
+        pid = path.name[len(RUNDIR_PREFIX) :].partition("-")[0]
+        try:
+            if not pid.isdigit() or path.stat().st_uid != os.getuid():
+                continue
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            shutil.rmtree(path, ignore_errors=True)
+        except OSError:
+            continue
+
+
+def refuse_remote_host(node: str, host: str) -> None:
+    """Raise GraphError unless ``host`` is a loopback address (or a name of one).
+
+    Data and control travel unencrypted; a graph may bind to other addresses only with
+    encryption, which this runtime does not offer yet.
+    """
+    try:
+        infos = socket.getaddrinfo(host, None, proto=socket.IPPROTO_TCP)
+        addresses = {ipaddress.ip_address(info[4][0]) for info in infos}
+    except (OSError, ValueError) as err:
+        raise GraphError(f"node {node!r}: host {host!r} is not an address: {err}") from err
+    if not addresses or not all(a.is_loopback for a in addresses):
+        raise GraphError(
+            f"node {node!r}: host {host!r} is not a loopback address; frames and control "
+            "would travel unencrypted on the network, and this graph does not enable "
+            "encryption (not supported yet): use 127.0.0.1 or leave 'host' out"
+        )
 
 
 def add_recorder(
-    doc: dict[str, Any], path: Path, topics: str | None, command_line: str, source: str = ""
+    doc: dict[str, Any],
+    path: Path,
+    topics: str | None,
+    command_line: str,
+    source: str = "",
+    *,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
-    """Return ``doc`` with a ``recorder`` node subscribed to every topic matching ``topics``."""
+    """Return ``doc`` with a ``recorder`` node subscribed to every topic matching ``topics``
+    (``overwrite``: it may replace a finished bag at ``path``)."""
     graph = check(doc)
     pattern = re.compile(topics or ".*")
     chosen = sorted(t for t in graph.providers() if pattern.search(t))
     if not chosen:
-        raise GraphError(f"--topics {topics!r} matches no topic of the graph")
+        raise GraphError(f"--record-topics {topics!r} matches no topic of the graph")
     doc = yaml.safe_load(yaml.safe_dump(doc))
     name = "recorder"
     while name in doc["nodes"]:
@@ -560,6 +626,7 @@ def add_recorder(
             "graph_yaml": yaml.safe_dump(graph.document, sort_keys=False),
             "graph_source": source,
             "command_line": command_line,
+            "overwrite": overwrite,
         },
         "inputs": {
             f"t{i}": {"from": t, "policy": "queue", "queue_size": 10000}
@@ -576,6 +643,7 @@ def launch(
     source: str,
     record: Path | None = None,
     topics: str | None = None,
+    overwrite: bool = False,
     lockstep: bool = False,
     duration_secs: float | None = None,
     log_level: str = "INFO",
@@ -584,12 +652,19 @@ def launch(
     """Check and run a graph document; returns the exit code (2 when the check fails)."""
     try:
         if record is not None:
-            graph = add_recorder(graph, record, topics, command_line or " ".join(sys.argv), source)
+            graph = add_recorder(
+                graph,
+                record,
+                topics,
+                command_line or " ".join(sys.argv),
+                source,
+                overwrite=overwrite,
+            )
         checked = check(graph, source=source)
+        launcher = Launcher(
+            checked, lockstep=lockstep, duration_secs=duration_secs, log_level=log_level
+        )
     except GraphError as err:
         print(f"graph check failed:\n{err}", file=sys.stderr)
         return 2
-    launcher = Launcher(
-        checked, lockstep=lockstep, duration_secs=duration_secs, log_level=log_level
-    )
     return launcher.run()

@@ -15,9 +15,9 @@ from __future__ import annotations
 import functools
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from geometry.fields import Field
 from perception.pose.common import (
@@ -27,6 +27,9 @@ from perception.pose.common import (
     residuals_and_jacobian,
     scaled_information,
 )
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -50,6 +53,8 @@ class IcpParams:
 
 @functools.lru_cache(maxsize=8)
 def _model_tree(fld: Field, n: int) -> tuple[np.ndarray, cKDTree]:
+    from scipy.spatial import cKDTree  # only when ICP runs: 0.4 s a node need not pay
+
     pts = fld.sample_surface(n, np.random.default_rng(12345))
     return pts, cKDTree(pts)
 

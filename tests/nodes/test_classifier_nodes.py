@@ -117,7 +117,8 @@ def test_refuses_checkpoint_of_other_classes(tmp_path: Path) -> None:
 
 
 def test_missing_checkpoint_names_the_field(tmp_path: Path) -> None:
-    with pytest.raises(NodeError, match=r"classifier: params\.model: .*no such checkpoint"):
+    # refused when the parameters are built (the graph checker's time), before setup
+    with pytest.raises(ValueError, match=r"^model must name an existing file .*none\.pt'$"):
         make_node(ResNet18ClassifierNode, {"model": str(tmp_path / "none.pt")}, name="classifier")
 
 
