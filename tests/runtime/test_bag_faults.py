@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 import nodes.recorder  # noqa: F401  (registers the implementations the graphs name)
-import nodes.synthetic  # noqa: F401
+import tests.synthetic_nodes  # noqa: F401  (registers the synthetic nodes)
 from messages.base import Header
 from messages.codec import encode
 from messages.errors import BagError, NodeError

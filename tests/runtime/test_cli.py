@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 import launch
-import nodes.synthetic  # noqa: F401 - registers the synthetic nodes
+import tests.synthetic_nodes  # noqa: F401 - registers the synthetic nodes
 from runtime.bagtool import replay_main
 from runtime.cli import node_details, node_table
 from tests.runtime.test_bagtool import make_bag

@@ -401,13 +401,13 @@ def test_check_imports_only_the_modules_the_graph_names(tmp_path: Path) -> None:
     path = tmp_path / "g.yaml"
     path.write_text(
         f"nodes:\n  p: {{impl: '{PRESSURE}'}}\n"
-        "  sink: {impl: 'nodes.synthetic:SyntheticSink', inputs: {tick: src/tick}}\n"
-        "  src: {impl: 'nodes.synthetic:SyntheticSource'}\n"
+        "  sink: {impl: 'tests.synthetic_nodes:SyntheticSink', inputs: {tick: src/tick}}\n"
+        "  src: {impl: 'tests.synthetic_nodes:SyntheticSource'}\n"
     )
     code = (
         "import sys; from runtime import graph; graph.load(sys.argv[1]); "
         "print(' '.join(sorted(m for m in sys.modules if m.split('.')[0] in "
-        "('nodes', 'torch', 'casadi', 'cv2', 'perception', 'sim', 'scipy'))))"
+        "('nodes', 'tests', 'torch', 'casadi', 'cv2', 'perception', 'sim', 'scipy'))))"
     )
     proc = subprocess.run(
         [sys.executable, "-c", code, str(path)],
@@ -417,4 +417,10 @@ def test_check_imports_only_the_modules_the_graph_names(tmp_path: Path) -> None:
         timeout=120,
         check=True,
     )
-    assert proc.stdout.split() == ["nodes", "nodes.synthetic"]
+    # The graph's own modules (test nodes here), no production node, no heavy library.
+    assert proc.stdout.split() == [
+        "tests",
+        "tests.runtime",
+        "tests.runtime.nodes_for_tests",
+        "tests.synthetic_nodes",
+    ]
