@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -59,7 +58,7 @@ import yaml
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from bench.common import Row, main, median
+from bench.common import Row, launcher_log, main, median
 from messages import Header, ToFImage, encode
 from runtime.bag import BagReader, BagWriter
 from runtime.node import Node
@@ -259,8 +258,8 @@ class ImageRelay(Node):
 def _launch(graph: dict[str, Any], **kwargs: Any) -> int:
     from runtime.launcher import launch
 
-    # The launcher prints its end-of-run table; keep stdout for the benchmark's own output.
-    with contextlib.redirect_stdout(sys.stderr):
+    # The launcher prints its end-of-run table: to the log, not into the benchmark's.
+    with launcher_log("bags") as log, contextlib.redirect_stdout(log):
         return launch(graph, source="bench.bags", log_level="WARNING", **kwargs)
 
 

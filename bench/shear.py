@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 import sim
-from bench.common import Row, main, median, one_core, percentile
+from bench.common import Row, main, median, one_core, percentile, plain_log_ticks, progress
 from geometry.camera import PinholeCamera
 from geometry.gripper import SIDES
 from messages.types import ToFImage
@@ -351,7 +351,8 @@ def run(quick: bool) -> list[Row]:
     """Every setting on the same sequences."""
     one_core()
     seqs = sequences(quick)
-    return [evaluate(name, params, seqs) for name, params in settings(quick)]
+    sweep = progress(settings(quick), "bench.shear", label=lambda point: point[0])
+    return [evaluate(name, params, seqs) for name, params in sweep]
 
 
 def plot(rows: list[Row], path: Path) -> None:
@@ -373,8 +374,7 @@ def plot(rows: list[Row], path: Path) -> None:
             ax.annotate(str(i), (x, y), textcoords="offset points", xytext=(4, 3), fontsize=7)
         ax.axvline(1000.0 / 300.0, color="grey", ls="--", lw=1)
         ax.axhline(target, color="grey", ls=":", lw=1)
-        ax.set_xscale("log")
-        ax.set_yscale("log")
+        plain_log_ticks(ax, "xy")
         ax.set_xlabel("ms per frame (median, one core)")
         ax.set_ylabel(f"{key} (deg)")
         ax.set_title(f"{key}: target {target:g} deg, 300 frames/s (dashed)", fontsize=9)

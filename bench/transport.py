@@ -39,7 +39,6 @@ than it does within one repeat), ``throughput_vs_raw_min``/``_max`` their range;
 
 from __future__ import annotations
 
-import io
 import json
 import multiprocessing as mp
 import struct
@@ -53,7 +52,7 @@ from typing import Any
 import numpy as np
 import zmq
 
-from bench.common import Row, main, median, percentile
+from bench.common import Row, launcher_log, main, median, percentile, progress
 from bench.nodes import LATENCY, SinkRecord, WindowPlan, bench_images
 from messages import Header, ToFImage, decode, encode
 from runtime.graph import check
@@ -153,10 +152,12 @@ def run_runtime(transport: str, sizes: Sizes, workdir: Path) -> Measured:
             },
         }
     }
-    log = io.StringIO()
-    code = Launcher(check(doc, source="bench.transport"), out=log).run()
+    with launcher_log("transport") as log:
+        code = Launcher(check(doc, source="bench.transport"), out=log).run()
     if code != 0 or not out_path.exists() or not source_path.exists():
-        raise RuntimeError(f"the runtime graph failed (exit {code}):\n{log.getvalue()}")
+        raise RuntimeError(
+            f"the runtime graph failed (exit {code}); see bench/results/transport.log"
+        )
     return _summarise(json.loads(out_path.read_text()), json.loads(source_path.read_text()))
 
 
@@ -331,16 +332,18 @@ def run(quick: bool, sizes: Sizes | None = None) -> list[Row]:
     sizes = sizes or (QUICK if quick else FULL)
     runs: dict[tuple[str, str], list[Measured]] = {}
     with tempfile.TemporaryDirectory(prefix="bench-transport-") as tmp:
-        for repeat in range(sizes.repeats):
-            for transport in TRANSPORTS:
-                # Alternate the order so a drift of the machine's load hits every impl.
-                order = IMPLS if repeat % 2 == 0 else IMPLS[::-1]
-                for impl in order:
-                    workdir = Path(tmp) / f"{impl}-{transport}-{repeat}"
-                    workdir.mkdir()
-                    runs.setdefault((transport, impl), []).append(
-                        measure(impl, transport, sizes, workdir)
-                    )
+        # Alternate the order so a drift of the machine's load hits every impl.
+        points = [
+            (repeat, transport, impl)
+            for repeat in range(sizes.repeats)
+            for transport in TRANSPORTS
+            for impl in (IMPLS if repeat % 2 == 0 else IMPLS[::-1])
+        ]
+        label = "repeat {0[0]} {0[1]} {0[2]}".format
+        for repeat, transport, impl in progress(points, "bench.transport", label=label):
+            workdir = Path(tmp) / f"{impl}-{transport}-{repeat}"
+            workdir.mkdir()
+            runs.setdefault((transport, impl), []).append(measure(impl, transport, sizes, workdir))
     rows: list[Row] = []
     for transport in TRANSPORTS:
         raw_runs = runs[(transport, "raw")]

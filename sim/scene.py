@@ -488,13 +488,26 @@ def scene_from_dict(data: Any, *, path: str = "<dict>") -> Scene:
         raise SceneError(f"{path}: {err}") from err
 
 
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
+
+
+def scene_path(path: str | Path) -> Path:
+    """Where a scene file is: as given, or, for a relative path that does not exist from
+    the working directory, in the project (``scenes/mug_grasp.yaml`` works from any
+    directory once the project is installed with ``pip install -e .``)."""
+    p = Path(path)
+    if not p.is_absolute() and not p.exists() and (PROJECT_ROOT / p).exists():
+        return PROJECT_ROOT / p
+    return p
+
+
 def load_scene(path: str | Path) -> Scene:
-    """Load and check a scene file (``yaml.safe_load``).
+    """Load and check a scene file (``yaml.safe_load``); see :func:`scene_path`.
 
     Raises:
         SceneError: unreadable file, bad YAML, or a bad field (named in the message).
     """
-    p = Path(path)
+    p = scene_path(path)
     try:
         text = p.read_text()
     except OSError as err:

@@ -28,7 +28,6 @@ import numpy as np
 from geometry.se3 import invert
 from messages.base import Header
 from messages.types import MaskImage, ToFImage
-from sim import pattern as dot_pattern
 from sim.effects import EFFECTS, camera_effects
 from sim.membrane import CulledField, cull_to_bounds, march_to_surface
 from sim.scene import Scene
@@ -328,6 +327,10 @@ class BubbleRenderer:
             p = self.scene.pattern
             sheet_w = round(2 * fy * 1000 + 4.0)
             sheet_h = round(2 * fz * 1000 + 4.0)
+            # Imported here, not at the top: ``sim`` imports this module, and a
+            # ``sim.pattern`` already imported makes ``python -m sim.pattern`` warn.
+            from sim import pattern as dot_pattern
+
             tex = dot_pattern.texture(
                 density_per_mm2=p.density_per_mm2,
                 min_diameter_mm=p.min_diameter_mm,

@@ -16,8 +16,10 @@ How a block is run:
   instead of started, because starting a full graph costs half a minute on a loaded
   machine and ``tests/test_graphs.py`` already runs the shipped graphs end to end;
   ``python -m bench.NAME`` gets ``--quick``.
-* A command passes when it exits 0. ``launch.py bag diff`` exits 1 when it found
-  differences, which is its documented result, so 1 passes for it too.
+* A command passes when it exits 0 without a traceback. ``launch.py bag diff`` exits 1
+  when it found differences, which is its documented result, so 1 passes for it too. A
+  command the docs end with ``|| true`` shows an error on purpose: any exit code passes,
+  a traceback does not.
 * A block that cannot run here is preceded by an HTML comment
   ``<!-- docs-test: skip REASON -->`` (invisible when rendered). The reason is required;
   such blocks must stay rare (building the virtual environment, running this suite).
@@ -42,7 +44,7 @@ RECORD_SECS = "2"
 COMMAND_TIMEOUT_SECS = 240
 FENCE = re.compile(r"^```(\S*)\s*$")
 MARKER = re.compile(r"^<!--\s*docs-test:\s*(\S+)\s*(.*?)\s*-->\s*$")
-LAUNCH_SUBCOMMANDS = {"nodes", "bag", "replay"}
+SHOWS_AN_ERROR = ("||", "true")  # a documented command that fails on purpose ends so
 
 
 @dataclass(frozen=True)
@@ -109,19 +111,25 @@ def _set_option(argv: list[str], option: str, value: str) -> list[str]:
 def small(argv: tuple[str, ...]) -> list[str]:
     """The command as the test runs it (see the module docstring for the rules)."""
     out = list(argv)
+    tail: list[str] = []
+    if tuple(out[-2:]) == SHOWS_AN_ERROR:
+        out, tail = out[:-2], out[-2:]
     if out[0] in ("python", "python3", ".venv/bin/python"):
         out[0] = sys.executable
-    if len(out) > 2 and out[1] == "launch.py" and out[2] not in LAUNCH_SUBCOMMANDS:
+    if len(out) > 2 and out[1] == "launch.py" and out[2].endswith((".yaml", ".yml")):
         if "--record" in out:
             out = _set_option(out, "--duration", RECORD_SECS)
         elif "--check" not in out:
             out.append("--check")
     elif len(out) > 2 and out[1] == "-m" and out[2].startswith("bench.") and "--quick" not in out:
         out.append("--quick")
-    return out
+    return out + tail
 
 
-def allowed_exit_codes(argv: list[str]) -> set[int]:
+def allowed_exit_codes(argv: list[str]) -> set[int] | None:
+    """The exit codes that pass; None: any, as long as it does not crash."""
+    if tuple(argv[-2:]) == SHOWS_AN_ERROR:
+        return None
     if argv[1:4] == ["launch.py", "bag", "diff"]:
         return {0, 1}  # 1: differences found, the documented result
     return {0}
@@ -146,6 +154,9 @@ def is_pure(command: list[str]) -> bool:
 def run_command(path: Path, block: Block, argv: tuple[str, ...], work: Path) -> str:
     """Run one documented command; an empty string when it passed, else the failure."""
     command = small(argv)
+    allowed = allowed_exit_codes(command)
+    if allowed is None:
+        command = command[: -len(SHOWS_AN_ERROR)]
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     env["MPLBACKEND"] = "Agg"
     done = subprocess.run(
@@ -156,7 +167,8 @@ def run_command(path: Path, block: Block, argv: tuple[str, ...], work: Path) -> 
         text=True,
         timeout=COMMAND_TIMEOUT_SECS,
     )
-    if done.returncode in allowed_exit_codes(command):
+    crashed = "Traceback (most recent call last)" in done.stderr + done.stdout
+    if (done.returncode in allowed if allowed is not None else True) and not crashed:
         return ""
     return (
         f"{path.name}:{block.line}: {shlex.join(argv)}\nran: {shlex.join(command)}\n"
@@ -196,6 +208,32 @@ def test_documented_commands_run(tmp_path: Path) -> None:
         ]
         failures = [f for run in runs for f in run.result()]
     assert not failures, "\n\n".join(failures)
+
+
+def python_blocks(path: Path) -> list[str]:
+    """The fenced ``python`` blocks of a Markdown file."""
+    return re.findall(r"^```python\n(.*?)^```", path.read_text(), re.S | re.M)
+
+
+@pytest.mark.parametrize("snippet", python_blocks(ROOT / "docs" / "sim.md"))
+def test_library_snippets_run_from_any_directory(snippet: str, tmp_path: Path) -> None:
+    """docs/sim.md's library examples, run from a directory outside the project: they
+    need the project installed as a package (``pip install -e .``), nothing else."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    installed = subprocess.run(
+        [sys.executable, "-c", "import sim"], cwd=tmp_path, env=env, capture_output=True
+    )
+    if installed.returncode != 0:
+        pytest.skip("the project is not installed as a package here (`pip install -e .`)")
+    done = subprocess.run(
+        [sys.executable, "-c", snippet],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=COMMAND_TIMEOUT_SECS,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
 
 
 def test_blocks_are_parsed_with_shell_rules_and_markers(tmp_path: Path) -> None:
@@ -243,3 +281,10 @@ def test_sizes_are_cut_by_rule() -> None:
         "info",
         "a.mcap",
     ]
+
+
+def test_a_command_shown_failing_on_purpose_passes_unless_it_crashes() -> None:
+    command = small(("python", "launch.py", "graph.yaml", "--set", "pose.tol=-1", "||", "true"))
+    assert command[-2:] == ["||", "true"] and "--check" in command
+    assert allowed_exit_codes(command) is None
+    assert allowed_exit_codes(small(("python", "launch.py", "nodes"))) == {0}

@@ -417,6 +417,7 @@ def test_check_imports_only_the_modules_the_graph_names(tmp_path: Path) -> None:
         timeout=120,
         check=True,
     )
+    # The graph's own modules (test nodes here), no production node, no heavy library.
     assert proc.stdout.split() == [
         "tests",
         "tests.runtime",
