@@ -29,7 +29,7 @@ def assert_clean_end(r, signum: int, code: int, took: float) -> None:
 @SIGNALS
 def test_signal_during_the_launchers_own_start_up(run, signum: int) -> None:
     r = run({"a": ticker(), "b": sink("a/tick")})
-    time.sleep(0.3)  # the interpreter runs; the launcher is importing or checking
+    r.wait_for_handlers()  # launch.py runs: it imports, checks the graph, or spawns
     assert r.proc.poll() is None
     code, took = r.signal_and_time(signum)
     assert_clean_end(r, signum, code, took)
