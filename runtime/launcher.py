@@ -37,7 +37,7 @@ import yaml
 import zmq
 
 from messages.errors import GraphError
-from runtime import protocol
+from runtime import child, protocol
 from runtime.counters import add_stats, table
 from runtime.graph import Graph, NodeSpec, check
 from runtime.isolation import make_rundir, refuse_remote_host
@@ -175,7 +175,6 @@ class Launcher:
             "bind": self._bind_endpoint(proc),
             "control": self.control_endpoint,
             "secret": self.secret.hex(),
-            "rundir": str(self.rundir),
             "parent_pid": os.getpid(),
             "lockstep": self.lockstep,
             "barrier_topics": sorted(self.barrier_topics & set(spec.topics.values())),
@@ -186,6 +185,8 @@ class Launcher:
             filter(None, [str(PROJECT_ROOT), env.get("PYTHONPATH")])
         )
         env["PYTHONUNBUFFERED"] = "1"
+        env[child.PARENT_ENV] = str(os.getpid())
+        env[child.RUNDIR_ENV] = str(self.rundir)
         # Its own process group: a Ctrl-C at the terminal reaches the launcher only,
         # which stops the nodes in order.
         popen = subprocess.Popen(
@@ -223,6 +224,10 @@ class Launcher:
                 proc.cpu_secs += usage.ru_utime + usage.ru_stime
             code = os.waitstatus_to_exitcode(status)
             proc.popen.returncode = code
+            try:  # what the node started and left behind (the group outlives its leader)
+                os.killpg(pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
             proc.exit_codes.append(code)
             self._on_exit(proc, code)
 
@@ -257,11 +262,7 @@ class Launcher:
             self.say(f"node {name!r} failed ({reason}); not required, the graph goes on")
 
     def _kill_hung(self, proc: _Proc, why: str) -> None:
-        if proc.popen is not None:
-            try:
-                proc.popen.kill()
-            except ProcessLookupError:
-                pass
+        _signal(proc, signal.SIGKILL)
         self.say(f"node {proc.spec.name!r} {why}; killed")
 
     # -- control messages --------------------------------------------------------
@@ -343,8 +344,7 @@ class Launcher:
         self._request_stop(f"signal {signal.Signals(signum).name}")
         if len(self._signals) >= 3:  # an impatient user: no more grace
             for proc in self.procs.values():
-                if proc.popen is not None and proc.popen.returncode is None:
-                    proc.popen.kill()
+                _signal(proc, signal.SIGKILL)
 
     def _startup(self) -> bool:
         for proc in self.procs.values():
@@ -521,10 +521,11 @@ class Launcher:
 
 
 def _signal(proc: _Proc, signum: int) -> None:
+    """Signal a node's process group: the node and any process it started (a compiler)."""
     if proc.popen is not None and proc.popen.returncode is None:
         try:
-            os.kill(proc.popen.pid, signum)
-        except ProcessLookupError:
+            os.killpg(proc.popen.pid, signum)
+        except (ProcessLookupError, PermissionError):
             pass
 
 
