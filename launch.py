@@ -2,52 +2,69 @@
 
 python launch.py GRAPH [--check] [--set NODE.PARAM=VALUE ...] [--swap NODE=IMPL ...]
                        [--only NODE,NODE] [--duration SECS] [--log-level LEVEL]
-                       [--record OUT.mcap [--topics REGEX]] [--lockstep]
-python launch.py nodes                       list every node implementation
+                       [--record OUT.mcap [--record-topics REGEX] [--overwrite]] [--lockstep]
+python launch.py nodes [IMPL]                list implementations, or one's ports and params
 python launch.py bag info|echo|diff ...      inspect bags (see docs/bags.md)
-python launch.py replay BAG [--replace NODE=IMPL ...] [...]
+python launch.py replay BAG [--swap NODE[=IMPL] ...] [...]
 """
 
 from __future__ import annotations
 
-import argparse
-import shlex
 import signal
 import sys
-from pathlib import Path
-
-# What each command needs is imported when it runs: ``--help`` and ``bag info`` never
-# import a node module, ``--check`` only those the graph names (docs/runtime.md).
 
 
 def _interrupted(signum: int, frame: object) -> None:
     """Ctrl-C or SIGTERM outside a running graph: end now, quietly, with 128 + N.
 
-    Installed before anything heavy is imported, so a signal during start-up is never a
+    Installed before anything else is imported, so a signal during start-up is never a
     traceback; the launcher installs its own handlers while it supervises a graph.
     """
     raise SystemExit(128 + signum)
 
 
-def run_main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="python launch.py", description="Run a graph file.")
+if __name__ == "__main__":
+    signal.signal(signal.SIGINT, _interrupted)
+    signal.signal(signal.SIGTERM, _interrupted)
+
+import argparse  # noqa: E402 - after the signal handlers, on purpose
+import shlex  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+# What each command needs is imported when it runs: ``--help`` and ``bag info`` never
+# import a node module, ``--check`` only those the graph names (docs/runtime.md).
+
+
+def run_parser() -> argparse.ArgumentParser:
+    """The parser of ``launch.py GRAPH ...``; its help lists the subcommands too."""
+    from runtime.cli import add_deprecated, add_run_options
+
+    width = max(len(name) for name in SUBCOMMANDS)
+    epilog = "subcommands (python launch.py COMMAND --help for each):\n" + "\n".join(
+        f"  {name:{width}}  {summary}" for name, (summary, _) in SUBCOMMANDS.items()
+    )
+    parser = argparse.ArgumentParser(
+        prog="python launch.py",
+        usage=f"python launch.py GRAPH [options] | python launch.py {{{','.join(SUBCOMMANDS)}}} ...",
+        description="Run a graph file (or check it with --check), or one of the subcommands.",
+        epilog=epilog,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("graph", type=Path, help="the graph file (YAML)")
-    parser.add_argument("--check", action="store_true", help="only check the graph; start nothing")
     parser.add_argument(
-        "--set", dest="sets", action="append", default=[], metavar="NODE.PARAM=VALUE"
+        "--check",
+        action="store_true",
+        help="check the graph (and every file its params name); start nothing",
     )
-    parser.add_argument("--swap", dest="swaps", action="append", default=[], metavar="NODE=IMPL")
+    add_run_options(parser, swap_metavar="NODE=IMPL", swap_help="another implementation")
     parser.add_argument("--only", default="", metavar="NODE,NODE", help="run only these nodes")
-    parser.add_argument("--duration", type=float, default=None, metavar="SECS")
-    parser.add_argument(
-        "--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"]
-    )
-    parser.add_argument("--record", type=Path, default=None, metavar="OUT.mcap")
-    parser.add_argument(
-        "--topics", default=None, metavar="REGEX", help="with --record: topics to keep"
-    )
-    parser.add_argument("--lockstep", action="store_true", help="deterministic replay mode")
-    args = parser.parse_args(argv)
+    add_deprecated(parser, "--topics", "--record-topics", "record_topics")
+    return parser
+
+
+def run_main(argv: list[str]) -> int:
+    args = run_parser().parse_args(argv)
     import nodes  # noqa: F401 - the index of node implementations (no node module)
     from messages.errors import GraphError
     from runtime import graph as graphs
@@ -71,7 +88,8 @@ def run_main(argv: list[str]) -> int:
         doc,
         source=source,
         record=args.record,
-        topics=args.topics,
+        topics=args.record_topics,
+        overwrite=args.overwrite,
         lockstep=args.lockstep,
         duration_secs=args.duration,
         log_level=args.log_level,
@@ -79,36 +97,57 @@ def run_main(argv: list[str]) -> int:
     )
 
 
-def list_nodes() -> int:
+def nodes_main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python launch.py nodes",
+        description="List node implementations (optional inputs in [brackets]); "
+        "with IMPL, show its ports and parameters with defaults, units and limits.",
+    )
+    parser.add_argument("impl", nargs="?", help="a registered name or module:Class")
+    args = parser.parse_args(argv)
     import nodes
-    from runtime.registry import known, resolve
+    from runtime.cli import node_details, node_table
+    from runtime.registry import known
 
-    nodes.import_all()
-    for name in known():
-        cls = resolve(name)
-        ins = ", ".join(f"{p}:{t.__name__}" for p, t in cls.inputs.items()) or "-"
-        outs = ", ".join(f"{p}:{t.__name__}" for p, t in cls.outputs.items()) or "-"
-        print(f"{name:32} in: {ins}  out: {outs}")
+    if args.impl is None:
+        nodes.import_all()
+        print(node_table(known()))
+        return 0
+    try:
+        print(node_details(args.impl))
+    except KeyError as err:
+        print(f"launch.py nodes: {err.args[0]}", file=sys.stderr)
+        return 2
     return 0
+
+
+def bag_main(argv: list[str]) -> int:
+    from runtime.bagtool import main as bag_tool
+
+    return bag_tool(argv)
+
+
+def replay_main(argv: list[str]) -> int:
+    import nodes  # noqa: F401 - the index of node implementations
+    from runtime.bagtool import replay_main as replay
+
+    return replay(argv)
+
+
+# name -> (what --help says, handler): each reads the rest of the command line.
+SUBCOMMANDS: dict[str, tuple[str, Callable[[list[str]], int]]] = {
+    "nodes": ("list node implementations; `nodes IMPL`: its ports and parameters", nodes_main),
+    "bag": ("inspect bags: bag info|echo|diff|recover (see docs/bags.md)", bag_main),
+    "replay": ("replay a bag through its graph, some nodes swapped (docs/bags.md)", replay_main),
+}
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv[:1] == ["nodes"]:
-        return list_nodes()
-    if argv[:1] == ["bag"]:
-        from runtime.bagtool import main as bag_main
-
-        return bag_main(argv[1:])
-    if argv[:1] == ["replay"]:
-        import nodes  # noqa: F401 - the index of node implementations
-        from runtime.bagtool import replay_main
-
-        return replay_main(argv[1:])
+    if argv and argv[0] in SUBCOMMANDS:
+        return SUBCOMMANDS[argv[0]][1](argv[1:])
     return run_main(argv)
 
 
 if __name__ == "__main__":
-    signal.signal(signal.SIGINT, _interrupted)
-    signal.signal(signal.SIGTERM, _interrupted)
     sys.exit(main())

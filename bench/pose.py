@@ -81,8 +81,8 @@ def _cloud_from_sim(truth: np.ndarray, width_m: float, seed: int) -> tuple[np.nd
             cx_px=msg.cx_px,
             cy_px=msg.cy_px,
         )
-        frames[side] = (msg.depth_m, cam)
-    cloud = patcher.extract(frames, width_m)
+        frames[side] = (msg.depth_m, cam, msg.tool_from_sensor)
+    cloud = patcher.extract(frames)
     return cloud.points_in_tool.astype(np.float64), cloud.bubble
 
 

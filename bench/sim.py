@@ -15,7 +15,7 @@ Two sweeps in one table:
 
 Timings run on one core (``bench.common.one_core``); ``ms_per_frame`` and the frame
 rates are CPU time of this single-threaded process (the machine is shared, so wall time,
-``wall_ms_per_frame``, includes waiting for a core). Target (issue 4): all effects at
+``wall_ms_per_frame``, includes waiting for a core). Target: all effects at
 45 fps or more for both bubbles; the minimal set several times faster.
 """
 

@@ -13,8 +13,8 @@ Rows, each timed from a fresh ``python launch.py`` process:
 For the three commands ``cpu_median_s`` is their CPU time (user + system), which a loaded
 machine inflates far less than the wall time.
 
-``--quick`` (the smoke test) runs each once, with a two-node synthetic graph in place of
-``graph.yaml``. The goals hold on a quiet machine; on a loaded one every figure grows.
+``--quick`` (the smoke test) runs each once, with two nodes of ``graph.yaml``
+(``--only world,gripper``) in place of the whole graph. The goals hold on a quiet machine; on a loaded one every figure grows.
 """
 
 from __future__ import annotations
@@ -33,11 +33,8 @@ from bench.common import Row, main, median
 
 ROOT = Path(__file__).resolve().parent.parent
 RUNS = 5
-SMALL_GRAPH = """\
-nodes:
-  src: {impl: synthetic.source, params: {rate_hz: 50, count: 1000000}}
-  sink: {impl: synthetic.sink, inputs: {tick: src/tick}}
-"""
+GRAPH = ROOT / "graph.yaml"
+QUICK_ONLY = ["--only", "world,gripper"]
 
 
 def _launch(*args: str) -> subprocess.Popen[str]:
@@ -72,11 +69,11 @@ def _time_command(*args: str) -> tuple[float, float]:
     return took, _cpu_of_children() - cpu
 
 
-def _time_graph(graph: Path, signal_on: str) -> tuple[float, float]:
-    """Launch ``graph``; seconds to the line containing ``signal_on``, then seconds from a
+def _time_graph(args: list[str], signal_on: str) -> tuple[float, float]:
+    """Launch ``launch.py ARGS``; seconds to the line containing ``signal_on``, then seconds from a
     SIGINT sent at that line to the launcher's exit (which must be 130)."""
     start = time.perf_counter()
-    proc = _launch(str(graph))
+    proc = _launch(*args)
     seen = threading.Event()
     lines: list[str] = []
 
@@ -109,7 +106,7 @@ def _bag(folder: Path) -> Path:
 
     path = folder / "small.mcap"
     with BagWriter(path) as writer:
-        writer.add_run_info(graph_text=SMALL_GRAPH, command_line="launch.py small.yaml")
+        writer.add_run_info(graph_text=GRAPH.read_text(), command_line="launch.py graph.yaml")
         for i in range(100):
             msg = Tick(header=Header(stamp_nanos=i, seq=i), value=float(i))
             writer.write_message("src/tick", msg, log_time_nanos=i * 1_000_000)
@@ -140,16 +137,12 @@ def run(quick: bool) -> list[Row]:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         bag = _bag(folder)
-        if quick:
-            graph = folder / "small.yaml"
-            graph.write_text(SMALL_GRAPH)
-        else:
-            graph = ROOT / "graph.yaml"
-        name = graph.name
+        graph = [GRAPH.name, *(QUICK_ONLY if quick else [])]
+        name = " ".join(graph)
         rows = [
             _command_row("--help", ["--help"], runs, 0.5),
             _command_row("bag info", ["bag", "info", str(bag)], runs, 0.5),
-            _command_row(f"--check {name}", [str(graph), "--check"], runs, 1.0),
+            _command_row(f"--check {name}", [*graph, "--check"], runs, 1.0),
         ]
         running = [_time_graph(graph, "all nodes ready") for _ in range(runs)]
         starting = [_time_graph(graph, "starting ") for _ in range(runs)]

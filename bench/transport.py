@@ -5,7 +5,7 @@ One frame is one :class:`messages.ToFImage` of one sensor: a 172 x 224 depth ima
 Three implementations run side by side, in the same run, alternating per repeat:
 
 ``runtime``  the real path: a graph of ``bench.image_source`` -> ``bench.image_sink``
-             (``nodes/bench_nodes.py``) started by :class:`runtime.launcher.Launcher`;
+             (``bench/nodes.py``) started by :class:`runtime.launcher.Launcher`;
              each node is a ``runtime.process`` child (XPUB publisher, SUB input, poll
              loop, timers, the codec). tcp places both nodes on ``host: 127.0.0.1``.
 ``codec``    two bare processes with pyzmq PUB/SUB that encode and decode with
@@ -19,8 +19,8 @@ Three implementations run side by side, in the same run, alternating per repeat:
              way of driving pyzmq is worth on its own, so a ratio against ``raw`` is
              not read as the runtime using a cheaper socket.
 
-Every implementation runs the same protocol (:class:`nodes.bench_nodes.WindowPlan` and
-:class:`nodes.bench_nodes.SinkRecord`): a latency phase at ``rate_hz`` (stamp with
+Every implementation runs the same protocol (:class:`bench.nodes.WindowPlan` and
+:class:`bench.nodes.SinkRecord`): a latency phase at ``rate_hz`` (stamp with
 ``time.time_ns`` just before encoding, latency measured once the receiver holds the
 decoded frame), then a throughput phase with at most ``window`` frames in flight,
 acknowledged every ``ack_every`` frames over a return channel (a Tick edge for the
@@ -54,8 +54,8 @@ import numpy as np
 import zmq
 
 from bench.common import Row, main, median, percentile
+from bench.nodes import LATENCY, SinkRecord, WindowPlan, bench_images
 from messages import Header, ToFImage, decode, encode
-from nodes.bench_nodes import LATENCY, SinkRecord, WindowPlan, bench_images
 from runtime.graph import check
 from runtime.launcher import Launcher
 from runtime.process import recv_parts, send_parts

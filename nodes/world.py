@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from messages.sim import WorldState
 from messages.types import GripperCommand, GroundTruth
 from runtime.node import Node
+from runtime.params import ExistingFile
 from runtime.registry import register
 from sim import World, ground_truth, load_scene, stamp_of
 from sim.effects import resolve
@@ -33,7 +34,7 @@ class WorldParams:
     """``scene``: a scene file; ``effects``/``seed`` override the scene's when given;
     ``rate_scale`` > 1 runs the scene faster than real time."""
 
-    scene: str
+    scene: ExistingFile
     effects: tuple[str, ...] = ()
     seed: int = -1
     rate_scale: float = 1.0

@@ -19,8 +19,7 @@ import tempfile
 from pathlib import Path
 
 from messages.errors import GraphError
-
-RUNDIR_PREFIX = "sbg-"
+from runtime.graph import RUNDIR_PREFIX
 
 
 def make_rundir() -> Path:

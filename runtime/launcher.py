@@ -39,7 +39,7 @@ import zmq
 from messages.errors import GraphError
 from runtime import child, protocol
 from runtime.counters import add_stats, table
-from runtime.graph import Graph, NodeSpec, check
+from runtime.graph import Graph, NodeSpec, check, ipc_path
 from runtime.isolation import make_rundir, refuse_remote_host
 from runtime.protocol import ControlServer
 from runtime.registry import class_path
@@ -152,7 +152,8 @@ class Launcher:
             return proc.endpoint
         if proc.spec.host:
             return f"tcp://{proc.spec.host}:*"
-        return f"ipc://{self.rundir}/{proc.spec.name}.pub"
+        assert self.rundir is not None, "the run folder is made before any node starts"
+        return f"ipc://{ipc_path(self.rundir, proc.spec.name)}"
 
     def _spawn(self, proc: _Proc) -> None:
         spec = proc.spec
@@ -530,14 +531,21 @@ def _signal(proc: _Proc, signum: int) -> None:
 
 
 def add_recorder(
-    doc: dict[str, Any], path: Path, topics: str | None, command_line: str, source: str = ""
+    doc: dict[str, Any],
+    path: Path,
+    topics: str | None,
+    command_line: str,
+    source: str = "",
+    *,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
-    """Return ``doc`` with a ``recorder`` node subscribed to every topic matching ``topics``."""
+    """Return ``doc`` with a ``recorder`` node subscribed to every topic matching ``topics``
+    (``overwrite``: it may replace a finished bag at ``path``)."""
     graph = check(doc)
     pattern = re.compile(topics or ".*")
     chosen = sorted(t for t in graph.providers() if pattern.search(t))
     if not chosen:
-        raise GraphError(f"--topics {topics!r} matches no topic of the graph")
+        raise GraphError(f"--record-topics {topics!r} matches no topic of the graph")
     doc = yaml.safe_load(yaml.safe_dump(doc))
     name = "recorder"
     while name in doc["nodes"]:
@@ -549,6 +557,7 @@ def add_recorder(
             "graph_yaml": yaml.safe_dump(graph.document, sort_keys=False),
             "graph_source": source,
             "command_line": command_line,
+            "overwrite": overwrite,
         },
         "inputs": {
             f"t{i}": {"from": t, "policy": "queue", "queue_size": 10000}
@@ -565,6 +574,7 @@ def launch(
     source: str,
     record: Path | None = None,
     topics: str | None = None,
+    overwrite: bool = False,
     lockstep: bool = False,
     duration_secs: float | None = None,
     log_level: str = "INFO",
@@ -573,7 +583,14 @@ def launch(
     """Check and run a graph document; returns the exit code (2 when the check fails)."""
     try:
         if record is not None:
-            graph = add_recorder(graph, record, topics, command_line or " ".join(sys.argv), source)
+            graph = add_recorder(
+                graph,
+                record,
+                topics,
+                command_line or " ".join(sys.argv),
+                source,
+                overwrite=overwrite,
+            )
         checked = check(graph, source=source)
         launcher = Launcher(
             checked, lockstep=lockstep, duration_secs=duration_secs, log_level=log_level

@@ -61,7 +61,7 @@ import zmq
 
 from messages.base import Message
 from messages.codec import decode, encode
-from messages.errors import FrameDecodeError
+from messages.errors import FrameDecodeError, NodeError
 from runtime import protocol
 from runtime.counters import InputCounters
 from runtime.node import Node
@@ -527,6 +527,11 @@ def main(spec: dict[str, Any]) -> int:
     signal.signal(signal.SIGINT, on_signal)
     try:
         return runner.run()
+    except NodeError as err:
+        # A node's own error names the node and says what is wrong: one line, no traceback.
+        logging.getLogger(spec["name"]).error("%s", err)
+        sys.stdout.flush()
+        return 1
     except Exception:
         traceback.print_exc()
         sys.stdout.flush()

@@ -3,7 +3,7 @@
 A scene names the object (one of ``geometry.objects``, with optional dimension
 overrides), its pose trajectory in the tool frame, the scripted gripper commands, the
 bubbles, the cameras, the dot pattern, the noise, the seed and the ``effects`` to
-simulate. Every section but ``object`` is optional and defaults to FACTS.md figures::
+simulate. Every section but ``object`` is optional and defaults to docs/facts.md figures::
 
     name: mug_grasp
     seed: 7
@@ -132,7 +132,7 @@ class ScriptedCommand:
 
 @dataclass(frozen=True, kw_only=True)
 class GripperSpec:
-    """WSG 50 emulation: start opening, speed limit, scripted commands (FACTS.md)."""
+    """WSG 50 emulation: start opening, speed limit, scripted commands (docs/facts.md)."""
 
     initial_width_m: float = 0.11
     max_width_m: float = 0.11
@@ -186,7 +186,7 @@ class BubbleSpec:
 
 @dataclass(frozen=True, kw_only=True)
 class CameraSpec:
-    """Internal ToF camera (FACTS.md: pico flexx class) and its mount on the finger."""
+    """Internal ToF camera (docs/facts.md: pico flexx class) and its mount on the finger."""
 
     width_px: int = 224
     height_px: int = 172
@@ -238,7 +238,7 @@ class PatternSpec:
 
 @dataclass(frozen=True, kw_only=True)
 class NoiseSpec:
-    """ToF noise and validity (FACTS.md: ~1% of range; driver invalidity rules)."""
+    """ToF noise and validity (docs/facts.md: ~1% of range; driver invalidity rules)."""
 
     range_sigma_fraction: float = 0.01
     reference_amplitude: float = 1500.0

@@ -46,7 +46,7 @@ class EstimatorParams:
     """Knobs of the robust wrapper.
 
     Attributes:
-        noise_m: the depth noise sigma the patches carry (FACTS.md: about 1.5 mm).
+        noise_m: the depth noise sigma the patches carry (docs/facts.md: about 1.5 mm).
         accept_ratio: a minimum whose residual RMS exceeds ``accept_ratio * noise_m``
             is taken as wrong. Noise along the camera rays leaves an RMS of about 0.7
             sigma at the right pose; the 90-degree wrong minima leave about 2 sigma.

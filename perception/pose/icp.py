@@ -1,6 +1,6 @@
 """Point-to-point ICP against a sampled model surface: the baseline soft-bubble code uses.
 
-FACTS.md: public pipelines run Open3D point-to-point ICP with a 5 mm correspondence
+docs/facts.md: public pipelines run Open3D point-to-point ICP with a 5 mm correspondence
 distance and up to 1000 iterations. Here the model surface is sampled once (uniform
 by area, object frame) into a k-d tree; each iteration pairs every tool point, moved
 by the current ``object_from_tool``, with its nearest model point within
@@ -34,7 +34,7 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True, kw_only=True)
 class IcpParams:
-    """Knobs of the ICP baseline (defaults from FACTS.md, iterations capped lower)."""
+    """Knobs of the ICP baseline (defaults from docs/facts.md, iterations capped lower)."""
 
     max_correspondence_m: float = 0.005
     max_iterations: int = 100

@@ -16,8 +16,8 @@ def test_quick_rows_cover_start_and_stop() -> None:
     assert [r["what"] for r in rows] == [
         "--help",
         "bag info",
-        "--check small.yaml",
-        "small.yaml ready",
+        "--check graph.yaml --only world,gripper",
+        "graph.yaml --only world,gripper ready",
         "ctrl-c while running",
         "ctrl-c while starting",
     ]

@@ -7,6 +7,7 @@ import pytest
 
 from geometry import objects
 from geometry.camera import PinholeCamera
+from geometry.gripper import tool_from_sensor
 from messages.base import Header
 from messages.types import ContactPatch, GraspState, GripperState, ToFImage
 from nodes.contact_patch import ContactPatchNode
@@ -17,7 +18,7 @@ from runtime.testing import feed, make_node
 CAM = PinholeCamera.from_fov(64, 48)
 
 
-def _tof(side: str, depth: np.ndarray, stamp: int) -> ToFImage:
+def _tof(side: str, depth: np.ndarray, stamp: int, width_m: float = 0.07) -> ToFImage:
     return ToFImage(
         header=Header(stamp_nanos=stamp),
         sensor=side,
@@ -27,6 +28,7 @@ def _tof(side: str, depth: np.ndarray, stamp: int) -> ToFImage:
         fy_px=CAM.fy_px,
         cx_px=CAM.cx_px,
         cy_px=CAM.cy_px,
+        tool_from_sensor=tool_from_sensor(side, width_m),
     )
 
 
@@ -35,7 +37,9 @@ def _gripper(width_m: float, speed: float = 0.0) -> GripperState:
 
 
 def test_contact_patch_node_reference_then_patch() -> None:
-    node, io = make_node(ContactPatchNode, {"min_component_px": 20, "reference_frames": 2})
+    node, io = make_node(
+        ContactPatchNode, {"contact": {"min_component_px": 20}, "reference_frames": 2}
+    )
     free = np.full(CAM.shape, 0.08, np.float32)
     feed(node, "gripper", _gripper(0.11))
     for k in range(2):

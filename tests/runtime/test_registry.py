@@ -17,7 +17,7 @@ def test_the_index_names_every_registered_implementation() -> None:
 
 
 def test_an_unknown_name_lists_the_valid_ones() -> None:
-    with pytest.raises(KeyError, match="valid: .*synthetic.source"):
+    with pytest.raises(KeyError, match="valid: .*grasp_monitor"):
         registry.resolve("no_such.node")
 
 
@@ -26,8 +26,8 @@ def test_resolving_a_name_imports_only_its_module() -> None:
     import sys
 
     probe = (
-        "import sys, nodes; from runtime.registry import resolve; resolve('synthetic.sink'); "
+        "import sys, nodes; from runtime.registry import resolve; resolve('grasp_monitor'); "
         "print(sorted(m for m in sys.modules if m.startswith('nodes.')))"
     )
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "['nodes.synthetic']"
+    assert out.stdout.strip() == "['nodes.grasp_monitor']"
