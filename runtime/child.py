@@ -3,16 +3,18 @@
 ``python -m runtime.child`` with the node's JSON spec on stdin (the launcher's pipe,
 which also carries the run's control secret). In order:
 
-1. read the spec;
-2. ask the kernel to send SIGTERM when the launcher dies (``PR_SET_PDEATHSIG``), then
-   check the launcher is still the parent (it may have died before the request);
-3. take SIGTERM and SIGINT as "end now" (a quiet ``SystemExit``) while the node's
+1. take SIGTERM and SIGINT as "end now" (a quiet ``SystemExit``) while the node's
    modules import and the node is built; ``runtime.process`` then takes them over as
    "stop cleanly";
-4. import ``runtime.process`` and run the node.
+2. ask the kernel to send SIGTERM when the launcher dies (``PR_SET_PDEATHSIG``), then
+   check the launcher is still the parent (it may have died before the request);
+3. read the spec, import ``runtime.process`` and run the node.
 
-A node that outlives its launcher removes the run folder on its way out, so even a
-SIGKILLed launcher leaves no ``sbg-*`` folder behind.
+Each node leads its own process group, and ends the rest of it on its way out (the
+launcher also signals the whole group, and kills what is left of it once the node is
+reaped), so a compiler the node started goes with it. A node that outlives its launcher
+also removes the run folder, so even a SIGKILLed launcher leaves no process and no
+``sbg-*`` folder behind.
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ import sys
 from typing import Any
 
 PR_SET_PDEATHSIG = 1
+PARENT_ENV = "SBG_LAUNCHER_PID"
+RUNDIR_ENV = "SBG_RUNDIR"
 
 
 def _end_now(signum: int, frame: Any) -> None:
@@ -44,18 +48,29 @@ def die_with_parent(parent_pid: int) -> None:
 
 
 def main() -> int:
-    spec = json.loads(sys.stdin.read())
-    parent = spec["parent_pid"]
+    # The launcher's pid and the run folder come in the environment (neither is a secret),
+    # so that even a child whose launcher died before writing its spec cleans up.
+    parent = int(os.environ.pop(PARENT_ENV))
+    rundir = os.environ.pop(RUNDIR_ENV, "")
     signal.signal(signal.SIGTERM, _end_now)
     signal.signal(signal.SIGINT, _end_now)
     try:
         die_with_parent(parent)
+        text = sys.stdin.read()
+        if not text and os.getppid() != parent:
+            return 0  # the launcher died before it wrote the spec
+        spec = json.loads(text)
         from runtime.process import main as run_node
 
         return run_node(spec)
     finally:
-        if os.getppid() != parent and spec.get("rundir"):
-            shutil.rmtree(spec["rundir"], ignore_errors=True)
+        # Leave nothing behind: what this node started (its own process group) ends with
+        # it, and if the launcher is gone, so does the run folder.
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        if os.getpgrp() == os.getpid():
+            os.killpg(0, signal.SIGTERM)
+        if os.getppid() != parent and rundir:
+            shutil.rmtree(rundir, ignore_errors=True)
 
 
 if __name__ == "__main__":

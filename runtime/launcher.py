@@ -19,16 +19,13 @@ secret and checked (``runtime.protocol``); a bad one is counted and logged.
 
 from __future__ import annotations
 
-import ipaddress
 import json
 import os
 import re
 import shutil
 import signal
-import socket
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from collections import defaultdict, deque
@@ -40,11 +37,12 @@ import yaml
 import zmq
 
 from messages.errors import GraphError
-from runtime import protocol
-from runtime.graph import RUNDIR_PREFIX, Graph, NodeSpec, check, ipc_path
-from runtime.protocol import ControlError
+from runtime import child, protocol
+from runtime.counters import add_stats, table
+from runtime.graph import Graph, NodeSpec, check, ipc_path
+from runtime.isolation import make_rundir, refuse_remote_host
+from runtime.protocol import ControlServer
 from runtime.registry import class_path
-from runtime.summary import add_stats, table
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 STARTUP_TIMEOUT_SECS = 300.0
@@ -56,8 +54,6 @@ TERM_GRACE_SECS = 2.0
 SIGNAL_STOP_GRACE_SECS = 1.0
 SIGNAL_TERM_GRACE_SECS = 0.5
 LOG_TAIL_LINES = 20
-_REFUSED_LOG_FIRST = 10
-_REFUSED_LOG_EVERY = 100
 
 
 @dataclass
@@ -114,7 +110,6 @@ class Launcher:
         self.idle_waiters: list[bytes] = []
         self.started_at = 0.0
         self.stopped_at = 0.0
-        self.refused = 0  # control messages that failed the checks
         self._print_lock = threading.Lock()
         self._signals: list[int] = []
         self.secret = protocol.new_secret()
@@ -126,18 +121,14 @@ class Launcher:
 
     def _open(self) -> None:
         """The run folder (for ``ipc://`` endpoints) and the control socket."""
-        _sweep_stale_rundirs()
-        self.rundir = Path(tempfile.mkdtemp(prefix=f"{RUNDIR_PREFIX}{os.getpid()}-"))
+        self.rundir = make_rundir()
         self.ctx = zmq.Context()
-        self.control = self.ctx.socket(zmq.ROUTER)
-        self.control.setsockopt(zmq.LINGER, 0)
-        self.control.setsockopt(zmq.ROUTER_MANDATORY, 1)
         self.control_endpoint = f"ipc://{self.rundir}/control"
-        self.control.bind(self.control_endpoint)
+        self.control = ControlServer(self.ctx, self.control_endpoint, self.secret, self.say)
 
     def _close(self) -> None:
         if self.ctx is not None:
-            self.control.close(linger=0)
+            self.control.close()
             self.ctx.term()
         if self.rundir is not None:
             shutil.rmtree(self.rundir, ignore_errors=True)
@@ -185,7 +176,6 @@ class Launcher:
             "bind": self._bind_endpoint(proc),
             "control": self.control_endpoint,
             "secret": self.secret.hex(),
-            "rundir": str(self.rundir),
             "parent_pid": os.getpid(),
             "lockstep": self.lockstep,
             "barrier_topics": sorted(self.barrier_topics & set(spec.topics.values())),
@@ -196,6 +186,8 @@ class Launcher:
             filter(None, [str(PROJECT_ROOT), env.get("PYTHONPATH")])
         )
         env["PYTHONUNBUFFERED"] = "1"
+        env[child.PARENT_ENV] = str(os.getpid())
+        env[child.RUNDIR_ENV] = str(self.rundir)
         # Its own process group: a Ctrl-C at the terminal reaches the launcher only,
         # which stops the nodes in order.
         popen = subprocess.Popen(
@@ -233,6 +225,10 @@ class Launcher:
                 proc.cpu_secs += usage.ru_utime + usage.ru_stime
             code = os.waitstatus_to_exitcode(status)
             proc.popen.returncode = code
+            try:  # what the node started and left behind (the group outlives its leader)
+                os.killpg(pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
             proc.exit_codes.append(code)
             self._on_exit(proc, code)
 
@@ -267,51 +263,19 @@ class Launcher:
             self.say(f"node {name!r} failed ({reason}); not required, the graph goes on")
 
     def _kill_hung(self, proc: _Proc, why: str) -> None:
-        if proc.popen is not None:
-            try:
-                proc.popen.kill()
-            except ProcessLookupError:
-                pass
+        _signal(proc, signal.SIGKILL)
         self.say(f"node {proc.spec.name!r} {why}; killed")
 
     # -- control messages --------------------------------------------------------
-    def _send_to(self, rid: bytes | None, kind: str, **body: Any) -> None:
-        if rid is None:
-            return  # not connected yet: it has not said hello
-        try:
-            self.control.send_multipart([rid, *protocol.pack(self.secret, kind, **body)])
-        except zmq.ZMQError:
-            pass  # the node is gone; its exit is handled by _reap
-
     def _send(self, name: str, kind: str, **body: Any) -> None:
-        self._send_to(self.procs[name].rid, kind, **body)
-
-    def _refuse(self, why: str) -> None:
-        """Count and log a control message that failed the checks; never fatal."""
-        self.refused += 1
-        if self.refused <= _REFUSED_LOG_FIRST or self.refused % _REFUSED_LOG_EVERY == 0:
-            self.say(f"control: refused message #{self.refused}: {why}")
-
-    def _on_frames(self, frames: list[bytes]) -> None:
-        rid, rest = frames[0], frames[1:]
-        try:
-            msg = protocol.unpack(self.secret, rest, from_node=True)
-        except ControlError as err:
-            self._refuse(str(err))
-            return
-        proc = self.procs.get(msg["node"])
-        if proc is None or proc.popen is None or proc.popen.returncode is not None:
-            self._refuse(f"signed, but from no running node ({msg['node']!r:.40})")
-            return
-        self._on_message(proc, rid, msg)
+        self.control.send(self.procs[name].rid, kind, **body)
 
     def _on_message(self, proc: _Proc, rid: bytes, msg: dict[str, Any]) -> None:
         name = proc.spec.name
         kind = msg["kind"]
         proc.last_heartbeat = time.monotonic()
-        if kind != "heartbeat":  # the heartbeat thread has a socket of its own
-            proc.rid = rid
         if kind == "hello":
+            proc.rid = rid  # where this incarnation's main socket hears the launcher
             proc.endpoint = msg["endpoint"]
             proc.state = "hello"
             if self.started_at:  # a restart: peers' endpoints are known
@@ -360,16 +324,15 @@ class Launcher:
         return True
 
     def _serve(self, timeout_ms: int) -> None:
-        if self.control.poll(timeout_ms):
-            while True:
-                try:
-                    frames = self.control.recv_multipart(zmq.NOBLOCK)
-                except zmq.Again:
-                    break
-                self._on_frames(frames)
+        for rid, msg in self.control.receive(timeout_ms):
+            proc = self.procs.get(msg["node"])
+            if proc is None:
+                self.control.refuse(f"signed, but names no node of the graph: {msg['node']!r:.40}")
+            else:
+                self._on_message(proc, rid, msg)
         if self.idle_waiters and self._graph_idle():
             for rid in self.idle_waiters:
-                self._send_to(rid, "idle")
+                self.control.send(rid, "idle")
             self.idle_waiters.clear()
 
     # -- run ---------------------------------------------------------------------
@@ -382,8 +345,7 @@ class Launcher:
         self._request_stop(f"signal {signal.Signals(signum).name}")
         if len(self._signals) >= 3:  # an impatient user: no more grace
             for proc in self.procs.values():
-                if proc.popen is not None and proc.popen.returncode is None:
-                    proc.popen.kill()
+                _signal(proc, signal.SIGKILL)
 
     def _startup(self) -> bool:
         for proc in self.procs.values():
@@ -552,51 +514,20 @@ class Launcher:
             for name, p in self.procs.items()
         }
         text = table(stats, nodes, elapsed)
-        if self.refused:
-            text += f"\ncontrol: refused {self.refused} message(s) (malformed or not signed)"
+        if self.control.refused:
+            text += (
+                f"\ncontrol: refused {self.control.refused} message(s) (malformed or not signed)"
+            )
         return text
 
 
 def _signal(proc: _Proc, signum: int) -> None:
+    """Signal a node's process group: the node and any process it started (a compiler)."""
     if proc.popen is not None and proc.popen.returncode is None:
         try:
-            os.kill(proc.popen.pid, signum)
-        except ProcessLookupError:
+            os.killpg(proc.popen.pid, signum)
+        except (ProcessLookupError, PermissionError):
             pass
-
-
-def _sweep_stale_rundirs() -> None:
-    """Remove run folders of launchers that died without cleaning up (SIGKILL before any
-    node could): ``sbg-PID-*`` of this user whose PID is gone."""
-    for path in Path(tempfile.gettempdir()).glob(f"{RUNDIR_PREFIX}*-*"):
-        pid = path.name[len(RUNDIR_PREFIX) :].partition("-")[0]
-        try:
-            if not pid.isdigit() or path.stat().st_uid != os.getuid():
-                continue
-            os.kill(int(pid), 0)
-        except ProcessLookupError:
-            shutil.rmtree(path, ignore_errors=True)
-        except OSError:
-            continue
-
-
-def refuse_remote_host(node: str, host: str) -> None:
-    """Raise GraphError unless ``host`` is a loopback address (or a name of one).
-
-    Data and control travel unencrypted; a graph may bind to other addresses only with
-    encryption, which this runtime does not offer yet.
-    """
-    try:
-        infos = socket.getaddrinfo(host, None, proto=socket.IPPROTO_TCP)
-        addresses = {ipaddress.ip_address(info[4][0]) for info in infos}
-    except (OSError, ValueError) as err:
-        raise GraphError(f"node {node!r}: host {host!r} is not an address: {err}") from err
-    if not addresses or not all(a.is_loopback for a in addresses):
-        raise GraphError(
-            f"node {node!r}: host {host!r} is not a loopback address; frames and control "
-            "would travel unencrypted on the network, and this graph does not enable "
-            "encryption (not supported yet): use 127.0.0.1 or leave 'host' out"
-        )
 
 
 def add_recorder(

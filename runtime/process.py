@@ -63,6 +63,7 @@ from messages.base import Message
 from messages.codec import decode, encode
 from messages.errors import FrameDecodeError, NodeError
 from runtime import protocol
+from runtime.counters import InputCounters
 from runtime.node import Node
 from runtime.params import build_params
 from runtime.protocol import ControlError
@@ -103,44 +104,6 @@ def recv_parts(sock: zmq.Socket[Any]) -> list[zmq.Frame] | None:
         frame = sock.recv(copy=False)
         frames.append(frame)
     return frames
-
-
-@dataclass
-class InputCounters:
-    received: int = 0  # every message taken off the socket, superseded ones included
-    dropped: int = 0
-    superseded: int = 0
-    bad_frames: int = 0
-    nonfinite: int = 0
-    last_seq: int | None = None
-    unseq: int = 0  # frames since ``last_seq`` that may hold a seq of their own: bad ones
-    suspect: tuple[int, int] | None = None  # (seq, unseq) of a message off the sequence
-
-    def note_seq(self, seq: int, skipped: int = 0) -> None:
-        """Count the messages lost before one with ``header.seq == seq``.
-
-        ``skipped`` superseded messages and the bad frames since the last message may
-        each fill one number of a gap. A seq off the sequence (a gap, or back to 0 after
-        the publisher restarted) is held as a suspect until the next message: if that one
-        follows the old sequence, the suspect was a corrupted seq and costs nothing;
-        otherwise its gap is counted and the sequence goes on from it.
-        """
-        unseq = self.unseq + skipped
-        self.unseq = 0
-        if self.suspect is not None:
-            wild, wild_unseq = self.suspect
-            self.suspect = None
-            last = self.last_seq if self.last_seq is not None else wild
-            if last < seq <= last + 2 + wild_unseq + unseq:
-                self.last_seq = seq
-                return
-            if wild > last:
-                self.dropped += max(0, wild - last - 1 - wild_unseq)
-            self.last_seq = wild
-        if self.last_seq is None or self.last_seq < seq <= self.last_seq + 1 + unseq:
-            self.last_seq = seq
-        else:
-            self.suspect = (seq, unseq)
 
 
 @dataclass

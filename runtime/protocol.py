@@ -31,12 +31,15 @@ import hashlib
 import hmac
 import math
 import secrets
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import msgpack
+import zmq
 
 HEARTBEAT_SECS = 0.5
+REFUSED_LOG_FIRST = 10  # a refused message is logged for the first ten, then every 100th
+REFUSED_LOG_EVERY = 100
 SECRET_BYTES = 32
 TAG_BYTES = 16
 # Counters of one input in a node's stats (see ``runtime.process.InputCounters``).
@@ -143,3 +146,54 @@ def _check_stats(kind: str, stats: dict[str, Any]) -> None:
 
 def _count(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+class ControlServer:
+    """The launcher's end: a ROUTER that signs what it sends and checks what it hears.
+
+    A node is known by the name in its signed messages, never by its socket identity
+    (which any peer may choose); replies go to the ROUTER id a message came from.
+    """
+
+    def __init__(
+        self, ctx: zmq.Context[Any], endpoint: str, secret: bytes, say: Callable[[str], None]
+    ) -> None:
+        self.secret = secret
+        self.say = say
+        self.refused = 0
+        self.socket = ctx.socket(zmq.ROUTER)
+        self.socket.setsockopt(zmq.LINGER, 0)
+        self.socket.setsockopt(zmq.ROUTER_MANDATORY, 1)
+        self.socket.bind(endpoint)
+
+    def send(self, rid: bytes | None, kind: str, **body: Any) -> None:
+        """Send to the peer ``rid`` (nothing if None: the node has not said hello yet)."""
+        if rid is None:
+            return
+        try:
+            self.socket.send_multipart([rid, *pack(self.secret, kind, **body)])
+        except zmq.ZMQError:
+            pass  # the node is gone; the launcher sees its exit
+
+    def refuse(self, why: str) -> None:
+        """Count and log a message that failed the checks; never fatal."""
+        self.refused += 1
+        if self.refused <= REFUSED_LOG_FIRST or self.refused % REFUSED_LOG_EVERY == 0:
+            self.say(f"control: refused message #{self.refused}: {why}")
+
+    def receive(self, timeout_ms: int) -> Iterator[tuple[bytes, dict[str, Any]]]:
+        """``(rid, message)`` for every valid message waiting (after ``timeout_ms`` at most)."""
+        if not self.socket.poll(timeout_ms):
+            return
+        while True:
+            try:
+                frames = self.socket.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            try:
+                yield frames[0], unpack(self.secret, frames[1:], from_node=True)
+            except ControlError as err:
+                self.refuse(str(err))
+
+    def close(self) -> None:
+        self.socket.close(linger=0)

@@ -85,4 +85,7 @@ def resolve(impl: str) -> type[Node]:
         return cls
     if ":" in impl:
         return _import_class(impl)
-    raise KeyError(f"unknown implementation {impl!r}; valid: {', '.join(known()) or '(none)'}")
+    hint = "" if _INDEX else " (no index of node modules: 'import nodes' first)"
+    raise KeyError(
+        f"unknown implementation {impl!r}; valid: {', '.join(known()) or '(none)'}{hint}"
+    )

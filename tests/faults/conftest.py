@@ -80,6 +80,21 @@ class Run:
             time.sleep(0.01)
         raise AssertionError(f"{n} children not seen; output:\n{self.log}")
 
+    def wait_for_handlers(self, timeout: float = 30) -> None:
+        """Until the launcher catches SIGINT and SIGTERM (its Python code has begun: before
+        that the interpreter itself is starting, and a signal ends it the default way)."""
+        want = (1 << (signal.SIGINT - 1)) | (1 << (signal.SIGTERM - 1))
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            status = Path(f"/proc/{self.proc.pid}/status").read_text()
+            caught = int(
+                next(ln for ln in status.splitlines() if ln.startswith("SigCgt:")).split()[1], 16
+            )
+            if caught & want == want:
+                return
+            time.sleep(0.005)
+        raise AssertionError("the launcher never caught SIGINT and SIGTERM")
+
     def signal_and_time(self, signum: int, timeout: float = 30) -> tuple[int, float]:
         """Send ``signum`` to the launcher; its exit code and seconds to exit."""
         self.note_kids()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import subprocess
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -113,3 +114,19 @@ class PressureSink(Node):
 
     def on_pressure(self, msg: Pressure) -> None:
         pass
+
+
+@dataclass(frozen=True, kw_only=True)
+class SpawnerParams:
+    pid_file: str
+
+
+class Spawner(Node):
+    """Starts a long-running helper process (as a node building a solver starts gcc)."""
+
+    Params = SpawnerParams
+    outputs = {"tick": Tick}
+
+    def setup(self) -> None:
+        self.helper = subprocess.Popen(["sleep", "120"])
+        Path(self.params.pid_file).write_text(str(self.helper.pid))

@@ -1,9 +1,10 @@
-"""The launcher's end-of-run table, from the counters the nodes report.
+"""What a node counts per input, and the launcher's end-of-run table made of it.
 
-Per topic: messages published, the rate, and what its subscribers lost (``dropped``),
-skipped on purpose (``superseded``), could not decode (``bad``) and received with a
-NaN or infinity where the type says a number is finite (``nonfinite``). Per node:
-restarts, CPU seconds, the last exit code.
+:class:`InputCounters` live in each node process (``runtime.process``), which reports
+them with every heartbeat. The table, per topic: messages published, the rate, and what
+its subscribers lost (``dropped``), skipped on purpose (``superseded``), could not
+decode (``bad``) and received with a NaN or infinity where the type says a number is
+finite (``nonfinite``). Per node: restarts, CPU seconds, the last exit code.
 
 ``dropped`` is what the receivers counted from sequence gaps, but never more than what
 the publisher sent and the receiver did not take off its socket: a corrupted
@@ -13,11 +14,52 @@ arrived but did not decode is ``bad``, not also dropped.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 from runtime.protocol import INPUT_COUNTERS
 
 _COLUMNS = ("dropped", "superseded", "bad_frames", "nonfinite")
+
+
+@dataclass
+class InputCounters:
+    """One input's counts; the names match ``protocol.INPUT_COUNTERS``."""
+
+    received: int = 0  # every message taken off the socket, superseded ones included
+    dropped: int = 0
+    superseded: int = 0
+    bad_frames: int = 0
+    nonfinite: int = 0
+    last_seq: int | None = None
+    unseq: int = 0  # frames since ``last_seq`` that may hold a seq of their own: bad ones
+    suspect: tuple[int, int] | None = None  # (seq, unseq) of a message off the sequence
+
+    def note_seq(self, seq: int, skipped: int = 0) -> None:
+        """Count the messages lost before one with ``header.seq == seq``.
+
+        ``skipped`` superseded messages and the bad frames since the last message may
+        each fill one number of a gap. A seq off the sequence (a gap, or back to 0 after
+        the publisher restarted) is held as a suspect until the next message: if that one
+        follows the old sequence, the suspect was a corrupted seq and costs nothing;
+        otherwise its gap is counted and the sequence goes on from it.
+        """
+        unseq = self.unseq + skipped
+        self.unseq = 0
+        if self.suspect is not None:
+            wild, wild_unseq = self.suspect
+            self.suspect = None
+            last = self.last_seq if self.last_seq is not None else wild
+            if last < seq <= last + 2 + wild_unseq + unseq:
+                self.last_seq = seq
+                return
+            if wild > last:
+                self.dropped += max(0, wild - last - 1 - wild_unseq)
+            self.last_seq = wild
+        if self.last_seq is None or self.last_seq < seq <= self.last_seq + 1 + unseq:
+            self.last_seq = seq
+        else:
+            self.suspect = (seq, unseq)
 
 
 def add_stats(base: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
