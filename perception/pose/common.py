@@ -334,6 +334,11 @@ def pose_difference(
     """
     ta, tb = se3.invert(a), se3.invert(b)
     turns = symmetry_rotations(fld)
+    # b's origin from a's, in a's object frame, along the observable axes only.
+    seen = np.asarray(observable[:3], dtype=np.float64)
+    offset = float(np.linalg.norm(seen * (a[:3, :3] @ (tb[:3, 3] - ta[:3, 3]))))
+    if not any(observable[3:]):  # a sphere's turns are all invisible
+        return 0.0, offset
     if fld.revolves_about_z:
         flip = any(r[2, 2] < 0 for r in turns)
         return (
@@ -343,6 +348,4 @@ def pose_difference(
     angle = min(
         float(np.degrees(se3.rotation_angle((ta[:3, :3] @ r).T @ tb[:3, :3]))) for r in turns
     )
-    d = a[:3, :3] @ (tb[:3, 3] - ta[:3, 3])  # b's origin from a's, in a's object frame
-    d = d * np.asarray(observable[:3], dtype=np.float64)
-    return angle, float(np.linalg.norm(d))
+    return angle, offset
