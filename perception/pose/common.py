@@ -99,7 +99,9 @@ def spread_problem(points: np.ndarray, min_spread_m: float = MIN_SPREAD_M) -> st
     n = len(points)
     if n < MIN_POINTS:
         return f"{n} finite points, at least {MIN_POINTS} needed"
-    std = np.linalg.svd(points - points.mean(axis=0), compute_uv=False) / np.sqrt(n)
+    centred = points - points.mean(axis=0)
+    # Eigenvalues of the 3x3 scatter, largest first: far cheaper than an SVD of (N, 3).
+    std = np.sqrt(np.maximum(np.linalg.eigvalsh(centred.T @ centred / n)[::-1], 0.0))
     shape = ("at one point", "on a line", "on a plane")
     for k, name in enumerate(shape):
         if std[k] < min_spread_m:
@@ -282,10 +284,9 @@ def seed_poses(points_in_tool: np.ndarray, bubble: np.ndarray | None = None) -> 
     axes: list[np.ndarray] = []
     for g in groups:
         if len(g) >= 3:
-            _, _, vt = np.linalg.svd(g - g.mean(axis=0), full_matrices=False)
-            axes.append(vt[0])
-            if len(vt) > 1:
-                axes.append(vt[1])
+            centred = g - g.mean(axis=0)
+            _, vecs = np.linalg.eigh(centred.T @ centred)  # ascending: principal last
+            axes += [vecs[:, 2], vecs[:, 1]]
     axes += [np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0])]
     unique: list[np.ndarray] = []
     for a in axes:

@@ -101,7 +101,7 @@ class EstimatorParams:
     min_observable: int = 3
     min_points: int = 10
     max_points: int = 10000
-    screen_points: int = 1000
+    screen_points: int = 500
     max_seeds: int = 16
     track: bool = True
     track_rise_ratio: float = 1.25
@@ -173,6 +173,7 @@ class PoseEstimator:
         self._flip_is_symmetry = any(r[2, 2] < 0 for r in symmetry_rotations(fld))
         self.last_object_from_tool: np.ndarray | None = None
         self.last_rms_m = 0.0
+        self.last_noise_m = 0.0
 
     def reset(self) -> None:
         """Forget the last estimate (the next call starts cold)."""
@@ -225,10 +226,11 @@ class PoseEstimator:
                 seeds_tried=0,
                 message=problem,
             )
-        noise = prm.noise_m or max(estimate_noise_m(pts), prm.min_noise_m)
-        accept = prm.accept_ratio * noise
-
         if tracking and prior is not None:
+            # The sensor's noise does not change between frames: measured on a search,
+            # kept while tracking.
+            noise = prm.noise_m or self.last_noise_m
+            accept = prm.accept_ratio * noise
             first = self._solve(pts, prior)
             if (
                 first.status == "ok"
@@ -238,7 +240,8 @@ class PoseEstimator:
             ):
                 return self._finish(first, "ok", "", first.iterations, 1, noise, start)
 
-        minima, iterations, tried = self._search(pts, sides, prior)
+        noise = prm.noise_m or max(estimate_noise_m(pts), prm.min_noise_m)
+        minima, iterations, tried = self._search(pts, sides, prior, noise)
         return self._judge(pts, minima, iterations, tried, prior is not None, noise, start)
 
     def _prepare(
@@ -260,10 +263,11 @@ class PoseEstimator:
         return pts, sides
 
     def _search(
-        self, pts: np.ndarray, sides: np.ndarray | None, prior: np.ndarray | None
+        self, pts: np.ndarray, sides: np.ndarray | None, prior: np.ndarray | None, noise: float
     ) -> tuple[list[_Minimum], int, int]:
         """Screen the prior, the data seeds and the best minimum's turns on a subsample,
-        then polish the two best distinct minima on the full cloud."""
+        then polish the best distinct minimum on the full cloud, and the runner-up too
+        when it was within four times the ambiguity margin on the subsample."""
         prm = self.params
         screen = clean_points(pts, prm.screen_points)
         data = [se3.invert(s) for s in seed_poses(pts, sides)]
@@ -286,7 +290,10 @@ class PoseEstimator:
             screened.append(_Minimum(result, len(screened)))
         ranked = self._distinct(sorted(screened, key=lambda m: m.result.cost))
         polished = []
-        for m in ranked[:2]:
+        close = 4.0 * prm.ambiguity_ratio * noise**2 * len(screen)
+        for m in ranked[:1] + [
+            r for r in ranked[1:2] if r.result.cost - ranked[0].result.cost < close
+        ]:
             result = (
                 self._solve(pts, m.result.object_from_tool)
                 if len(screen) < len(pts)
@@ -410,6 +417,7 @@ class PoseEstimator:
         if status in ("ok", "recovered"):
             self.last_object_from_tool = final.object_from_tool
             self.last_rms_m = final.residual_rms_m
+            self.last_noise_m = noise
         return final
 
     def _solve(self, pts: np.ndarray, seed: np.ndarray) -> FitResult:

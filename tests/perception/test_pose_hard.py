@@ -140,6 +140,12 @@ def test_ipopt_iteration_limit_is_not_ok() -> None:
     result = PoseEstimator(solver, EstimatorParams(track=False)).estimate(
         pts, bubble, seed_tool_from_object=se3.invert(seed)
     )
+    # Some seed's solve may converge within two iterations; then it must be right.
+    assert _honest(result, CYL.field, truth), (result.status, result.message)
+    one = IpoptSolver(CYL.field, IpoptParams(jit="off", max_iterations=1))
+    result = PoseEstimator(one, EstimatorParams(track=False)).estimate(
+        pts, bubble, seed_tool_from_object=se3.invert(seed)
+    )
     assert result.status == "suspect" and "did not converge" in result.message
 
 
