@@ -173,7 +173,7 @@ def _slab_combine(cols: Sequence[np.ndarray]) -> tuple[np.ndarray, list[np.ndarr
         dmax = np.maximum(dmax, c)
     # The inside term's one goes to the first largest component only (ties on the
     # medial surface would otherwise double the gradient).
-    free = dmax < 0.0
+    free = dmax <= 0.0  # on the surface too: a face normal, not a zero gradient
     weights = []
     for c, p in zip(cols, pos, strict=True):
         first = free & (c == dmax)

@@ -24,6 +24,8 @@ GOOD = ("ok", "recovered")
 
 
 def _right(result: common.FitResult, fld: fields.Field, truth: np.ndarray) -> bool:
+    if result.status in ("no_patch", "failed"):
+        return False
     angle, offset = common.pose_difference(
         fld, se3.invert(truth), result.object_from_tool, result.observable
     )
@@ -52,6 +54,7 @@ def _box_edge_case(seed: int, noise_m: float = 0.001, n: int = 2000):
     yaw = se3.rotation_about(np.array([0, 0, 1.0]), np.pi / 4 + np.radians(rng.uniform(-3, 3)))
     truth = se3.make_pose(tilt @ yaw, [0.0, 0.0, rng.uniform(-0.02, 0.02)])
     pts, bubble = synthetic.grasp_cloud(BOX, truth, n_points=n, noise_m=noise_m, rng=rng)
+    assert len(pts) == n
     return truth, pts, bubble
 
 
