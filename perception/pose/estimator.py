@@ -179,6 +179,7 @@ class PoseEstimator:
         """Forget the last estimate (the next call starts cold)."""
         self.last_object_from_tool = None
         self.last_rms_m = 0.0
+        self.last_noise_m = 0.0
 
     def estimate(
         self,
