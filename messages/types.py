@@ -136,6 +136,13 @@ class PoseEstimate(Message):
     solver: str = ""
     # Which of (tx, ty, tz, rx, ry, rz) in the object frame the patch constrains.
     observable: list[bool] = []
+    # Why the status is not "ok" (empty when it is).
+    message: str = ""
+    # The depth noise the acceptance test used (estimated from the patch), metres.
+    noise_m: float = 0.0
+    # Dimensions fitted beside the pose (``fit_dims``); 0 when not fitted.
+    fitted_radius_m: float = 0.0
+    fitted_height_m: float = 0.0
 
 
 class ShearEstimate(Message):
