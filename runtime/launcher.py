@@ -19,13 +19,11 @@ secret and checked (``runtime.protocol``); a bad one is counted and logged.
 
 from __future__ import annotations
 
-import ipaddress
 import json
 import os
 import re
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -118,9 +116,6 @@ class Launcher:
         self._print_lock = threading.Lock()
         self._signals: list[int] = []
         self.secret = protocol.new_secret()
-        for spec in graph.nodes.values():
-            if spec.host is not None:
-                refuse_remote_host(spec.name, spec.host)
         self.rundir: Path | None = None
         self.ctx: zmq.Context[Any] | None = None
 
@@ -578,25 +573,6 @@ def _sweep_stale_rundirs() -> None:
             shutil.rmtree(path, ignore_errors=True)
         except OSError:
             continue
-
-
-def refuse_remote_host(node: str, host: str) -> None:
-    """Raise GraphError unless ``host`` is a loopback address (or a name of one).
-
-    Data and control travel unencrypted; a graph may bind to other addresses only with
-    encryption, which this runtime does not offer yet.
-    """
-    try:
-        infos = socket.getaddrinfo(host, None, proto=socket.IPPROTO_TCP)
-        addresses = {ipaddress.ip_address(info[4][0]) for info in infos}
-    except (OSError, ValueError) as err:
-        raise GraphError(f"node {node!r}: host {host!r} is not an address: {err}") from err
-    if not addresses or not all(a.is_loopback for a in addresses):
-        raise GraphError(
-            f"node {node!r}: host {host!r} is not a loopback address; frames and control "
-            "would travel unencrypted on the network, and this graph does not enable "
-            "encryption (not supported yet): use 127.0.0.1 or leave 'host' out"
-        )
 
 
 def add_recorder(

@@ -14,6 +14,7 @@ import pytest
 import yaml
 
 from tests.runtime.conftest import alive, children_of
+from tests.synthetic_nodes import IMPLS
 
 ROOT = Path(__file__).resolve().parents[2]
 FAULTS = "tests.faults.fault_nodes"
@@ -132,4 +133,4 @@ def ticker(**params: float | str) -> dict:
 
 
 def sink(topic: str, **extra: object) -> dict:
-    return {"impl": "synthetic.sink", "inputs": {"tick": topic}, **extra}
+    return {"impl": IMPLS["synthetic.sink"], "inputs": {"tick": topic}, **extra}
