@@ -26,6 +26,7 @@ where its ports and parameters are declared); it starts no process.
 
 from __future__ import annotations
 
+import ipaddress
 import math
 import re
 import tempfile
@@ -276,7 +277,9 @@ def _input(port: str, ref: Any, where: str, errors: list[str]) -> InputSpec | No
 
 
 def _host(host: Any, where: str, errors: list[str]) -> str | None:
-    """A host the node's publisher can bind (tried now, as the node will at start)."""
+    """A host the node's publisher can bind (tried now, as the node will at start), and a
+    loopback one: frames and control travel unencrypted, and no graph can enable
+    encryption yet."""
     if host is None:
         return None
     if not isinstance(host, str) or not host.strip() or host != host.strip() or "/" in host:
@@ -289,6 +292,7 @@ def _host(host: Any, where: str, errors: list[str]) -> str | None:
     sock.setsockopt(zmq.LINGER, 0)
     try:
         sock.bind(f"tcp://{host}:*")
+        bound = sock.getsockopt(zmq.LAST_ENDPOINT).decode()
     except zmq.ZMQError as err:
         errors.append(
             f"{where}.host: must be an address or interface of this machine, got {host!r} "
@@ -297,6 +301,14 @@ def _host(host: Any, where: str, errors: list[str]) -> str | None:
         return None
     finally:
         sock.close(linger=0)
+    address = ipaddress.ip_address(bound.removeprefix("tcp://").rpartition(":")[0].strip("[]"))
+    if not address.is_loopback:
+        errors.append(
+            f"{where}.host: must be a loopback address (127.0.0.1), got {host!r} (it binds "
+            f"{address}): frames and control would travel unencrypted on the network, and "
+            "encryption is not supported yet"
+        )
+        return None
     return host
 
 

@@ -5,20 +5,18 @@ Each run's ``ipc://`` endpoints live in a folder only its user can enter,
 is SIGKILLed, its nodes (which die with it) remove it on their way out
 (``runtime.child``), and the next launcher sweeps folders of this user whose PID is gone.
 
-Frames and control messages travel unencrypted, so a node may bind TCP only on a
-loopback address until the runtime offers encrypted multi-host graphs.
+Frames and control messages travel unencrypted, so the graph check
+(``runtime.graph``) lets a node bind TCP only on a loopback address until the runtime
+offers encrypted multi-host graphs.
 """
 
 from __future__ import annotations
 
-import ipaddress
 import os
 import shutil
-import socket
 import tempfile
 from pathlib import Path
 
-from messages.errors import GraphError
 from runtime.graph import RUNDIR_PREFIX
 
 
@@ -40,18 +38,3 @@ def sweep_stale_rundirs() -> None:
             shutil.rmtree(path, ignore_errors=True)
         except OSError:
             continue
-
-
-def refuse_remote_host(node: str, host: str) -> None:
-    """Raise GraphError unless ``host`` is a loopback address (or a name only of such)."""
-    try:
-        infos = socket.getaddrinfo(host, None, proto=socket.IPPROTO_TCP)
-        addresses = {ipaddress.ip_address(info[4][0]) for info in infos}
-    except (OSError, ValueError) as err:
-        raise GraphError(f"node {node!r}: host {host!r} is not an address: {err}") from err
-    if not addresses or not all(a.is_loopback for a in addresses):
-        raise GraphError(
-            f"node {node!r}: host {host!r} is not a loopback address; frames and control "
-            "would travel unencrypted on the network, and this graph does not enable "
-            "encryption (not supported yet): use 127.0.0.1 or leave 'host' out"
-        )

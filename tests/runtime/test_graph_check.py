@@ -301,7 +301,7 @@ def test_set_takes_a_dotted_path_into_nested_params(tmp_path: Path) -> None:
 # -- --check catches what would fail at start ----------------------------------------------------
 
 
-def test_host_must_be_bindable_here(tmp_path: Path) -> None:
+def test_host_must_be_a_loopback_address_bindable_here(tmp_path: Path) -> None:
     err = errors_of(
         "nodes:\n"
         "  a: {impl: synthetic.source, host: '127.0.0.1:5555'}\n"
@@ -309,12 +309,15 @@ def test_host_must_be_bindable_here(tmp_path: Path) -> None:
         "  c: {impl: synthetic.source, host: 192.0.2.1}\n"
         "  d: {impl: synthetic.source, host: 'tcp://127.0.0.1'}\n"
         "  e: {impl: synthetic.source, host: 3}\n"
-        "  ok: {impl: synthetic.source, host: 127.0.0.1}\n",
+        "  f: {impl: synthetic.source, host: 0.0.0.0}\n"
+        "  ok: {impl: synthetic.source, host: 127.0.0.1}\n"
+        "  lo: {impl: synthetic.source, host: localhost}\n",
         tmp_path,
     )
     for name in "abcde":
         assert f"g.yaml: node '{name}'.host: must be an address or interface of this machine" in err
-    assert "'ok'" not in err
+    assert "g.yaml: node 'f'.host: must be a loopback address (127.0.0.1), got '0.0.0.0'" in err
+    assert "'ok'" not in err and "'lo'" not in err
 
 
 def test_queue_size_must_fit_a_socket_high_water_mark(tmp_path: Path) -> None:
