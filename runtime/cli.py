@@ -13,11 +13,12 @@ import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from runtime.node import Node
-from runtime.params import describe
-from runtime.registry import class_path, resolve
+if TYPE_CHECKING:
+    from runtime.node import Node
+# The registry, node and params modules import messages (numpy, msgspec): only the
+# commands that list nodes import them, so ``launch.py --help`` stays light.
 
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
 
@@ -107,6 +108,8 @@ def _clip(text: str, width: int = 40) -> str:
 
 def node_table(names: Sequence[str]) -> str:
     """One line per implementation: its inputs (optional ones in brackets) and outputs."""
+    from runtime.registry import resolve
+
     lines = []
     for name in names:
         ins, outs = _ports(resolve(name))
@@ -126,6 +129,9 @@ def node_details(impl: str) -> str:
     Raises:
         KeyError: an unknown implementation (the message lists the valid ones).
     """
+    from runtime.params import describe
+    from runtime.registry import class_path, resolve
+
     cls = resolve(impl)
     ins, outs = _ports(cls)
     doc = (cls.__doc__ or "").strip().splitlines()

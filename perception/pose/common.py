@@ -20,7 +20,6 @@ import functools
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from geometry import se3
 from geometry.fields import Field
@@ -154,6 +153,8 @@ def estimate_noise_m(
     several millimetres whatever the point count (a dense cloud's tiny neighbourhoods
     would take 3 mm noise for curvature). Curvature is absorbed by the quadric, so a curved patch is not taken for
     noise; a neighbourhood across an edge is, and the median ignores the few there."""
+    from scipy.spatial import cKDTree  # here, not at import: checking a graph need not pay
+
     pts = clean_points(points, sample)
     k = min(neighbours, len(pts))
     if k < 10:

@@ -46,6 +46,18 @@ def test_help_and_bag_info_import_no_node_module(argv: list[str]) -> None:
     assert modules == set()
 
 
+def test_help_imports_not_even_numpy() -> None:
+    probe = (
+        "import sys; sys.argv = ['launch.py', '--help']; import launch\n"
+        "try:\n    launch.main()\nexcept SystemExit:\n    pass\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('numpy', 'messages', 'zmq')))"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
+    assert done.stdout.strip().splitlines()[-1] == "[]"
+
+
 def test_check_imports_only_the_graphs_node_modules() -> None:
     code, modules = imported("graph.yaml", "--check")
     assert code == 0
