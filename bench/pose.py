@@ -308,6 +308,7 @@ def run(quick: bool) -> list[Row]:
 def plot(rows: list[Row], path: Path) -> None:
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
+    from matplotlib.ticker import NullFormatter, ScalarFormatter
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.6))
     colors = {"lm": "C0", "ipopt": "C1", "icp": "C2", "ipopt_exact": "C3"}
@@ -326,6 +327,9 @@ def plot(rows: list[Row], path: Path) -> None:
         )
     ax1.set_xscale("log")
     ax1.set_yscale("log")
+    for axis in (ax1.xaxis, ax1.yaxis):  # plain numbers, no crowded minor labels
+        axis.set_major_formatter(ScalarFormatter())
+        axis.set_minor_formatter(NullFormatter())
     ax1.set_xlabel("CPU time per estimate, median (ms, one core)")
     ax1.set_ylabel("axis error, median (deg)")
     ax1.set_title("accuracy against time (mug body, 1 mm noise)")
@@ -335,8 +339,8 @@ def plot(rows: list[Row], path: Path) -> None:
         if any(r["kind"] == "accuracy" and r["solver"] == n for r in rows)
     ]
     handles += [
-        Line2D([], [], marker="o", ls="", color="gray", label="warm start"),
-        Line2D([], [], marker="s", ls="", color="gray", label="cold start"),
+        Line2D([], [], marker="o", ls="", color="gray", label="seed 3 deg off (searched)"),
+        Line2D([], [], marker="s", ls="", color="gray", label="cold start (no seed)"),
         Line2D([], [], marker="o", ls="", color="gray", mfc="none", label="simulated cloud"),
         Line2D([], [], marker="o", ls="", color="gray", label="synthetic cloud"),
         Line2D([], [], ls="", label="marker size: points 1k-30k"),
