@@ -12,7 +12,9 @@ One run builds one set of cases and every row uses the same ones:
   missing.
 
 Each cloud is subsampled to the kept point count (1k, 3k, 10k, 30k). ``warm`` starts
-from the truth tilted 3 degrees and moved 2 mm (tracking); ``cold`` has no prior (data
+from the truth tilted 3 degrees and moved 2 mm, given as a seed (an unverified prior: the
+estimator searches its turns too; the tracking path is ``bench.pose_hard``'s ``track``
+rows); ``cold`` has no prior (data
 and cardinal seeds, turns checked). Success: axis error under 2 degrees and off-axis
 error under 2 mm. The axis error ignores the flip of the axis (a plain cylinder's two
 ends look alike). Basin rows: seeds tilted by ``tilt_deg`` about a random direction
