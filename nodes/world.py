@@ -11,7 +11,10 @@ Ports:
     outputs: ``state`` (messages.sim.WorldState): one per scene frame, at the cameras'
         frame rate; the sensor nodes render from it and stamp their messages with its
         stamp. ``ground_truth`` (GroundTruth): the true pose, contact and shear, when
-        the scene lists ``ground_truth``.
+        the scene lists ``ground_truth``. ``placement`` (TaskEvent, task ``world``, event
+        ``placed`` or ``dropped``, detail JSON: ``t_secs``, ``touch_secs``, ``gap_mm``,
+        ``push_mm``, ``tilt_deg``): once, when the jaws open over a scene's ``support``
+        (``sim.support``): the stacking task's truth.
 
 Only this node integrates anything (the jaws' motion, the contacts' anchors), so no two
 processes keep their own copy of the world. When the scene's trajectory ends it asks
@@ -21,11 +24,13 @@ the graph to stop, with a one-line summary. A hardware graph drops this node.
 from __future__ import annotations
 
 import dataclasses
+import json
 from dataclasses import dataclass
 
+from messages.base import Header
 from messages.errors import NodeError
 from messages.sim import WorldState
-from messages.types import GripperCommand, GroundTruth
+from messages.types import GripperCommand, GroundTruth, TaskEvent
 from runtime.node import Node
 from runtime.params import ExistingFile
 from runtime.registry import register
@@ -85,10 +90,11 @@ class WorldNode(Node):
     Params = WorldParams
     inputs = {"command": GripperCommand}
     optional_inputs = frozenset({"command"})
-    outputs = {"state": WorldState, "ground_truth": GroundTruth}
+    outputs = {"state": WorldState, "ground_truth": GroundTruth, "placement": TaskEvent}
 
     def setup(self) -> None:
         self.scene = self.params.load()
+        self.placement_sent = False
         self.world = World(self.scene)
         self.start_nanos: int | None = None
         self.max_force_n = 0.0
@@ -143,6 +149,7 @@ class WorldNode(Node):
                 snap, self.world.model.class_label, stamp, noise_seed=self.scene.seed
             )
             self.io.publish("ground_truth", truth)
+        self._publish_placement(stamp)
         if self.world.done:
             contact = (
                 f"{self.contact_frames} in contact"
@@ -155,3 +162,26 @@ class WorldNode(Node):
                 f" {self.max_force_n:.1f} N, final width {snap.width_m * 1000:.1f} mm,"
                 f" gripper {snap.gripper_state})"
             )
+
+    def _publish_placement(self, stamp: int) -> None:
+        """The support's verdict, once, when the jaws open over it (``sim.support``)."""
+        placement = self.world.placement
+        if placement is None or self.placement_sent:
+            return
+        self.placement_sent = True
+        detail = {
+            "t_secs": round(placement.t_secs, 4),
+            "touch_secs": None if placement.touch_secs is None else round(placement.touch_secs, 4),
+            "gap_mm": round(placement.gap_m * 1000, 3),
+            "push_mm": round(placement.push_m * 1000, 3),
+            "tilt_deg": round(placement.tilt_deg, 3),
+        }
+        self.io.publish(
+            "placement",
+            TaskEvent(
+                header=Header(stamp_nanos=stamp, frame_id="tool"),
+                task="world",
+                event="placed" if placement.placed else "dropped",
+                detail=json.dumps(detail, sort_keys=True),
+            ),
+        )

@@ -107,6 +107,7 @@ class Launcher:
         self.barrier_topics = graph.barrier_topics() if lockstep else set()
         self.stop_reason: str | None = None
         self.exit_code = 0
+        self.verdict_code = 0  # a node's verdict on the run (stop_request's exit_code)
         self.idle_waiters: list[bytes] = []
         self.started_at = 0.0
         self.stopped_at = 0.0
@@ -297,6 +298,10 @@ class Launcher:
             self.idle_waiters.append(rid)
         elif kind == "stop_request":
             reason = msg.get("reason", "")
+            verdict = msg["exit_code"]
+            if verdict:
+                self.verdict_code = self.verdict_code or verdict
+                self.say(f"node {name!r} reports failure (exit code {verdict}): {reason}")
             if self.lockstep and self.graph.nodes[name].inputs:
                 # A replay runs ahead of its consumers by up to its window, so where such
                 # a request would cut the bag depends on timing: in lockstep the sources
@@ -495,7 +500,7 @@ class Launcher:
                 signal.signal(s, handler)
         if self._signals and self.exit_code == 0:
             self.exit_code = 128 + self._signals[0]
-        return self.exit_code
+        return self.exit_code or self.verdict_code
 
     # -- the end-of-run table ----------------------------------------------------
     def report(self) -> str:

@@ -52,8 +52,12 @@ class IO(Protocol):
     def now_nanos(self) -> int:
         """The current time in nanoseconds (wall clock in a live graph)."""
 
-    def request_stop(self, reason: str) -> None:
-        """Ask the whole graph to stop (a source that has finished, a task that ended)."""
+    def request_stop(self, reason: str, *, exit_code: int = 0) -> None:
+        """Ask the whole graph to stop (a source that has finished, a task that ended).
+
+        A non-zero ``exit_code`` is the node's verdict on the run (a task that put an
+        object in the wrong bin): the launcher exits with it once the graph has stopped
+        cleanly (messages in flight still reach the recorder)."""
 
     def publish_raw(self, topic: str, frames: list[Any]) -> None:
         """Publish already-encoded frames verbatim on one of the node's output topics."""

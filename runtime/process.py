@@ -198,8 +198,8 @@ class ZmqIO:
     def now_nanos(self) -> int:
         return time.time_ns()
 
-    def request_stop(self, reason: str) -> None:
-        self.tell("stop_request", reason=reason)
+    def request_stop(self, reason: str, *, exit_code: int = 0) -> None:
+        self.tell("stop_request", reason=reason, exit_code=exit_code)
 
     def tell(self, kind: str, sock: zmq.Socket[Any] | None = None, **body: Any) -> None:
         """Send one signed control message to the launcher (on ``sock``, else the main one)."""

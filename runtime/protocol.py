@@ -16,7 +16,8 @@ node -> launcher
     heartbeat  {busy_secs, stats}                every ``HEARTBEAT_SECS``
     counts     {published, received}             lockstep: after each handled batch
     wait_idle  {}                                lockstep: reply when the graph is idle
-    stop_request {reason}                        a node asks the graph to stop
+    stop_request {reason, exit_code}             a node asks the graph to stop (exit_code:
+                                                 its verdict on the run, 0 = success)
     final      {stats}                           on a clean exit
 launcher -> node
     connect    {endpoints: {node: endpoint}}     where each input's publisher is
@@ -53,7 +54,7 @@ _FIELDS: dict[str, dict[str, type | tuple[type, ...]]] = {
     "heartbeat": {"busy_secs": _NUMBER, "stats": dict},
     "counts": {"published": dict, "received": dict},
     "wait_idle": {},
-    "stop_request": {"reason": str},
+    "stop_request": {"reason": str, "exit_code": int},
     "final": {"stats": dict},
     "connect": {"endpoints": dict},
     "start": {},
@@ -113,6 +114,8 @@ def unpack(secret: bytes, frames: Sequence[bytes], *, from_node: bool) -> dict[s
         raise ControlError(
             f"heartbeat.busy_secs: expected a finite number >= 0, got {msg['busy_secs']!r}"
         )
+    if kind == "stop_request" and not 0 <= msg["exit_code"] <= 255:
+        raise ControlError(f"stop_request.exit_code: expected 0 to 255, got {msg['exit_code']!r}")
     if "stats" in msg:
         _check_stats(str(kind), msg["stats"])
     for name in ("published", "received", "endpoints"):

@@ -32,6 +32,7 @@ class FakeIO:
         self.log = logging.getLogger(name)
         self.published: dict[str, list[Message]] = defaultdict(list)
         self.stop_reason: str | None = None
+        self.stop_exit_code = 0
         self.stop_requested = False
         self._now = now_nanos
         self._timers: list[_Timer] = []
@@ -77,8 +78,9 @@ class FakeIO:
     def now_nanos(self) -> int:
         return self._now
 
-    def request_stop(self, reason: str) -> None:
+    def request_stop(self, reason: str, *, exit_code: int = 0) -> None:
         self.stop_reason = reason
+        self.stop_exit_code = exit_code
 
     def advance(self, secs: float) -> None:
         """Move the clock forward, firing every timer that falls due, in time order."""

@@ -3,7 +3,9 @@
 A scene names the object (one of ``geometry.objects``, with optional dimension
 overrides), its pose trajectory in the tool frame, the scripted gripper commands, the
 bubbles, the cameras, the dot pattern, the noise, the seed and the ``effects`` to
-simulate. Every section but ``object`` is optional and defaults to docs/facts.md figures::
+simulate, and optionally a ``support`` the arm lowers the held object onto
+(``sim.support``). Every section but ``object`` is optional and defaults to
+docs/facts.md figures::
 
     name: mug_grasp
     seed: 7
@@ -39,6 +41,7 @@ from geometry.camera import PinholeCamera
 from geometry.gripper import BubbleGeometry, GripperGeometry
 from geometry.se3 import exp_so3, log_so3
 from sim.effects import ALL_EFFECTS, resolve
+from sim.support import SupportSpec
 
 GRIPPER_COMMANDS = ("move", "grasp", "release", "stop", "home")
 
@@ -296,6 +299,7 @@ class Scene:
     pattern: PatternSpec = field(default_factory=PatternSpec)
     noise: NoiseSpec = field(default_factory=NoiseSpec)
     membrane: MembraneSpec = field(default_factory=MembraneSpec)
+    support: SupportSpec | None = None  # a surface the arm lowers the object onto
     path: str = ""
 
     def __post_init__(self) -> None:
@@ -389,6 +393,7 @@ _SECTIONS: dict[str, type[Any]] = {
     "pattern": PatternSpec,
     "noise": NoiseSpec,
     "membrane": MembraneSpec,
+    "support": SupportSpec,
 }
 
 

@@ -24,6 +24,7 @@ from sim.gripper import GripperDynamics
 from sim.membrane import ContactState, CulledField, contact_mechanics
 from sim.pressure import gauge_pressure_pa
 from sim.scene import Scene
+from sim.support import Placement, Support
 
 _CONTACT_EFFECTS = frozenset({"gripper", "pressure", "shear", "ground_truth"})
 
@@ -72,6 +73,12 @@ class World:
         self._anchors: dict[str, np.ndarray | None] = {s: None for s in SIDES}
         self.frame_index = -1
         self.snapshot: WorldSnapshot | None = None
+        self.support = (
+            Support(scene.support, self.model, scene.tool_from_object(0.0))
+            if scene.support is not None
+            else None
+        )
+        self._release_due = False
 
     @property
     def done(self) -> bool:
@@ -82,6 +89,7 @@ class World:
         self, command: str, *, width_m: float, speed_m_per_s: float, force_n: float
     ) -> None:
         """A gripper command from outside (a supervisor); applies from the next step."""
+        self._note_release(command)
         self.dynamics.command(
             command, width_m=width_m, speed_m_per_s=speed_m_per_s, force_n=force_n
         )
@@ -137,10 +145,12 @@ class World:
             and self._script[self._next_command].t_secs <= t + 1e-9
         ):
             c = self._script[self._next_command]
+            self._note_release(c.command)
             self.dynamics.command(
                 c.command, width_m=c.width_m, speed_m_per_s=c.speed_m_per_s, force_n=c.force_n
             )
             self._next_command += 1
+        pose = self._supported(pose, t)
         dt = self.scene.frame_period_secs if self.frame_index > 0 else 0.0
         # One contact evaluation per side and opening within a step: the gripper's force
         # loop and the snapshot share them. Anchors (for shear) are the previous
@@ -188,6 +198,25 @@ class World:
             shear_in_tool_m=shear,
         )
         return self.snapshot
+
+    # -- a support under the held object (the stacking task, ``sim.support``) ---------
+
+    @property
+    def placement(self) -> Placement | None:
+        """How the object came to rest on the support once the jaws opened (else None)."""
+        return None if self.support is None else self.support.placement
+
+    def _note_release(self, command: str) -> None:
+        if self.support is not None and command in ("release", "home"):
+            self._release_due = True
+
+    def _supported(self, pose: np.ndarray, t_secs: float) -> np.ndarray:
+        if self.support is None:
+            return pose
+        if self._release_due:
+            self._release_due = False
+            self.support.release(t_secs, pose)
+        return self.support.apply(pose, t_secs)
 
     def run_to(self, t_secs: float) -> WorldSnapshot:
         """Step until the frame at (or just before) ``t_secs``; returns its snapshot."""

@@ -15,41 +15,36 @@ trained on datasets the auto-labelling graph writes. Modules:
 
 from __future__ import annotations
 
-from perception.classify.checkpoint import (
-    CheckpointError,
-    Classifier,
-    ModelMeta,
-    load_checkpoint,
-    save_checkpoint,
-)
-from perception.classify.dataset import (
-    DatasetError,
-    DatasetWriter,
-    GraspBuffer,
-    load_samples,
-    read_manifest,
-)
-from perception.classify.model import ResNet18
-from perception.classify.preprocess import MODALITIES, InputSpec, frame_input
-from perception.classify.train import TrainConfig, confusion_matrix, split_by_grasp, train
+import importlib
+from typing import Any
 
-__all__ = [
-    "MODALITIES",
-    "CheckpointError",
-    "Classifier",
-    "DatasetError",
-    "DatasetWriter",
-    "GraspBuffer",
-    "InputSpec",
-    "ModelMeta",
-    "ResNet18",
-    "TrainConfig",
-    "confusion_matrix",
-    "frame_input",
-    "load_checkpoint",
-    "load_samples",
-    "read_manifest",
-    "save_checkpoint",
-    "split_by_grasp",
-    "train",
-]
+# Names re-exported from the submodules, imported on first use (PEP 562): the grasp
+# generator and the dataset format need no torch, and a node that imports them should
+# not pay seconds of start-up for it.
+_EXPORTS = {
+    "CheckpointError": "checkpoint",
+    "Classifier": "checkpoint",
+    "ModelMeta": "checkpoint",
+    "load_checkpoint": "checkpoint",
+    "save_checkpoint": "checkpoint",
+    "DatasetError": "dataset",
+    "DatasetWriter": "dataset",
+    "GraspBuffer": "dataset",
+    "load_samples": "dataset",
+    "read_manifest": "dataset",
+    "ResNet18": "model",
+    "MODALITIES": "preprocess",
+    "InputSpec": "preprocess",
+    "frame_input": "preprocess",
+    "TrainConfig": "train",
+    "confusion_matrix": "train",
+    "split_by_grasp": "train",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)

@@ -1,0 +1,163 @@
+"""What every task supervisor shares: the data clock, events, gripper commands, time-outs.
+
+Clock. A task keeps the time of its data: the stamp of the newest message it has
+received. It starts ``start_delay_secs`` after its first message, times out
+``timeout_secs`` after it, and stamps what it publishes with it, so the same messages
+give the same decisions live and in a replay at any speed (lockstep replays of a task
+are deterministic). A wall-clock watchdog times out a task that never hears anything.
+
+Verdict. A task that ends by itself asks the graph to stop with its summary; a task
+that failed (an object in a wrong bin, an object dropped) passes a non-zero
+``exit_code``, which becomes the launcher's exit code.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from messages import GraspState, GripperCommand, Header, PoseEstimate, TaskEvent
+from messages.base import Message
+from runtime.node import Node
+
+
+@dataclass(frozen=True, kw_only=True)
+class TaskParams:
+    """What every task shares: how it grasps, releases and gives up."""
+
+    grasp_on_start: bool = True
+    start_delay_secs: float = 0.3
+    grasp_width_m: float = 0.0
+    grasp_speed_m_per_s: float = 0.05
+    grasp_force_n: float = 12.0
+    release_width_m: float = 0.11
+    timeout_secs: float = 30.0
+
+    def __post_init__(self) -> None:
+        for name in ("grasp_speed_m_per_s", "grasp_force_n", "release_width_m", "timeout_secs"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"`{name}` must be > 0, got {getattr(self, name)!r}")
+        if self.start_delay_secs < 0 or self.grasp_width_m < 0:
+            raise ValueError("`start_delay_secs` and `grasp_width_m` must be >= 0")
+
+
+class Task(Node):
+    """The data clock, events, commands and time-outs of a task (module docstring)."""
+
+    Params = TaskParams
+    outputs = {"command": GripperCommand, "event": TaskEvent}
+    task = "task"
+
+    def setup(self) -> None:
+        self.state = "idle"
+        self.pose: PoseEstimate | None = None
+        self.first_nanos: int | None = None  # data time of the first message
+        self.now_nanos = 0  # data time: the newest message's stamp
+        self.wall_started = self.io.now_nanos()
+        self.io.add_timer(0.5, self._watchdog)
+
+    @property
+    def elapsed_secs(self) -> float:
+        """Data time since the first message."""
+        return 0.0 if self.first_nanos is None else (self.now_nanos - self.first_nanos) / 1e9
+
+    def handle(self, port: str, msg: Message) -> None:
+        """Advance the data clock to ``msg``'s stamp, then hand it to ``on_<port>``."""
+        stamp = msg.header.stamp_nanos  # type: ignore[attr-defined]
+        if self.first_nanos is None:
+            self.first_nanos = stamp
+        self.now_nanos = max(self.now_nanos, stamp)
+        self.advance(self.elapsed_secs)
+        if self.state != "done" and self.elapsed_secs > self.params.timeout_secs:
+            self.timeout()
+        if self.state != "done":
+            super().handle(port, msg)
+
+    def advance(self, elapsed_secs: float) -> None:
+        """Called with the data time before each message is handled."""
+
+    def _watchdog(self) -> None:
+        silent_secs = (self.io.now_nanos() - self.wall_started) / 1e9
+        if self.first_nanos is None and silent_secs > self.params.timeout_secs:
+            if self.state != "done":
+                self.timeout("no input")
+
+    def timeout(self, why: str = "") -> None:
+        self.state = "done"
+        detail = f"no completion within {self.params.timeout_secs:g} s"
+        self.event("timeout", f"{detail} ({why})" if why else detail)
+        self.finish(f"{self.task}: timeout", exit_code=self.timeout_exit_code())
+
+    def timeout_exit_code(self) -> int:
+        """The verdict of a run that timed out (0: a time-out is not a failure)."""
+        return 0
+
+    def finish(self, reason: str, *, exit_code: int = 0) -> None:
+        """End the task and the graph with a one-line reason and the task's verdict."""
+        self.state = "done"
+        self.io.request_stop(reason, exit_code=exit_code)
+
+    def command(self, command: str, width_m: float, *, force_n: float | None = None) -> None:
+        self.io.publish(
+            "command",
+            GripperCommand(
+                header=Header(stamp_nanos=self.now_nanos or self.io.now_nanos()),
+                command=command,
+                width_m=float(width_m),
+                speed_m_per_s=self.params.grasp_speed_m_per_s,
+                force_n=float(self.params.grasp_force_n if force_n is None else force_n),
+            ),
+        )
+
+    def event(self, event: str, detail: str = "", *, with_pose: bool = True) -> None:
+        """Publish and log a TaskEvent; ``with_pose`` appends the last pose estimate."""
+        if with_pose and self.pose is not None and self.pose.status in ("ok", "recovered"):
+            xyz_mm = self.pose.tool_from_object[:3, 3] * 1000
+            detail += f" | pose xyz_mm=({xyz_mm[0]:.1f}, {xyz_mm[1]:.1f}, {xyz_mm[2]:.1f})"
+        self.io.log.info("%s: %s %s", self.task, event, detail)
+        self.io.publish(
+            "event",
+            TaskEvent(
+                header=Header(stamp_nanos=self.now_nanos or self.io.now_nanos()),
+                task=self.task,
+                event=event,
+                detail=detail,
+            ),
+        )
+
+    def on_pose(self, msg: PoseEstimate) -> None:
+        self.pose = msg
+
+
+class SingleGraspTask(Task):
+    """Grasp on start, stop at release or timeout; subclasses decide when to release."""
+
+    def advance(self, elapsed_secs: float) -> None:
+        if self.state == "idle" and elapsed_secs >= self.params.start_delay_secs:
+            if self.params.grasp_on_start:
+                self.command("grasp", self.params.grasp_width_m)
+            self.state = "grasping"
+            self.event("grasping", "waiting for a stable grasp")
+
+    def release(self, detail: str) -> None:
+        self.command("release", self.params.release_width_m)
+        self.state = "releasing"
+        self.event("release", detail)
+
+    def on_grasp(self, msg: GraspState) -> None:
+        if msg.event == "stable" and self.state == "grasping":
+            self.state = "holding"
+            self.event(
+                "stable",
+                f"pressure rise {msg.pressure_rise_left_pa:.0f}/{msg.pressure_rise_right_pa:.0f} Pa",
+            )
+            self.on_stable()
+        elif msg.event == "released" and self.state in ("holding", "releasing"):
+            self.event("done", "grasp released")
+            self.on_released()
+
+    def on_released(self) -> None:
+        """The grasp let go after a release: the task is over (subclasses may add a verdict)."""
+        self.finish(f"{self.task}: done")
+
+    def on_stable(self) -> None:
+        """Called once when the grasp becomes stable."""

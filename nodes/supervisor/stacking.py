@@ -1,0 +1,110 @@
+"""``supervisor.stacking`` (paper, task 3: blind stacking by shear).
+
+Closes the gripper, waits for a stable grasp, and then, while the arm lowers the object
+onto a surface or another object of unknown height, watches both bubbles' shear: the
+touch pushes the object up in the hand, the membranes shear, and when the shear
+magnitude stays at or above ``touch_shear_px`` for ``confirm_frames`` frames it opens
+the gripper. It knows nothing of the geometry: not the support's height, not the
+object's size.
+
+After the release it waits (at most ``placement_wait_secs`` of data time) for the
+world's truth (``placement``: placed, with the gap it fell and its tilt, or dropped),
+publishes a ``summary`` event (JSON) and stops the graph; its verdict (exit code 1)
+says the object was dropped. Without a ``placement`` input (hardware) the outcome is
+unknown and the verdict 0.
+
+Ports:
+    inputs: ``grasp`` (GraspState), ``shear`` (ShearEstimate), ``placement``
+        (TaskEvent from ``world.sim``, optional).
+    outputs: ``command`` (GripperCommand), ``event`` (TaskEvent, task ``stacking``).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+from messages import GraspState, ShearEstimate, TaskEvent
+from nodes.supervisor.base import SingleGraspTask, TaskParams
+from nodes.supervisor.handover import ShearWatch, describe_shear
+from runtime.registry import register
+
+
+@dataclass(frozen=True, kw_only=True)
+class StackingParams(TaskParams):
+    touch_shear_px: float = 1.0
+    confirm_frames: int = 2
+    placement_wait_secs: float = 1.0
+    grasp_speed_m_per_s: float = 0.1
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not self.touch_shear_px > 0:
+            raise ValueError(f"`touch_shear_px` must be > 0, got {self.touch_shear_px!r}")
+        if self.confirm_frames < 1:
+            raise ValueError(f"`confirm_frames` must be >= 1, got {self.confirm_frames!r}")
+        if not self.placement_wait_secs >= 0:
+            raise ValueError(
+                f"`placement_wait_secs` must be >= 0, got {self.placement_wait_secs!r}"
+            )
+
+
+@register("supervisor.stacking")
+class StackingSupervisor(SingleGraspTask):
+    """Set the held object down where a touch shears the bubbles (module docstring)."""
+
+    Params = StackingParams
+    inputs = {"grasp": GraspState, "shear": ShearEstimate, "placement": TaskEvent}
+    optional_inputs = frozenset({"placement"})
+    task = "stacking"
+
+    def setup(self) -> None:
+        super().setup()
+        self.watch = ShearWatch(self.params.touch_shear_px, self.params.confirm_frames)
+        self.placement: TaskEvent | None = None
+        self.release_nanos = 0
+        self.released_nanos: int | None = None
+
+    def on_shear(self, msg: ShearEstimate) -> None:
+        if self.state == "holding" and self.watch.update(msg):
+            self.release_nanos = self.now_nanos
+            self.release(f"touch {describe_shear(msg)}")
+
+    def on_placement(self, msg: TaskEvent) -> None:
+        self.placement = msg
+        if self.released_nanos is not None:
+            self._summary()
+
+    def on_released(self) -> None:
+        self.released_nanos = self.now_nanos
+        self.state = "placing"
+        if self.placement is not None:
+            self._summary()
+
+    def advance(self, elapsed_secs: float) -> None:
+        super().advance(elapsed_secs)
+        if (
+            self.state == "placing"
+            and self.released_nanos is not None
+            and self.now_nanos - self.released_nanos > self.params.placement_wait_secs * 1e9
+        ):
+            self._summary()
+
+    def _summary(self) -> None:
+        summary: dict[str, object] = {
+            "release_secs": round((self.release_nanos - (self.first_nanos or 0)) / 1e9, 4)
+        }
+        if self.placement is None:
+            outcome, failed = "unknown (no placement truth)", False
+        else:
+            truth = json.loads(self.placement.detail or "{}")
+            summary.update(truth)
+            summary["outcome"] = self.placement.event
+            failed = self.placement.event != "placed"
+            outcome = (
+                f"{self.placement.event}: gap {truth.get('gap_mm', 0):.1f} mm, "
+                f"tilt {truth.get('tilt_deg', 0):.1f} deg, "
+                f"{truth.get('push_mm', 0):.1f} mm pressed past contact"
+            )
+        self.event("summary", json.dumps(summary, sort_keys=True))
+        self.finish(f"{self.task}: {outcome}", exit_code=1 if failed else 0)
