@@ -1051,8 +1051,8 @@ def test_bad_stored_value_raises_frame_decode_error(case: str) -> None:
 def test_pack_single_refuses_frames_that_disagree_with_their_header() -> None:
     frames = _tof_frames()
     with pytest.raises(FrameDecodeError, match="buffer of"):
-        pack_single([frames[1], frames[2], frames[3][:-1]])
-    with pytest.raises(FrameDecodeError, match="2 arrays, got 1"):
+        pack_single([*frames[1:-1], frames[-1][:-1]])
+    with pytest.raises(FrameDecodeError, match="3 arrays, got 1"):  # depth, ir, tool_from_sensor
         pack_single(frames[1:3])
     with pytest.raises(FrameDecodeError, match="bad frame header"):
         pack_single([b"\xc1", *frames[2:]])
