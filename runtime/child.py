@@ -25,6 +25,8 @@ import os
 import shutil
 import signal
 import sys
+import time
+from pathlib import Path
 from typing import Any
 
 PR_SET_PDEATHSIG = 1
@@ -32,8 +34,36 @@ PARENT_ENV = "SBG_LAUNCHER_PID"
 RUNDIR_ENV = "SBG_RUNDIR"
 
 
+_signalled = False
+GONE_WAIT_SECS = 0.2
+
+
 def _end_now(signum: int, frame: Any) -> None:
+    global _signalled
+    _signalled = True
     raise SystemExit(128 + signum)
+
+
+def launcher_gone(parent: int) -> bool:
+    """Whether the launcher has died (or is dying: a zombie whose threads still exit)."""
+    if os.getppid() != parent:
+        return True
+    try:
+        state = Path(f"/proc/{parent}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return True
+    return state in ("Z", "X")
+
+
+def _wait_launcher_gone(parent: int) -> bool:
+    """After a signal: the kernel sends PR_SET_PDEATHSIG when the *thread* that started
+    this process dies, which can be a moment before the rest of the launcher is gone."""
+    end = time.monotonic() + (GONE_WAIT_SECS if _signalled else 0.0)
+    while not launcher_gone(parent):
+        if time.monotonic() >= end:
+            return False
+        time.sleep(0.01)
+    return True
 
 
 def die_with_parent(parent_pid: int) -> None:
@@ -69,7 +99,7 @@ def main() -> int:
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
         if os.getpgrp() == os.getpid():
             os.killpg(0, signal.SIGTERM)
-        if os.getppid() != parent and rundir:
+        if rundir and _wait_launcher_gone(parent):
             shutil.rmtree(rundir, ignore_errors=True)
 
 
