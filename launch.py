@@ -2,45 +2,84 @@
 
 python launch.py GRAPH [--check] [--set NODE.PARAM=VALUE ...] [--swap NODE=IMPL ...]
                        [--only NODE,NODE] [--duration SECS] [--log-level LEVEL]
-                       [--record OUT.mcap [--topics REGEX]] [--lockstep]
-python launch.py nodes                       list every node implementation
+                       [--record OUT.mcap [--record-topics REGEX] [--overwrite]] [--lockstep]
+                       [--view [OUT.rrd | foxglove]]
+python launch.py nodes [IMPL]                list implementations, or one's ports and params
 python launch.py bag info|echo|diff ...      inspect bags (see docs/bags.md)
-python launch.py replay BAG [--replace NODE=IMPL ...] [...]
+python launch.py bag view|export|video ...   look at bags (see docs/viewing.md)
+python launch.py replay BAG [--swap NODE[=IMPL] ...] [...]
 """
 
 from __future__ import annotations
 
-import argparse
-import shlex
+import signal
 import sys
-from pathlib import Path
 
-import nodes
-from messages.errors import GraphError
-from runtime import graph as graphs
-from runtime.launcher import launch
-from runtime.registry import known, resolve
+
+def _interrupted(signum: int, frame: object) -> None:
+    """Ctrl-C or SIGTERM outside a running graph: end now, quietly, with 128 + N.
+
+    Installed before anything else is imported, so a signal during start-up is never a
+    traceback; the launcher installs its own handlers while it supervises a graph.
+    """
+    raise SystemExit(128 + signum)
+
+
+if __name__ == "__main__":
+    signal.signal(signal.SIGINT, _interrupted)
+    signal.signal(signal.SIGTERM, _interrupted)
+
+import argparse  # noqa: E402 - after the signal handlers, on purpose
+import shlex  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+# What each command needs is imported when it runs: ``--help`` and ``bag info`` never
+# import a node module, ``--check`` only those the graph names (docs/runtime.md).
+
+
+def run_parser() -> argparse.ArgumentParser:
+    """The parser of ``launch.py GRAPH ...``; its help lists the subcommands too."""
+    from runtime.cli import add_deprecated, add_run_options
+
+    width = max(len(name) for name in SUBCOMMANDS)
+    epilog = "subcommands (python launch.py COMMAND --help for each):\n" + "\n".join(
+        f"  {name:{width}}  {summary}" for name, (summary, _) in SUBCOMMANDS.items()
+    )
+    parser = argparse.ArgumentParser(
+        prog="python launch.py",
+        usage=f"python launch.py GRAPH [options] | python launch.py {{{','.join(SUBCOMMANDS)}}} ...",
+        description="Run a graph file (or check it with --check), or one of the subcommands.",
+        epilog=epilog,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("graph", type=Path, help="the graph file (YAML)")
+    parser.add_argument(
+        "--check",
+        action="store_true",
+        help="check the graph (and every file its params name); start nothing",
+    )
+    add_run_options(parser, swap_metavar="NODE=IMPL", swap_help="another implementation")
+    parser.add_argument("--only", default="", metavar="NODE,NODE", help="run only these nodes")
+    parser.add_argument(
+        "--view",
+        nargs="?",
+        const="spawn",
+        default=None,
+        metavar="OUT.rrd|foxglove",
+        help="add a viewer: a Rerun window, an .rrd file, or a Foxglove live server",
+    )
+    add_deprecated(parser, "--topics", "--record-topics", "record_topics")
+    return parser
 
 
 def run_main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="python launch.py", description="Run a graph file.")
-    parser.add_argument("graph", type=Path, help="the graph file (YAML)")
-    parser.add_argument("--check", action="store_true", help="only check the graph; start nothing")
-    parser.add_argument(
-        "--set", dest="sets", action="append", default=[], metavar="NODE.PARAM=VALUE"
-    )
-    parser.add_argument("--swap", dest="swaps", action="append", default=[], metavar="NODE=IMPL")
-    parser.add_argument("--only", default="", metavar="NODE,NODE", help="run only these nodes")
-    parser.add_argument("--duration", type=float, default=None, metavar="SECS")
-    parser.add_argument(
-        "--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"]
-    )
-    parser.add_argument("--record", type=Path, default=None, metavar="OUT.mcap")
-    parser.add_argument(
-        "--topics", default=None, metavar="REGEX", help="with --record: topics to keep"
-    )
-    parser.add_argument("--lockstep", action="store_true", help="deterministic replay mode")
-    args = parser.parse_args(argv)
+    args = run_parser().parse_args(argv)
+    import nodes  # noqa: F401 - the index of node implementations (no node module)
+    from messages.errors import GraphError
+    from runtime import graph as graphs
+    from runtime.launcher import launch
+
     source = str(args.graph)
     try:
         doc = graphs.load_document(args.graph)
@@ -48,6 +87,10 @@ def run_main(argv: list[str]) -> int:
         doc = graphs.apply_overrides(
             doc, sets=args.sets, swaps=args.swaps, only=only, source=source
         )
+        if args.view is not None:
+            from viz.cli import add_viewer
+
+            doc = add_viewer(doc, args.view, source=source)
         checked = graphs.check(doc, source=source)
     except GraphError as err:
         print(f"graph check failed:\n{err}", file=sys.stderr)
@@ -59,7 +102,8 @@ def run_main(argv: list[str]) -> int:
         doc,
         source=source,
         record=args.record,
-        topics=args.topics,
+        topics=args.record_topics,
+        overwrite=args.overwrite,
         lockstep=args.lockstep,
         duration_secs=args.duration,
         log_level=args.log_level,
@@ -67,28 +111,62 @@ def run_main(argv: list[str]) -> int:
     )
 
 
-def list_nodes() -> int:
-    for name in known():
-        cls = resolve(name)
-        ins = ", ".join(f"{p}:{t.__name__}" for p, t in cls.inputs.items()) or "-"
-        outs = ", ".join(f"{p}:{t.__name__}" for p, t in cls.outputs.items()) or "-"
-        print(f"{name:32} in: {ins}  out: {outs}")
+def nodes_main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python launch.py nodes",
+        description="List node implementations (optional inputs in [brackets]); "
+        "with IMPL, show its ports and parameters with defaults, units and limits.",
+    )
+    parser.add_argument("impl", nargs="?", help="a registered name or module:Class")
+    args = parser.parse_args(argv)
+    import nodes
+    from runtime.cli import node_details, node_table
+    from runtime.registry import known
+
+    if args.impl is None:
+        nodes.import_all()
+        print(node_table(known()))
+        return 0
+    try:
+        print(node_details(args.impl))
+    except KeyError as err:
+        print(f"launch.py nodes: {err.args[0]}", file=sys.stderr)
+        return 2
     return 0
+
+
+def bag_main(argv: list[str]) -> int:
+    if argv[:1] in (["view"], ["export"], ["video"]):
+        from viz.cli import main as viz_main
+
+        return viz_main(argv[0], argv[1:])
+    from runtime.bagtool import main as bag_tool
+
+    return bag_tool(argv)
+
+
+def replay_main(argv: list[str]) -> int:
+    import nodes  # noqa: F401 - the index of node implementations
+    from runtime.bagtool import replay_main as replay
+
+    return replay(argv)
+
+
+# name -> (what --help says, handler): each reads the rest of the command line.
+SUBCOMMANDS: dict[str, tuple[str, Callable[[list[str]], int]]] = {
+    "nodes": ("list node implementations; `nodes IMPL`: its ports and parameters", nodes_main),
+    "bag": (
+        "bags: info|echo|diff|recover (docs/bags.md), view|export|video (docs/viewing.md)",
+        bag_main,
+    ),
+    "replay": ("replay a bag through its graph, some nodes swapped (docs/bags.md)", replay_main),
+}
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    nodes.import_all()
-    if argv[:1] == ["nodes"]:
-        return list_nodes()
-    if argv[:1] == ["bag"]:
-        from runtime.bagtool import main as bag_main
-
-        return bag_main(argv[1:])
-    if argv[:1] == ["replay"]:
-        from runtime.bagtool import replay_main
-
-        return replay_main(argv[1:])
+    if argv and argv[0] in SUBCOMMANDS:
+        return SUBCOMMANDS[argv[0]][1](argv[1:])
     return run_main(argv)
 
 

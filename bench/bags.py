@@ -4,9 +4,10 @@ One frame is one :class:`messages.ToFImage` of one sensor: 172 x 224 depth (floa
 IR (uint16), 231,168 bytes of pixels plus a ~150-byte header; the stream alternates the
 left and right cameras. Rows (``mode``):
 
-``record_bag``        :class:`runtime.bag.BagWriter` writing the encoded multipart frames
-                      as received (header check, frame table, per-topic counts, periodic
-                      flush every 0.5 s), uncompressed;
+``record_bag``        :class:`runtime.bag.BagWriter` recording the encoded multipart frames
+                      as received: header check, each message packed as one MessagePack
+                      value (``messages.codec.pack_single``), per-topic counts, periodic
+                      flush every 0.5 s, uncompressed;
 ``record_raw_mcap``   the plain ``mcap`` ``Writer`` writing the same bytes (header and
                       buffers joined) on two channels, same chunk size, no compression:
                       the floor our layer adds to. Both run in this process, alternating,
@@ -21,7 +22,11 @@ left and right cameras. Rows (``mode``):
                       supervisor) with its cameras at 45 fps, recorded with
                       ``launch(record=...)``: the camera frames in the bag, their rate, and
                       ``dropped`` = frames the world made that the bag lacks, plus gaps.
-``read``              :class:`runtime.bag.BagReader` iterating the bag (no decode).
+``read``              :class:`runtime.bag.BagReader` iterating the bag and unpacking each
+                      message into its wire frames (views on the mapped file: what replay
+                      publishes), no typed decode;
+``read_raw_mcap``     a third party's read of the same bag: the plain ``mcap`` reader and
+                      ``msgpack.unpackb`` on each message (``vs_raw`` as above).
 ``replay_fast`` / ``replay_lockstep``  the ``replay`` node publishing the bag as fast as
                       possible, or in lockstep, into a sink node reading both cameras,
                       under the real launcher; throughput is counted at the sink from its
@@ -41,7 +46,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -49,10 +53,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import msgpack
 import yaml
+from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from bench.common import Row, main, median
+from bench.common import Row, launcher_log, main, median
 from messages import Header, ToFImage, encode
 from runtime.bag import BagReader, BagWriter
 from runtime.node import Node
@@ -76,7 +82,7 @@ FULL = Sizes(frames_per_camera=450, repeats=3, live_secs=10.0, zstd=True)
 
 def camera_frames(count: int) -> list[tuple[str, list[Any]]]:
     """``count`` frames per camera, encoded, alternating left and right (distinct pixels)."""
-    from nodes.bench_nodes import bench_images
+    from bench.nodes import bench_images
 
     depth_m, ir = bench_images(ROWS, COLS)
     out = []
@@ -157,11 +163,37 @@ def run_record(sizes: Sizes, workdir: Path) -> list[Row]:
         rows.append(_row(f"record_raw_mcap{suffix}", len(data), nbytes, median(raw), vs_raw=1.0))
     bag = workdir / "cameras.mcap"
     record_bag(data, bag, "none")
-    start = time.perf_counter()
-    with BagReader(bag) as reader:
-        count = sum(1 for _ in reader.messages())
-    rows.append(_row("read", count, nbytes, time.perf_counter() - start))
+    ours, raw = [], []
+    for _ in range(sizes.repeats):
+        count, secs = read_bag(bag)
+        ours.append(secs)
+        raw.append(read_raw(bag)[1])
+    ratio = median(raw) / median(ours)
+    rows.append(_row("read", count, nbytes, median(ours), vs_raw=ratio))
+    rows.append(_row("read_raw_mcap", count, nbytes, median(raw), vs_raw=1.0))
     return rows
+
+
+def read_bag(path: Path) -> tuple[int, float]:
+    """Messages and seconds to read ``path`` with :class:`BagReader`, unpacked to frames."""
+    start = time.perf_counter()
+    count = 0
+    with BagReader(path) as reader:
+        for msg in reader.messages():
+            msg.frames()
+            count += 1
+    return count, time.perf_counter() - start
+
+
+def read_raw(path: Path) -> tuple[int, float]:
+    """The same with the plain ``mcap`` reader and ``msgpack.unpackb`` (a third party)."""
+    start = time.perf_counter()
+    count = 0
+    with open(path, "rb") as f:
+        for _, _, message in make_reader(f).iter_messages():
+            msgpack.unpackb(message.data)
+            count += 1
+    return count, time.perf_counter() - start
 
 
 # -- live: the launcher, node processes -----------------------------------------------------------
@@ -226,8 +258,8 @@ class ImageRelay(Node):
 def _launch(graph: dict[str, Any], **kwargs: Any) -> int:
     from runtime.launcher import launch
 
-    # The launcher prints its end-of-run table; keep stdout for the benchmark's own output.
-    with contextlib.redirect_stdout(sys.stderr):
+    # The launcher prints its end-of-run table: to the log, not into the benchmark's.
+    with launcher_log("bags") as log, contextlib.redirect_stdout(log):
         return launch(graph, source="bench.bags", log_level="WARNING", **kwargs)
 
 
@@ -323,9 +355,10 @@ def run_replay(bag: Path, workdir: Path, lockstep: bool, work_secs: float, fan_i
 
 
 def run(quick: bool) -> list[Row]:
+    import bench.nodes  # noqa: F401  (registers bench.image_source and bench.image_sink)
     import nodes
 
-    nodes.import_all()  # the default graph's nodes, the bench nodes, recorder and replay
+    nodes.import_all()  # the default graph's nodes, recorder and replay
 
     sizes = QUICK if quick else FULL
     with tempfile.TemporaryDirectory(prefix="bench_bags_") as tmp:

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bench.common import Row, main, median, one_core
+from bench.common import Row, main, median, one_core, plain_log_ticks, progress
 from perception.classify.checkpoint import Classifier
 from perception.classify.dataset import load_samples, read_grasp, read_manifest
 from perception.classify.preprocess import MODALITIES, InputSpec, frame_input
@@ -94,7 +94,8 @@ def run(quick: bool) -> list[Row]:
             epochs, frames_per_grasp, grasps, repeats = 4, 2, 160, 30
         frame = _first_frame(test_dir)
         rows = []
-        for modality, px, width in grid:
+        points = progress(grid, "bench.classifier", label=lambda g: f"{g[0]} {g[1]} px w{g[2]}")
+        for modality, px, width in points:
             spec = InputSpec(modality=modality, input_px=px)
             samples = load_samples(
                 train_dir, spec, max_frames_per_grasp=frames_per_grasp, max_grasps=grasps
@@ -132,23 +133,36 @@ def run(quick: bool) -> list[Row]:
 
 
 def plot(rows: list[Row], path: Path) -> None:
+    """Accuracy against inference and training time: one legend entry per setting
+    (marker: modality; colour: input size and width), no labels on the points, which
+    pile up where settings score alike."""
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), sharey=True)
     markers = {"depth": "o", "ir": "s", "both": "^"}
+    sizes = sorted({(r["input_px"], r["width"]) for r in rows}, reverse=True)
+    colors = dict(zip(sizes, plt.get_cmap("tab10").colors, strict=False))
     for row in rows:
-        label = f"{row['modality']} {row['input_px']}px w{row['width']:g}"
+        style = {
+            "marker": markers[row["modality"]],
+            "color": colors[(row["input_px"], row["width"])],
+            "s": 45,
+            "alpha": 0.8,
+        }
+        label = f"{row['modality']:5} {row['input_px']:>3} px  width {row['width']:g}"
         for ax, key in zip(axes, ("infer_ms_median", "train_secs"), strict=True):
-            ax.scatter(row[key], row["accuracy"], marker=markers[row["modality"]])
-            ax.annotate(label, (row[key], row["accuracy"]), fontsize=7)
-    axes[0].set_xlabel("inference ms (one core, batch 1)")
+            ax.scatter(row[key], row["accuracy"], label=label if ax is axes[0] else None, **style)
+    axes[0].set_xlabel("inference ms per frame (one core, batch 1)")
     axes[1].set_xlabel("training s")
+    axes[0].set_ylabel("held-out accuracy")
     for ax in axes:
-        ax.set_ylabel("held-out accuracy")
+        plain_log_ticks(ax, "x")
         ax.grid(alpha=0.3)
+    fig.legend(loc="center right", fontsize=8, prop={"family": "monospace", "size": 8})
     fig.suptitle(f"tactile classifier ({rows[0]['data'] if rows else ''} data)")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 0.78, 1))
     fig.savefig(path, dpi=120)
+    plt.close(fig)
 
 
 if __name__ == "__main__":

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import zmq
 
-from bench.common import Row, main, median
+from bench.common import Row, main, median, progress
 from messages import Header, Message, PoseEstimate, Pressure, ToFImage, decode, encode
 
 ROWS, COLS = 172, 224
@@ -102,7 +102,7 @@ def run(quick: bool) -> list[Row]:
     """Every message, operation and input, ``repeats`` interleaved passes, as table rows."""
     calls, repeats = (500, 3) if quick else (20_000, 5)
     rows: list[Row] = []
-    for name, (make, layouts) in CASES.items():
+    for name, (make, layouts) in progress(CASES.items(), "bench.codec", label=lambda c: c[0]):
         msgs = {layout: make(LAYOUTS[layout]) for layout in layouts}
         wire = [bytes(f) for f in encode(TOPIC, msgs["ready"])]
         for layout, msg in msgs.items():

@@ -9,21 +9,88 @@ keys) and calls :func:`main` with it::
 ``python -m bench.NAME`` prints a table, ``--json`` prints
 ``{"machine": {...}, "rows": [...]}``, ``--quick`` runs a small size (smoke tests),
 ``--plot PATH`` writes the plot (default ``bench/results/NAME.png``).
+
+Long sweeps show where they are: :func:`progress` wraps a sweep's points and prints one
+line per point on stderr (what it was, its time, an estimate of the time left), so the
+table on stdout stays clean. Graphs a benchmark launches write their chatter to
+:func:`launcher_log` (``bench/results/NAME.log``), not into the table.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
 import statistics
 import sys
-from collections.abc import Callable, Sequence
+import time
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import IO, Any, TypeVar
 
 Row = dict[str, Any]
+T = TypeVar("T")
+RESULTS = Path("bench/results")
+
+
+def progress(
+    points: Iterable[T],
+    name: str,
+    *,
+    label: Callable[[T], str] = str,
+    stream: IO[str] | None = None,
+) -> Iterator[T]:
+    """Yield the sweep's points, printing one line per finished point on ``stream``.
+
+    The line says which point of how many, its label, its time, and the time left
+    estimated from the mean time per point so far::
+
+        [bench.shear] 3/12 fb L3 w45 (facts): 4.1 s; 12 s so far, about 37 s left
+
+    Args:
+        points: the sweep (a sequence, or any iterable: it is listed first to count it).
+        name: the benchmark, e.g. ``"bench.shear"``.
+        label: the text that names a point.
+        stream: where the lines go (default stderr, so stdout keeps the table or JSON).
+    """
+    items = list(points)
+    out = sys.stderr if stream is None else stream
+    start = last = time.monotonic()
+    for i, item in enumerate(items, 1):
+        yield item
+        now = time.monotonic()
+        so_far = now - start
+        left = so_far / i * (len(items) - i)
+        print(
+            f"[{name}] {i}/{len(items)} {label(item)}: {now - last:.1f} s; "
+            f"{so_far:.0f} s so far, about {left:.0f} s left",
+            file=out,
+            flush=True,
+        )
+        last = now
+
+
+@contextlib.contextmanager
+def launcher_log(name: str) -> Iterator[IO[str]]:
+    """A file for what the graphs a benchmark launches print (``bench/results/NAME.log``).
+
+    Pass it as the launcher's ``out`` (or redirect stdout to it around ``launch``): the
+    table stays readable and the log is there when a graph fails. The first graph of a
+    run starts the file; later ones append to it.
+    """
+    path = RESULTS / f"{name}.log"
+    first = path not in _LOGS_STARTED  # one log per benchmark run: later graphs append
+    _LOGS_STARTED.add(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w" if first else "a") as log:
+        yield log
+    if first:
+        print(f"[bench.{name}] launcher log: {path}", file=sys.stderr, flush=True)
+
+
+_LOGS_STARTED: set[Path] = set()
 
 
 def machine() -> dict[str, Any]:
@@ -68,6 +135,21 @@ def percentile(values: Sequence[float], q: float) -> float:
     return float(np.percentile(np.asarray(values, dtype=float), q)) if len(values) else float("nan")
 
 
+def plain_log_ticks(ax: Any, which: str) -> None:
+    """Log scale on the ``which`` axes (``"x"``, ``"y"`` or ``"xy"``) of a matplotlib
+    ``ax``, labelled at 1-2-3-5 steps in plain numbers: by default matplotlib labels the
+    minor ticks of a log axis that spans less than a decade, and those labels overlap."""
+    from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter
+
+    steps = [m * 10.0**e for e in range(-4, 6) for m in (1, 2, 3, 5)]
+    for name in which:
+        getattr(ax, f"set_{name}scale")("log")
+        axis = getattr(ax, f"{name}axis")
+        axis.set_major_locator(FixedLocator(steps))
+        axis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+        axis.set_minor_formatter(NullFormatter())
+
+
 def format_table(rows: Sequence[Row], columns: Sequence[str] | None = None) -> str:
     """A plain fixed-width table; floats to 4 significant digits."""
     if not rows:
@@ -99,7 +181,7 @@ def main(
     parser = argparse.ArgumentParser(prog=f"python -m bench.{name}")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--quick", action="store_true", help="small sizes, for smoke tests")
-    parser.add_argument("--plot", type=Path, default=Path("bench/results") / f"{name}.png")
+    parser.add_argument("--plot", type=Path, default=RESULTS / f"{name}.png")
     parser.add_argument("--no-plot", action="store_true")
     args = parser.parse_args(argv)
     rows = run(args.quick)

@@ -21,13 +21,13 @@ z in 8 directions, twists about the grasp axis, mixtures of both; and the pull o
 Errors: ``dir_err_deg`` is the paper's direction (the normalized summed flow, in the
 image) against the true mean image motion of the material over the same pixels, scored
 where that is at least ``DIR_MIN_TRUTH_PX``; ``dir_err_mm_deg`` is the angle between
-the estimated ``shear_mm`` (tool y, z; beyond the paper) and the true mean material
-shift, scored where that is at least ``DIR_MIN_TRUTH_MM``. An undefined direction where
+the estimated ``shear_m`` (tool y, z; beyond the paper) and the true mean material
+shift, scored where that is at least ``DIR_MIN_TRUTH_M``. An undefined direction where
 one is scored counts as 180 degrees. The true motion follows the material (see
-:func:`truth`). ``mag_err_px`` compares the mean shear in pixels with the true mean
+:func:`sim.material_flow.truth`). ``mag_err_px`` compares the mean shear in pixels with the true mean
 image motion; ``torsion_err_deg`` is scored on twisted frames.
 
-Target (issue 5): median direction error < 2 deg and 95th percentile < 5 deg at
+Target: median direction error < 2 deg and 95th percentile < 5 deg at
 >= 300 frames/s per bubble on one core.
 """
 
@@ -38,13 +38,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 import sim
-from bench.common import Row, main, median, one_core, percentile
+from bench.common import Row, main, median, one_core, percentile, plain_log_ticks, progress
 from geometry.camera import PinholeCamera
-from geometry.gripper import SIDES, GripperGeometry
+from geometry.gripper import SIDES
 from messages.types import ToFImage
 from perception.grasp import GraspMonitor
 from perception.shear import (
@@ -53,15 +52,14 @@ from perception.shear import (
     ShearParams,
     ShearTracker,
     membrane_mask,
-    rotation_about_centroid,
-    tool_basis_in_sensor,
+    tool_basis,
 )
+from sim.material_flow import SimGrasp, truth
 
-DIR_MIN_TRUTH_MM = 0.25
+DIR_MIN_TRUTH_M = 0.25e-3
 DIR_MIN_TRUTH_PX = 1.0
-RAMP_STEP_MM = 0.5
+RAMP_STEP_M = 0.5e-3
 TIMING_REPEATS = 3
-GRASP_SCENE = "scenes/mug_grasp.yaml"
 HANDOVER_SCENE = "scenes/mug_handover.yaml"
 
 
@@ -71,7 +69,8 @@ class Frame:
 
     ``truth_px`` is the mean over the reference mask of the true image motion of the
     membrane material (its shift back-projected from the noise-free reference range);
-    ``truth_mm`` the mean material shift in the tool's (y, z) plane, over the same pixels;
+    ``truth_m`` the mean material shift in the tool's (y, z) plane (metres), over the same
+    pixels;
     ``torsion_rad`` the least-squares rotation of that shift field about tool x (the
     estimator's definition), which is smaller than the object's twist because the
     membrane outside the contact does not turn.
@@ -79,7 +78,7 @@ class Frame:
 
     image: ToFImage
     truth_px: np.ndarray
-    truth_mm: np.ndarray
+    truth_m: np.ndarray
     torsion_rad: float
     sequence: str
 
@@ -94,131 +93,11 @@ class Sequence:
     frames: list[Frame]
 
 
-class SimGrasp:
-    """A mug held by the simulated gripper, moved in the hand from its grasp pose.
-
-    The grasp (opening, pose) is the scene's at ``grasp_secs``; :meth:`instant` renders
-    both bubbles with the mug shifted along the tool's y and z axes and twisted about
-    its x axis (the grasp axis), against the grasp pose as the shear anchor.
-    """
-
-    def __init__(self, scene_path: str = GRASP_SCENE, grasp_secs: float = 1.5) -> None:
-        self.scene = sim.load_scene(scene_path)
-        self.width_m = sim.render(self.scene, grasp_secs).snapshot.width_m
-        self.anchor = self.scene.tool_from_object(grasp_secs)
-        self.geometry = self.scene.gripper_geometry()
-        self.camera = self.scene.camera.intrinsics()
-
-    def pose(self, shift_mm: tuple[float, float], twist_rad: float) -> np.ndarray:
-        """The anchor twisted about tool x, then shifted along tool (y, z)."""
-        c, s = math.cos(twist_rad), math.sin(twist_rad)
-        rot = np.eye(4)
-        rot[1:3, 1:3] = [[c, -s], [s, c]]
-        pose = rot @ self.anchor
-        pose[1:3, 3] += np.asarray(shift_mm) / 1000.0
-        return np.asarray(pose)
-
-    def instant(
-        self, shift_mm: tuple[float, float] = (0.0, 0.0), twist_rad: float = 0.0, index: int = 0
-    ) -> sim.Instant:
-        """Both bubbles with the mug moved; ``index`` selects the noise draw."""
-        return sim.render_grasp(
-            self.scene.object.name,
-            self.pose(shift_mm, twist_rad),
-            self.width_m,
-            effects=self.scene.effects,
-            dims_m=dict(self.scene.object.dims_m),
-            anchor_tool_from_object=self.anchor,
-            frame_index=index,
-            scene=self.scene,
-        )
-
-
-def _sheet_coordinates(
-    geometry: GripperGeometry, camera: PinholeCamera, arrays: dict[str, np.ndarray]
-) -> tuple[np.ndarray, np.ndarray]:
-    """Per pixel: the printed-sheet coordinates of the material seen there, and the
-    finger-frame (y, z) of the membrane point, both ``(h, w, 2)`` metres.
-
-    The simulator textures the membrane point with finger coordinates (y, z) by the
-    sheet at ``(y, z) - material_shift`` (``sim.tof``), so equal sheet coordinates in two
-    frames mean the same material.
-    """
-    finger_from_sensor = geometry.finger_from_sensor()
-    dirs = camera.unit_rays() @ finger_from_sensor[:3, :3].T
-    yz = finger_from_sensor[1:3, 3] + arrays["range_m"][..., None] * dirs[..., 1:]
-    return (yz - arrays["material_shift_m"]).astype(np.float32), yz
-
-
-def truth(
-    geometry: GripperGeometry,
-    camera: PinholeCamera,
-    reference: sim.Instant,
-    current: sim.Instant,
-    sensor: str,
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """``(truth_px, truth_mm, torsion_rad)`` of ``current`` against ``reference``, one bubble.
-
-    The true flow follows the material: for each masked reference pixel ``q`` with sheet
-    coordinates ``c``, Newton's method finds the current pixel ``p`` whose material is
-    ``c`` (the sheet map is smooth; a few steps converge to 1e-5 m). The material's
-    displacement is the change of its membrane point's (y, z), in the tool frame.
-    """
-    sheet_ref, yz_ref = _sheet_coordinates(geometry, camera, reference.frames[sensor].arrays)
-    sheet_cur, yz_cur = _sheet_coordinates(geometry, camera, current.frames[sensor].arrays)
-    ref_image = reference.images[sensor]
-    mask = membrane_mask(ref_image.ir, ref_image.depth_m, ShearParams())
-    mask &= np.isfinite(sheet_ref).all(axis=-1)
-    h, w = mask.shape
-    grid_y, grid_x = np.mgrid[0:h, 0:w].astype(np.float32)
-    d_dx = np.gradient(sheet_cur, axis=1)
-    d_dy = np.gradient(sheet_cur, axis=0)
-    px, py = grid_x.copy(), grid_y.copy()
-    residual = np.full((h, w, 2), np.inf, np.float32)
-
-    def sample(image: np.ndarray) -> np.ndarray:
-        return cv2.remap(
-            image, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
-        )
-
-    for _ in range(8):
-        residual = sample(sheet_cur) - sheet_ref
-        jx, jy = sample(d_dx), sample(d_dy)
-        det = jx[..., 0] * jy[..., 1] - jy[..., 0] * jx[..., 1]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            step_x = -(jy[..., 1] * residual[..., 0] - jy[..., 0] * residual[..., 1]) / det
-            step_y = -(-jx[..., 1] * residual[..., 0] + jx[..., 0] * residual[..., 1]) / det
-        px = np.where(np.isfinite(step_x), px + np.clip(step_x, -4, 4), px).astype(np.float32)
-        py = np.where(np.isfinite(step_y), py + np.clip(step_y, -4, 4), py).astype(np.float32)
-    residual = sample(sheet_cur) - sheet_ref
-    with np.errstate(invalid="ignore"):
-        converged = np.nan_to_num(np.abs(residual).max(axis=-1), nan=np.inf) < 1e-5
-    mask &= converged
-    flow = np.stack([px - grid_x, py - grid_y], axis=-1)[mask]
-    rows, cols = np.nonzero(mask)
-    moved_yz = np.stack(
-        [
-            cv2.remap(yz_cur[..., i].astype(np.float32), px, py, cv2.INTER_LINEAR)[mask]
-            for i in (0, 1)
-        ],
-        axis=1,
-    )
-    # Finger (y, z) to tool (y, z): the finger's x is the plate normal, so the finger's
-    # y-z plane is the tool's; the left finger's y is the tool's -y.
-    to_tool = geometry.tool_from_finger(sensor, 0.05)[1:3, 1:3]
-    displacement_mm = (moved_yz - yz_ref[mask]) @ to_tool.T * 1000.0
-    position_mm = yz_ref[mask] @ to_tool.T * 1000.0
-    torsion, _ = rotation_about_centroid(
-        *(np.ascontiguousarray(a[:, i]) for a in (position_mm, displacement_mm) for i in (0, 1))
-    )
-    return flow.mean(axis=0), displacement_mm.mean(axis=0), torsion
-
-
 def ramps(quick: bool) -> list[tuple[str, list[tuple[tuple[float, float], float]]]]:
-    """In-hand motions as ramps of frames (shift mm along tool y, z; twist rad).
+    """In-hand motions as ramps of frames (shift in metres along tool y, z; twist rad).
 
     Shear builds up over frames in a real grasp, so every motion is a ramp from rest,
-    sampled at ``RAMP_STEP_MM`` (about 1.7 px per frame here: a 15 mm/s pull at 30 fps).
+    sampled at ``RAMP_STEP_M`` (about 1.7 px per frame here: a 15 mm/s pull at 30 fps).
     """
     steps = 4 if quick else 8
     out: list[tuple[str, list[tuple[tuple[float, float], float]]]] = []
@@ -229,7 +108,7 @@ def ramps(quick: bool) -> list[tuple[str, list[tuple[tuple[float, float], float]
             (
                 "translate",
                 [
-                    ((RAMP_STEP_MM * i * unit[0], RAMP_STEP_MM * i * unit[1]), 0.0)
+                    ((RAMP_STEP_M * i * unit[0], RAMP_STEP_M * i * unit[1]), 0.0)
                     for i in range(1, steps + 1)
                 ],
             )
@@ -245,7 +124,7 @@ def ramps(quick: bool) -> list[tuple[str, list[tuple[tuple[float, float], float]
             (
                 "mixture",
                 [
-                    ((0.4 * i * unit[0], 0.4 * i * unit[1]), math.radians(0.6 * i))
+                    ((0.4e-3 * i * unit[0], 0.4e-3 * i * unit[1]), math.radians(0.6 * i))
                     for i in range(1, steps // 2 + 2)
                 ],
             )
@@ -257,6 +136,7 @@ def grasp_sequences(quick: bool) -> list[Sequence]:
     """Ramps of translations in 8 directions, twists and mixtures of a held mug."""
     grasp = SimGrasp()
     reference = grasp.instant(index=0)
+    masks = {s: scored_mask(reference.images[s]) for s in SIDES}
     out: list[Sequence] = []
     index = 0
     for name, moves in ramps(quick):
@@ -265,9 +145,11 @@ def grasp_sequences(quick: bool) -> list[Sequence]:
             index += 1
             current = grasp.instant(shift, twist, index)
             for sensor in SIDES:
-                px, mm, torsion = truth(grasp.geometry, grasp.camera, reference, current, sensor)
+                px, metres, torsion = truth(
+                    grasp.geometry, grasp.camera, reference, current, sensor, masks[sensor]
+                )
                 frames[sensor].append(
-                    Frame(current.images[sensor], px, mm, torsion if twist else 0.0, name)
+                    Frame(current.images[sensor], px, metres, torsion if twist else 0.0, name)
                 )
         out += [Sequence(name, s, reference.images[s], frames[s]) for s in SIDES]
     return out
@@ -307,8 +189,9 @@ def handover_sequences(quick: bool) -> list[Sequence]:
             continue
         current = simulator.render_snapshot(snap)
         for sensor in SIDES:
-            px, mm, _ = truth(geometry, camera, reference, current, sensor)
-            frames[sensor].append(Frame(current.images[sensor], px, mm, 0.0, "handover"))
+            mask = scored_mask(reference.images[sensor])
+            px, metres, _ = truth(geometry, camera, reference, current, sensor, mask)
+            frames[sensor].append(Frame(current.images[sensor], px, metres, 0.0, "handover"))
     if reference is None:
         raise RuntimeError(f"{HANDOVER_SCENE}: the grasp monitor never reported a stable grasp")
     return [
@@ -327,7 +210,7 @@ def settings(quick: bool) -> list[tuple[str, ShearParams]]:
     fb, dis = FarnebackParams, DisParams
     out = [
         ("fb L3 w15 (OpenCV sample)", ShearParams(farneback=fb())),
-        ("fb L3 w45 (FACTS)", ShearParams(farneback=fb(winsize=45))),
+        ("fb L3 w45 (facts)", ShearParams(farneback=fb(winsize=45))),
         ("fb L3 w31 p7", ShearParams(farneback=fb(winsize=31, poly_n=7, poly_sigma=1.5))),
         ("warm fb L3 w15", ShearParams(warm_start=True, farneback=fb())),
         ("half fb L3 w15", ShearParams(scale=0.5, farneback=fb())),
@@ -367,6 +250,11 @@ def settings(quick: bool) -> list[tuple[str, ShearParams]]:
     return out
 
 
+def scored_mask(reference: ToFImage) -> np.ndarray:
+    """The reference pixels the truth is scored over: the estimator's default mask."""
+    return membrane_mask(reference.ir, reference.depth_m, ShearParams())
+
+
 def angle_error_deg(estimate: np.ndarray, truth: np.ndarray) -> float:
     """Unsigned angle between two 2D vectors, degrees in [0, 180]."""
     diff = math.atan2(estimate[1], estimate[0]) - math.atan2(truth[1], truth[0])
@@ -380,8 +268,8 @@ def evaluate(name: str, params: ShearParams, sequences: list[Sequence]) -> Row:
     cpu, wall, undefined = [], [], 0
     for seq in sequences:
         tracker = ShearTracker(params)
-        basis = tool_basis_in_sensor(seq.sensor)
         ref = seq.reference
+        basis = tool_basis(ref.tool_from_sensor)
         tracker.set_reference(ref.ir, ref.depth_m, PinholeCamera.from_frame(ref), basis)
         tracker.update(ref.ir, ref.depth_m)  # warm caches and allocations
         for frame in seq.frames:
@@ -391,13 +279,13 @@ def evaluate(name: str, params: ShearParams, sequences: list[Sequence]) -> Row:
             cpu.append((time.thread_time_ns() - start_cpu) * 1e-6)
             wall.append((time.perf_counter_ns() - start_wall) * 1e-6)
             mag_err.append(abs(result.magnitude_px - float(np.hypot(*frame.truth_px))))
-            mm_err.append(float(np.hypot(*(result.shear_mm - frame.truth_mm))))
+            mm_err.append(float(np.hypot(*(result.shear_m - frame.truth_m))) * 1000.0)
             # An undefined direction where one exists is a miss (180 degrees).
-            if float(np.hypot(*frame.truth_mm)) >= DIR_MIN_TRUTH_MM:
-                defined = result.direction_defined and result.mm_defined
+            if float(np.hypot(*frame.truth_m)) >= DIR_MIN_TRUTH_M:
+                defined = result.direction_defined and result.metric_defined
                 undefined += not defined
                 dir_err_mm.append(
-                    angle_error_deg(result.shear_mm, frame.truth_mm) if defined else 180.0
+                    angle_error_deg(result.shear_m, frame.truth_m) if defined else 180.0
                 )
             if float(np.hypot(*frame.truth_px)) >= DIR_MIN_TRUTH_PX:
                 error = (
@@ -449,7 +337,7 @@ def timing_ms(params: ShearParams, sequence: Sequence, repeats: int = TIMING_REP
             ref.ir,
             ref.depth_m,
             PinholeCamera.from_frame(ref),
-            tool_basis_in_sensor(sequence.sensor),
+            tool_basis(ref.tool_from_sensor),
         )
         tracker.update(ref.ir, ref.depth_m)
         for i, frame in enumerate(sequence.frames):
@@ -463,7 +351,8 @@ def run(quick: bool) -> list[Row]:
     """Every setting on the same sequences."""
     one_core()
     seqs = sequences(quick)
-    return [evaluate(name, params, seqs) for name, params in settings(quick)]
+    sweep = progress(settings(quick), "bench.shear", label=lambda point: point[0])
+    return [evaluate(name, params, seqs) for name, params in sweep]
 
 
 def plot(rows: list[Row], path: Path) -> None:
@@ -485,8 +374,7 @@ def plot(rows: list[Row], path: Path) -> None:
             ax.annotate(str(i), (x, y), textcoords="offset points", xytext=(4, 3), fontsize=7)
         ax.axvline(1000.0 / 300.0, color="grey", ls="--", lw=1)
         ax.axhline(target, color="grey", ls=":", lw=1)
-        ax.set_xscale("log")
-        ax.set_yscale("log")
+        plain_log_ticks(ax, "xy")
         ax.set_xlabel("ms per frame (median, one core)")
         ax.set_ylabel(f"{key} (deg)")
         ax.set_title(f"{key}: target {target:g} deg, 300 frames/s (dashed)", fontsize=9)

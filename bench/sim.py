@@ -15,7 +15,7 @@ Two sweeps in one table:
 
 Timings run on one core (``bench.common.one_core``); ``ms_per_frame`` and the frame
 rates are CPU time of this single-threaded process (the machine is shared, so wall time,
-``wall_ms_per_frame``, includes waiting for a core). Target (issue 4): all effects at
+``wall_ms_per_frame``, includes waiting for a core). Target: all effects at
 45 fps or more for both bubbles; the minimal set several times faster.
 """
 
@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bench.common import Row, main, median, one_core
+from bench.common import Row, main, median, one_core, progress
 
 SCENE = "scenes/mug_grasp.yaml"
 # The in-hand twist and push of the mug grasp: the mug moves every frame, so no frame
@@ -76,7 +76,7 @@ def _effect_rows(quick: bool) -> list[Row]:
     rows: list[Row] = []
     listed: list[str] = []
     previous_ms = 0.0
-    for added in STEPS:
+    for added in progress(STEPS, "bench.sim", label=lambda a: f"effects +{'+'.join(a)}"):
         listed += list(added)
         scene = base.with_effects(tuple(listed))
         secs, wall = _time_steps(scene, frames, repeats)
@@ -128,34 +128,35 @@ def _membrane_rows(quick: bool) -> list[Row]:
     )
     reference, _ = depths(ref_scene)
     rows: list[Row] = []
-    for divisor in (1, 2, 4):
-        for steps in (1, 2, 3):
-            scene = dataclasses.replace(
-                base,
-                membrane=dataclasses.replace(
-                    base.membrane, resolution_divisor=divisor, march_steps=steps
-                ),
-            )
-            got, secs = depths(scene)
-            errors = []
-            for ref, cur in zip(reference, got, strict=True):
-                for side in ("left", "right"):
-                    mask = ref[side].arrays["contact"]
-                    diff = cur[side].arrays["depth_m"][mask] - ref[side].arrays["depth_m"][mask]
-                    errors.append(diff[np.isfinite(diff)])
-            err = np.concatenate(errors) * 1000.0
-            rows.append(
-                {
-                    "sweep": "membrane",
-                    "effects": "membrane+depth",
-                    "resolution_divisor": divisor,
-                    "march_steps": steps,
-                    "ms_per_frame": secs * 1000.0,
-                    "fps_both_bubbles": 1.0 / secs,
-                    "depth_rms_mm": float(np.sqrt(np.mean(err**2))),
-                    "depth_p99_mm": float(np.percentile(np.abs(err), 99)),
-                }
-            )
+    grid = [(divisor, steps) for divisor in (1, 2, 4) for steps in (1, 2, 3)]
+    label = "membrane divisor {0[0]}, {0[1]} march steps".format
+    for divisor, steps in progress(grid, "bench.sim", label=label):
+        scene = dataclasses.replace(
+            base,
+            membrane=dataclasses.replace(
+                base.membrane, resolution_divisor=divisor, march_steps=steps
+            ),
+        )
+        got, secs = depths(scene)
+        errors = []
+        for ref, cur in zip(reference, got, strict=True):
+            for side in ("left", "right"):
+                mask = ref[side].arrays["contact"]
+                diff = cur[side].arrays["depth_m"][mask] - ref[side].arrays["depth_m"][mask]
+                errors.append(diff[np.isfinite(diff)])
+        err = np.concatenate(errors) * 1000.0
+        rows.append(
+            {
+                "sweep": "membrane",
+                "effects": "membrane+depth",
+                "resolution_divisor": divisor,
+                "march_steps": steps,
+                "ms_per_frame": secs * 1000.0,
+                "fps_both_bubbles": 1.0 / secs,
+                "depth_rms_mm": float(np.sqrt(np.mean(err**2))),
+                "depth_p99_mm": float(np.percentile(np.abs(err), 99)),
+            }
+        )
     return rows
 
 

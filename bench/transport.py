@@ -5,7 +5,7 @@ One frame is one :class:`messages.ToFImage` of one sensor: a 172 x 224 depth ima
 Three implementations run side by side, in the same run, alternating per repeat:
 
 ``runtime``  the real path: a graph of ``bench.image_source`` -> ``bench.image_sink``
-             (``nodes/bench_nodes.py``) started by :class:`runtime.launcher.Launcher`;
+             (``bench/nodes.py``) started by :class:`runtime.launcher.Launcher`;
              each node is a ``runtime.process`` child (XPUB publisher, SUB input, poll
              loop, timers, the codec). tcp places both nodes on ``host: 127.0.0.1``.
 ``codec``    two bare processes with pyzmq PUB/SUB that encode and decode with
@@ -19,8 +19,8 @@ Three implementations run side by side, in the same run, alternating per repeat:
              way of driving pyzmq is worth on its own, so a ratio against ``raw`` is
              not read as the runtime using a cheaper socket.
 
-Every implementation runs the same protocol (:class:`nodes.bench_nodes.WindowPlan` and
-:class:`nodes.bench_nodes.SinkRecord`): a latency phase at ``rate_hz`` (stamp with
+Every implementation runs the same protocol (:class:`bench.nodes.WindowPlan` and
+:class:`bench.nodes.SinkRecord`): a latency phase at ``rate_hz`` (stamp with
 ``time.time_ns`` just before encoding, latency measured once the receiver holds the
 decoded frame), then a throughput phase with at most ``window`` frames in flight,
 acknowledged every ``ack_every`` frames over a return channel (a Tick edge for the
@@ -39,7 +39,6 @@ than it does within one repeat), ``throughput_vs_raw_min``/``_max`` their range;
 
 from __future__ import annotations
 
-import io
 import json
 import multiprocessing as mp
 import struct
@@ -53,9 +52,9 @@ from typing import Any
 import numpy as np
 import zmq
 
-from bench.common import Row, main, median, percentile
+from bench.common import Row, launcher_log, main, median, percentile, progress
+from bench.nodes import LATENCY, SinkRecord, WindowPlan, bench_images
 from messages import Header, ToFImage, decode, encode
-from nodes.bench_nodes import LATENCY, SinkRecord, WindowPlan, bench_images
 from runtime.graph import check
 from runtime.launcher import Launcher
 from runtime.process import recv_parts, send_parts
@@ -153,10 +152,12 @@ def run_runtime(transport: str, sizes: Sizes, workdir: Path) -> Measured:
             },
         }
     }
-    log = io.StringIO()
-    code = Launcher(check(doc, source="bench.transport"), out=log).run()
+    with launcher_log("transport") as log:
+        code = Launcher(check(doc, source="bench.transport"), out=log).run()
     if code != 0 or not out_path.exists() or not source_path.exists():
-        raise RuntimeError(f"the runtime graph failed (exit {code}):\n{log.getvalue()}")
+        raise RuntimeError(
+            f"the runtime graph failed (exit {code}); see bench/results/transport.log"
+        )
     return _summarise(json.loads(out_path.read_text()), json.loads(source_path.read_text()))
 
 
@@ -331,16 +332,18 @@ def run(quick: bool, sizes: Sizes | None = None) -> list[Row]:
     sizes = sizes or (QUICK if quick else FULL)
     runs: dict[tuple[str, str], list[Measured]] = {}
     with tempfile.TemporaryDirectory(prefix="bench-transport-") as tmp:
-        for repeat in range(sizes.repeats):
-            for transport in TRANSPORTS:
-                # Alternate the order so a drift of the machine's load hits every impl.
-                order = IMPLS if repeat % 2 == 0 else IMPLS[::-1]
-                for impl in order:
-                    workdir = Path(tmp) / f"{impl}-{transport}-{repeat}"
-                    workdir.mkdir()
-                    runs.setdefault((transport, impl), []).append(
-                        measure(impl, transport, sizes, workdir)
-                    )
+        # Alternate the order so a drift of the machine's load hits every impl.
+        points = [
+            (repeat, transport, impl)
+            for repeat in range(sizes.repeats)
+            for transport in TRANSPORTS
+            for impl in (IMPLS if repeat % 2 == 0 else IMPLS[::-1])
+        ]
+        label = "repeat {0[0]} {0[1]} {0[2]}".format
+        for repeat, transport, impl in progress(points, "bench.transport", label=label):
+            workdir = Path(tmp) / f"{impl}-{transport}-{repeat}"
+            workdir.mkdir()
+            runs.setdefault((transport, impl), []).append(measure(impl, transport, sizes, workdir))
     rows: list[Row] = []
     for transport in TRANSPORTS:
         raw_runs = runs[(transport, "raw")]

@@ -5,11 +5,11 @@ the optical axis, x to the right of the image (increasing column), y down (incre
 row). Pixel centres sit at integer coordinates; ``cx_px = (width_px - 1) / 2`` for a
 centred principal point.
 
-Depth images follow DESIGN.md: float32 metres, NaN for invalid pixels. The depth of a
+Depth images follow docs/design.md: float32 metres, NaN for invalid pixels. The depth of a
 pixel is its z coordinate in the sensor frame (as the pico flexx driver's depth image),
 not the range along the ray; :meth:`PinholeCamera.range_to_depth` converts.
 
-Defaults come from FACTS.md: PMD pico flexx class, 224 x 172 pixels, field of view
+Defaults come from docs/facts.md: PMD pico flexx class, 224 x 172 pixels, field of view
 about 62 x 45 degrees.
 """
 

@@ -101,6 +101,23 @@ class Field(ABC):
         """True for a body of revolution about the frame's z axis (yaw is invisible)."""
         return False
 
+    @property
+    def dims_m(self) -> dict[str, float]:
+        """The dimensions a fit may adjust (``casadi_sized``, ``resized``); none by default."""
+        return {}
+
+    def casadi_sized(self, p: ca.SX | ca.MX, dims: dict[str, ca.SX | ca.MX]) -> ca.SX | ca.MX:
+        """The value with some of :attr:`dims_m` replaced by CasADi symbols."""
+        if dims:
+            raise ValueError(f"{type(self).__name__} has no adjustable dims, got {sorted(dims)}")
+        return self.casadi(p)
+
+    def resized(self, **dims: float) -> Field:
+        """The same field with some of :attr:`dims_m` changed."""
+        if dims:
+            raise ValueError(f"{type(self).__name__} has no adjustable dims, got {sorted(dims)}")
+        return self
+
 
 class SlabField(Field):
     """A primitive whose field is the paper's slab combination of ``delta``."""
@@ -123,14 +140,18 @@ class SlabField(Field):
         return value, grad
 
     def casadi(self, p: ca.SX | ca.MX) -> ca.SX | ca.MX:
-        delta = self.slab_casadi(p)
-        sq = 0.0
-        for d in delta:
-            sq = sq + ca.fmax(d, 0.0) ** 2
-        dmax = delta[0]
-        for d in delta[1:]:
-            dmax = ca.fmax(dmax, d)
-        return _safe_norm_ca(sq) + ca.fmin(dmax, 0.0)
+        return _slab_casadi_combine(self.slab_casadi(p))
+
+
+def _slab_casadi_combine(delta: Sequence[ca.SX | ca.MX]) -> ca.SX | ca.MX:
+    """The slab combination of ``delta`` as a CasADi expression."""
+    sq = 0.0
+    for d in delta:
+        sq = sq + ca.fmax(d, 0.0) ** 2
+    dmax = delta[0]
+    for d in delta[1:]:
+        dmax = ca.fmax(dmax, d)
+    return _safe_norm_ca(sq) + ca.fmin(dmax, 0.0)
 
 
 def _slab_combine(cols: Sequence[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -152,7 +173,7 @@ def _slab_combine(cols: Sequence[np.ndarray]) -> tuple[np.ndarray, list[np.ndarr
         dmax = np.maximum(dmax, c)
     # The inside term's one goes to the first largest component only (ties on the
     # medial surface would otherwise double the gradient).
-    free = dmax < 0.0
+    free = dmax <= 0.0  # on the surface too: a face normal, not a zero gradient
     weights = []
     for c, p in zip(cols, pos, strict=True):
         first = free & (c == dmax)
@@ -169,6 +190,16 @@ def _radial(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     grad[:, 0] = pts[:, 0] * inv
     grad[:, 1] = pts[:, 1] * inv
     return rho, grad
+
+
+def _sized(fld: Field, dims: dict) -> dict:
+    """``fld.dims_m`` updated by ``dims``; unknown names are an error naming them."""
+    unknown = sorted(set(dims) - set(fld.dims_m))
+    if unknown:
+        raise ValueError(
+            f"{type(fld).__name__}: unknown dims {unknown}; valid: {sorted(fld.dims_m)}"
+        )
+    return {**fld.dims_m, **dims}
 
 
 def _positive(name: str, value: float) -> float:
@@ -217,8 +248,24 @@ class CappedCylinder(SlabField):
         return value, grad
 
     def slab_casadi(self, p: ca.SX | ca.MX) -> list[ca.SX | ca.MX]:
+        return self._slab_sized(p, self.radius_m, self.height_m)
+
+    @staticmethod
+    def _slab_sized(p: ca.SX | ca.MX, radius: object, height: object) -> list[ca.SX | ca.MX]:
         rho = _safe_norm_ca(p[0] ** 2 + p[1] ** 2)
-        return [rho - self.radius_m, ca.fabs(p[2]) - 0.5 * self.height_m]
+        return [rho - radius, ca.fabs(p[2]) - 0.5 * height]
+
+    @property
+    def dims_m(self) -> dict[str, float]:
+        return {"radius_m": self.radius_m, "height_m": self.height_m}
+
+    def casadi_sized(self, p: ca.SX | ca.MX, dims: dict[str, ca.SX | ca.MX]) -> ca.SX | ca.MX:
+        sized = _sized(self, dims)
+        return _slab_casadi_combine(self._slab_sized(p, sized["radius_m"], sized["height_m"]))
+
+    def resized(self, **dims: float) -> Field:
+        sized = _sized(self, dims)
+        return CappedCylinder(sized["radius_m"], sized["height_m"])
 
     def bounds_m(self) -> tuple[np.ndarray, np.ndarray]:
         r, hh = self.radius_m, 0.5 * self.height_m

@@ -13,12 +13,12 @@ Frames (poses are 4x4 float64 homogeneous matrices, ``a_from_b``):
 * ``left_sensor`` / ``right_sensor``: the internal ToF camera (see ``geometry.camera``):
   z along the optical axis, x along image columns, y along image rows.
 
-The opening ``width_m`` is the WSG 50 jaw opening (FACTS.md: 0-110 mm). Each finger
+The opening ``width_m`` is the WSG 50 jaw opening (docs/facts.md: 0-110 mm). Each finger
 mounts its plate ``plate_outset_m`` outboard of its jaw face, so the plates' centres sit
 at tool x = +-(width_m / 2 + plate_outset_m): a 110 mm opening leaves room for an 80 mm
 mug between two 25 mm bubbles.
 
-The membrane at rest is an ellipsoid cap (FACTS.md: Drake's bubble uses semi-axes
+The membrane at rest is an ellipsoid cap (docs/facts.md: Drake's bubble uses semi-axes
 41.65 x 41.65 x 62.5 mm): in F, ``((x + c) / a_n)^2 + (y / a_t)^2 + (z / a_l)^2 = 1`` with
 ``x >= 0`` and ``c = a_n - cap_height_m``; the cap protrudes ``cap_height_m`` from the
 plate and its footprint on the plate is an ellipse.
@@ -186,7 +186,7 @@ class GripperGeometry:
         camera_back_m: camera centre behind the plate (outward, along -F x).
         camera_z_m: camera centre along F z (negative: towards the palm).
         camera_pitch_deg: optical axis tilt from the plate normal towards the tip.
-        max_width_m: the WSG 50 stroke (FACTS.md: 110 mm).
+        max_width_m: the WSG 50 stroke (docs/facts.md: 110 mm).
     """
 
     bubble: BubbleGeometry = field(default_factory=BubbleGeometry)

@@ -1,7 +1,7 @@
 """The four objects of the simulator, built from proximity-field primitives.
 
 Shared by the simulator (rendering contact) and the pose estimator (fitting): one
-description of each object. Every object lives in its geometry frame G (DESIGN.md
+description of each object. Every object lives in its geometry frame G (docs/design.md
 ``object``): symmetry axis on z, origin at half of the total height, metres.
 
     model = make("mug", radius_m=0.045)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import math
 import typing
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -72,6 +73,12 @@ class Message(msgspec.Struct, kw_only=True):
     """Base of every message type. Subclasses register themselves by class name."""
 
     registry: ClassVar[dict[str, type[Message]]] = {}
+    # Fields that are finite by meaning: a NaN pressure is a broken sensor, not a reading.
+    # The runtime counts received messages that break this (``nonfinite``) and warns once.
+    # In an array named in ``nan_marks_invalid`` a NaN is an invalid element (a depth
+    # pixel without a return), so only infinities break it.
+    finite_fields: ClassVar[tuple[str, ...]] = ()
+    nan_marks_invalid: ClassVar[frozenset[str]] = frozenset()
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -84,6 +91,21 @@ class Message(msgspec.Struct, kw_only=True):
     def schema(cls) -> Schema:
         """The type's array declarations, fingerprint and description (cached)."""
         return _schema(cls)
+
+    def nonfinite_fields(self) -> list[str]:
+        """The names of ``finite_fields`` that hold NaN or infinity (see above)."""
+        bad = []
+        for name in self.finite_fields:
+            value = getattr(self, name)
+            if isinstance(value, np.ndarray):
+                ok = not (
+                    np.isinf(value) if name in self.nan_marks_invalid else ~np.isfinite(value)
+                ).any()
+            else:
+                ok = math.isfinite(value)
+            if not ok:
+                bad.append(name)
+        return bad
 
     def validate(self) -> None:
         """Check every array field against its declaration (raises ``ValueError``)."""

@@ -14,6 +14,10 @@ join. Arrays are sent from their own memory (no copy when already contiguous and
 little-endian) and received as read-only views on the ZeroMQ frames' buffers.
 Every way a frame can be wrong raises :class:`FrameDecodeError` (or its subclass
 :class:`FingerprintMismatchError`); nothing else escapes :func:`decode`.
+
+Bags store the same content as ONE MessagePack value per message (:func:`pack_single`,
+:func:`unpack_single`, at the end of this module), so any MessagePack library reads a
+recorded message whole; the live wire stays multipart and zero-copy.
 """
 
 from __future__ import annotations
@@ -280,3 +284,119 @@ def decode(frames: Sequence[Any], expect: type[Message] | None = None) -> tuple[
     except (msgspec.ValidationError, NotImplementedError, TypeError) as err:
         raise FrameDecodeError(f"{topic}: {wire.type}: {err}") from err
     return topic, msg
+
+
+# -- the single-value form (bags) ----------------------------------------------------------------
+#
+# A bag stores each message as ONE MessagePack map, so that any MessagePack library reads it
+# whole (docs/bags.md):
+#
+#     {"type": "ToFImage", "fp": "<16 hex>",
+#      "fields": {<as in frame 1>},
+#      "arrays": {"depth_m": {"dtype": "<f4", "shape": [172, 224], "order": "C",
+#                             "data": <bin: the raw buffer>}, ...}}
+#
+# It holds exactly what the multipart frames hold; the two convert without touching the
+# fields (kept as raw MessagePack) or copying the arrays on the way back.
+
+
+class _RawHeader(msgspec.Struct, forbid_unknown_fields=True):
+    """Frame 1 with its ``fields`` kept as undecoded MessagePack (same keys, same order)."""
+
+    type: str
+    fp: str
+    fields: msgspec.Raw
+    arrays: list[tuple[str, str, list[int]]]
+
+
+class _StoredArray(msgspec.Struct, forbid_unknown_fields=True):
+    dtype: str
+    shape: list[int]
+    order: str
+    data: memoryview  # decoded as a view on the stored value: no copy
+
+
+class _Stored(msgspec.Struct, forbid_unknown_fields=True):
+    type: str
+    fp: str
+    fields: msgspec.Raw
+    arrays: dict[str, _StoredArray]
+
+
+_raw_header_decoder = msgspec.msgpack.Decoder(_RawHeader)
+_stored_decoder = msgspec.msgpack.Decoder(_Stored)
+
+
+def _check_buffers(
+    wire_type: str, rows: Sequence[tuple[str, str, list[int]]], buffers: Sequence[memoryview]
+) -> None:
+    """Each buffer holds exactly its row's shape of its dtype (raises ``FrameDecodeError``)."""
+    if len(buffers) != len(rows):
+        raise FrameDecodeError(f"{wire_type}: header lists {len(rows)} arrays, got {len(buffers)}")
+    if len({name for name, _, _ in rows}) != len(rows):
+        raise FrameDecodeError(f"{wire_type}: an array name appears twice")
+    for (name, dtype_str, shape), buf in zip(rows, buffers, strict=True):
+        try:
+            dtype = np.dtype(dtype_str)
+        except (TypeError, ValueError, SyntaxError) as err:
+            raise FrameDecodeError(f"{wire_type}.{name}: bad dtype {dtype_str!r}") from err
+        if dtype.hasobject or min(shape, default=0) < 0:
+            raise FrameDecodeError(f"{wire_type}.{name}: dtype {dtype_str!r} shape {shape}")
+        want = math.prod(shape) * dtype.itemsize
+        if buf.nbytes != want:
+            raise FrameDecodeError(
+                f"{wire_type}.{name}: buffer of {buf.nbytes} bytes, "
+                f"shape {shape} of {dtype_str} needs {want}"
+            )
+
+
+def _flat(frame: Any) -> memoryview:
+    view = _buffer(frame)
+    return view if view.format == "B" and view.ndim == 1 else view.cast("B")
+
+
+def pack_single(frames: Sequence[Any]) -> bytes:
+    """``[header, *buffers]`` (the multipart frames without the topic) as one MessagePack value.
+
+    Raises:
+        FrameDecodeError: the header does not decode, or the buffers do not match it.
+    """
+    try:
+        head = _raw_header_decoder.decode(_buffer(frames[0]))
+    except (msgspec.DecodeError, msgspec.ValidationError, UnicodeDecodeError, ValueError) as err:
+        raise FrameDecodeError(f"bad frame header: {err}") from err
+    buffers = [_flat(f) for f in frames[1:]]
+    _check_buffers(head.type, head.arrays, buffers)
+    arrays = {
+        name: _StoredArray(dtype, shape, "C", buf)
+        for (name, dtype, shape), buf in zip(head.arrays, buffers, strict=True)
+    }
+    return _encoder.encode(_Stored(head.type, head.fp, head.fields, arrays))
+
+
+def unpack_single(data: bytes | memoryview) -> list[Any]:
+    """One stored MessagePack value back to ``[header, *buffers]`` (buffers are views on ``data``).
+
+    Raises:
+        FrameDecodeError: not such a value, an array not in C order, or a buffer that does
+            not match its dtype and shape.
+    """
+    try:
+        stored = _stored_decoder.decode(data)
+    except (
+        msgspec.DecodeError,
+        msgspec.ValidationError,
+        UnicodeDecodeError,
+        ValueError,
+        RecursionError,
+    ) as err:
+        raise FrameDecodeError(f"not a stored message: {err}") from err
+    rows = []
+    for name, array in stored.arrays.items():
+        if array.order != "C":
+            raise FrameDecodeError(f"{stored.type}.{name}: order {array.order!r}, expected 'C'")
+        rows.append((name, array.dtype, array.shape))
+    buffers = [a.data for a in stored.arrays.values()]
+    _check_buffers(stored.type, rows, buffers)
+    header = _encoder.encode(_RawHeader(stored.type, stored.fp, stored.fields, rows))
+    return [header, *buffers]

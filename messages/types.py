@@ -1,6 +1,6 @@
 """Every message type of the pipeline, declared once. Units are in the field names.
 
-Conventions (DESIGN.md): SI units; poses ``a_from_b`` as 4x4 float64 homogeneous
+Conventions (docs/design.md): SI units; poses ``a_from_b`` as 4x4 float64 homogeneous
 matrices; quaternions, where they appear, are ``(w, x, y, z)``; depth is float32
 metres with NaN for invalid pixels; IR is uint16 amplitude; ``sensor`` is ``"left"``
 or ``"right"``.
@@ -8,12 +8,22 @@ or ``"right"``.
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, ClassVar, Literal
 
 import msgspec
 import numpy as np
 
 from messages.base import Array, Header, Message
+
+GraspEvent = Literal["", "stable", "released"]
+"""``GraspState.event``: ``""`` (no change), ``"stable"`` (a stable grasp began),
+``"released"`` (it ended)."""
+
+PoseStatus = Literal["ok", "recovered", "suspect", "no_patch", "failed"]
+"""``PoseEstimate.status``: ``ok`` (the fit from the prior converged and fits),
+``recovered`` (a restart from other seeds fitted after the prior's fit did not),
+``suspect`` (no start fitted well; the lowest-cost pose is returned), ``no_patch``
+(too few contact points to fit), ``failed`` (the solver gave no finite pose)."""
 
 F32Image = Annotated[np.ndarray, Array("float32", (None, None))]
 U16Image = Annotated[np.ndarray, Array("uint16", (None, None))]
@@ -21,8 +31,23 @@ U8Image = Annotated[np.ndarray, Array("uint8", (None, None))]
 Pose4x4 = Annotated[np.ndarray, Array("float64", (4, 4))]
 
 
+def _unknown_pose() -> np.ndarray:
+    return np.zeros((4, 4))
+
+
+def pose_is_known(pose: np.ndarray) -> bool:
+    """Whether a 4x4 pose field holds a pose (the all-zero matrix means "not known")."""
+    return bool(pose.shape == (4, 4) and pose[3, 3] == 1.0 and np.isfinite(pose).all())
+
+
 class ToFImage(Message):
-    """One frame of a bubble's internal time-of-flight camera."""
+    """One frame of a bubble's internal time-of-flight camera.
+
+    ``tool_from_sensor`` is the camera's pose in the gripper's tool frame when the frame
+    was taken (it moves with the opening): the geometry the frame's own scene or
+    calibration uses, so perception never assumes a default mount. All zeros when the
+    source does not know it; nodes that need it refuse such frames.
+    """
 
     header: Header
     sensor: str
@@ -32,6 +57,10 @@ class ToFImage(Message):
     fy_px: float
     cx_px: float
     cy_px: float
+    tool_from_sensor: Pose4x4 = msgspec.field(default_factory=_unknown_pose)
+
+    finite_fields: ClassVar[tuple[str, ...]] = ("depth_m", "fx_px", "fy_px", "cx_px", "cy_px")
+    nan_marks_invalid: ClassVar[frozenset[str]] = frozenset({"depth_m"})
 
 
 class Pressure(Message):
@@ -40,6 +69,8 @@ class Pressure(Message):
     header: Header
     sensor: str
     pressure_pa: float
+
+    finite_fields: ClassVar[tuple[str, ...]] = ("pressure_pa",)
 
 
 class GripperState(Message):
@@ -50,6 +81,8 @@ class GripperState(Message):
     speed_m_per_s: float
     force_n: float
     state: str = "idle"  # idle | moving | holding | fault
+
+    finite_fields: ClassVar[tuple[str, ...]] = ("width_m", "speed_m_per_s", "force_n")
 
 
 class GripperCommand(Message):
@@ -67,7 +100,7 @@ class GraspState(Message):
 
     header: Header
     stable: bool
-    event: str = ""  # "" | "stable" | "released"
+    event: GraspEvent = ""
     pressure_rise_left_pa: float = 0.0
     pressure_rise_right_pa: float = 0.0
     finger_speed_m_per_s: float = 0.0
@@ -95,18 +128,31 @@ class PoseEstimate(Message):
     header: Header
     tool_from_object: Pose4x4
     residual_rms_m: float
-    cost: float
+    cost: float  # the solver's objective: the sum of squared residuals, m^2
     iterations: int
-    status: str  # "ok" | "recovered" | "no_patch" | "failed" | ...
+    status: PoseStatus
     solve_secs: float
     points_used: int
     solver: str = ""
     # Which of (tx, ty, tz, rx, ry, rz) in the object frame the patch constrains.
     observable: list[bool] = []
+    # Why the status is not "ok" (empty when it is).
+    message: str = ""
+    # The depth noise the acceptance test used (estimated from the patch), metres.
+    noise_m: float = 0.0
+    # Dimensions fitted beside the pose (``fit_dims``); 0 when not fitted.
+    fitted_radius_m: float = 0.0
+    fitted_height_m: float = 0.0
 
 
 class ShearEstimate(Message):
-    """Shear of one bubble against its stable-grasp reference."""
+    """Shear of one bubble against its stable-grasp reference.
+
+    ``shear_px`` is the mean image flow (pixels), ``direction`` its unit vector (zero
+    when ``direction_defined`` is false), ``shear_m`` the mean tangential membrane shift
+    in metres along the tool's (y, z) or the membrane's plane, ``torsion_rad`` the
+    rotation about the contact normal.
+    """
 
     header: Header
     sensor: str
@@ -114,7 +160,7 @@ class ShearEstimate(Message):
     magnitude_px: float
     direction: Annotated[np.ndarray, Array("float64", (2,))]
     direction_defined: bool
-    shear_mm: Annotated[np.ndarray, Array("float64", (2,))]
+    shear_m: Annotated[np.ndarray, Array("float64", (2,))]
     torsion_rad: float = 0.0
     has_reference: bool = True
 
@@ -152,8 +198,8 @@ class GroundTruth(Message):
     tool_from_object: Pose4x4
     object_class: str
     in_contact: bool
-    shear_left_mm: Annotated[np.ndarray, Array("float64", (2,))]
-    shear_right_mm: Annotated[np.ndarray, Array("float64", (2,))]
+    shear_left_m: Annotated[np.ndarray, Array("float64", (2,))]  # tool (y, z)
+    shear_right_m: Annotated[np.ndarray, Array("float64", (2,))]
     noise_seed: int  # the scene's seed: it draws the sensors' noise in this frame
 
 

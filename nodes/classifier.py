@@ -24,6 +24,7 @@ from messages.types import ClassProbabilities, GraspState, ToFImage
 from perception.classify.checkpoint import CheckpointError, Classifier
 from perception.classify.preprocess import check_modality
 from runtime.node import Node
+from runtime.params import ExistingFile
 from runtime.registry import register
 
 DEFAULT_MODEL = "models/tactile_resnet18.pt"
@@ -43,7 +44,7 @@ class ClassifierParams:
         threads: torch threads for inference (the graph shares few cores).
     """
 
-    model: str = DEFAULT_MODEL
+    model: ExistingFile = DEFAULT_MODEL
     modality: str = "both"
     classes: tuple[str, ...] = DEFAULT_CLASSES
     max_skew_secs: float = 0.05

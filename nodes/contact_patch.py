@@ -7,7 +7,9 @@ Ports:
         ``mask`` (MaskImage, one per bubble per patch, 255 = contact; ``sensor`` says which).
 
 A patch is published once both bubbles have sent a new frame since the last one
-(the newest frame of each). The free-bubble reference is (re)captured whenever the
+(the newest frame of each). Each frame's points go to the tool frame by the camera pose
+the frame carries (``ToFImage.tool_from_sensor``): the gripper geometry of the data's own
+scene or calibration. A frame without it is refused, with a warning naming the field. The free-bubble reference is (re)captured whenever the
 gripper is open (``width_m >= reference_min_width_m``) and still (speed under
 ``reference_max_speed_m_per_s``): on entering that state the old reference is dropped
 and the next ``reference_frames`` frames of each bubble are averaged into a new one.
@@ -17,28 +19,36 @@ Until a bubble has a reference it contributes no points. The logic lives in
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from geometry.camera import PinholeCamera
 from messages.base import Header
-from messages.types import ContactPatch, GripperState, MaskImage, ToFImage
+from messages.types import ContactPatch, GripperState, MaskImage, ToFImage, pose_is_known
 from perception.contact import ContactParams, ContactPatcher
 from runtime.node import Node
 from runtime.registry import register
 
 
 @dataclass(frozen=True, kw_only=True)
-class ContactPatchParams(ContactParams):
-    """The contact filter's knobs plus when to take the free-bubble reference."""
+class ContactPatchParams:
+    """The contact filter's knobs (``contact``) plus when to take the free-bubble reference.
 
+    Attributes:
+        contact: the filter (``perception.contact.ContactParams``), e.g.
+            ``{contact: {threshold_m: 0.006}}`` in a graph file.
+        reference_min_width_m: the gripper counts as open from this opening on.
+        reference_max_speed_m_per_s: ... and as still below this finger speed.
+        reference_frames: free frames averaged into each bubble's reference.
+    """
+
+    contact: ContactParams = field(default_factory=ContactParams)
     reference_min_width_m: float = 0.1
     reference_max_speed_m_per_s: float = 0.001
     reference_frames: int = 5
 
     def __post_init__(self) -> None:
-        super().__post_init__()
         if not (self.reference_min_width_m >= 0.0):
             raise ValueError(
                 f"reference_min_width_m must be >= 0, got {self.reference_min_width_m}"
@@ -60,24 +70,17 @@ class ContactPatchNode(Node):
     outputs = {"patch": ContactPatch, "mask": MaskImage}
 
     def setup(self) -> None:
-        prm = self.params
-        self.patcher = ContactPatcher(
-            ContactParams(
-                threshold_m=prm.threshold_m,
-                min_component_px=prm.min_component_px,
-                opening_px=prm.opening_px,
-                max_points=prm.max_points,
-            )
-        )
+        self.patcher = ContactPatcher(self.params.contact)
         self.latest: dict[str, ToFImage] = {}
         self.fresh: dict[str, bool] = {"left": False, "right": False}
-        self.width_m: float | None = None
+        self.gripper_seen = False
+        self.warned_mount: set[str] = set()
         self.open_still = False
         self.ref_frames = {"left": 0, "right": 0}
 
     def on_gripper(self, msg: GripperState) -> None:
         prm = self.params
-        self.width_m = float(msg.width_m)
+        self.gripper_seen = True
         open_still = (
             msg.width_m >= prm.reference_min_width_m
             and abs(msg.speed_m_per_s) <= prm.reference_max_speed_m_per_s
@@ -94,18 +97,31 @@ class ContactPatchNode(Node):
         self._image("right", msg)
 
     def _image(self, side: str, msg: ToFImage) -> None:
+        if not pose_is_known(msg.tool_from_sensor):
+            if side not in self.warned_mount:
+                self.io.log.warning(
+                    "%s: %s frames carry no `tool_from_sensor` (the camera's pose in the "
+                    "tool frame); refused: their points cannot be placed in the tool frame",
+                    self.name,
+                    side,
+                )
+                self.warned_mount.add(side)
+            return
         if self.open_still and self.ref_frames[side] < self.params.reference_frames:
             self.patcher.update_reference(side, msg.depth_m)
             self.ref_frames[side] += 1
         self.latest[side] = msg
         self.fresh[side] = True
-        if all(self.fresh.values()) and self.width_m is not None:
+        if all(self.fresh.values()) and self.gripper_seen:
             self._publish()
 
     def _publish(self) -> None:
         self.fresh = {"left": False, "right": False}
-        frames = {s: (m.depth_m, PinholeCamera.from_frame(m)) for s, m in self.latest.items()}
-        cloud = self.patcher.extract(frames, self.width_m or 0.0)
+        frames = {
+            s: (m.depth_m, PinholeCamera.from_frame(m), m.tool_from_sensor)
+            for s, m in self.latest.items()
+        }
+        cloud = self.patcher.extract(frames)
         stamp = max(m.header.stamp_nanos for m in self.latest.values())
         self.io.publish(
             "patch",

@@ -4,8 +4,14 @@ Ports:
     inputs: ``patch`` (ContactPatch), ``grasp`` (GraspState, optional: a release or a
         lost stable grasp drops the tracking state, so the next patch starts cold).
     outputs: ``pose`` (PoseEstimate: ``tool_from_object``, residual RMS, cost,
-        iterations, status, solve time, points used, solver, and ``observable`` per
-        ``(tx, ty, tz, rx, ry, rz)`` in the object frame).
+        iterations, status and the reason in ``message``, solve time, points used,
+        solver, the noise measured from the patch, ``observable`` per
+        ``(tx, ty, tz, rx, ry, rz)`` in the object frame, and the fitted radius and
+        height when ``ipopt: {fit_dims: [radius, height]}`` asks for them).
+
+Parameters nest: ``estimator:`` (``EstimatorParams``) and the solver's own, ``ipopt:``,
+``lm:`` or ``icp:``, e.g. ``params: {object: mug, estimator: {max_points: 3000},
+ipopt: {fit_dims: [radius]}}``.
 
 The solvers estimate the paper's ``G X T`` (``object_from_tool``); the message carries
 its inverse, ``tool_from_object``. The node never builds a backlog: ``on_patch`` only
@@ -24,6 +30,7 @@ import numpy as np
 from geometry import objects
 from messages.base import Header
 from messages.types import ContactPatch, GraspState, PoseEstimate
+from perception.pose.common import check_rigid
 from perception.pose.estimator import EstimatorParams, PoseEstimator
 from perception.pose.icp import IcpParams, IcpSolver
 from perception.pose.ipopt import IpoptParams, IpoptSolver
@@ -40,94 +47,55 @@ class PoseParams:
         object: the object model (``geometry.objects.NAMES``).
         body_only: fit only the object's main body (the paper fits the mug's cylinder);
             otherwise its whole field (mug handle, bottle neck).
-        max_points: points kept per patch (subsampled with a fixed seed).
-        noise_m, accept_ratio, min_points, max_seeds, track: see ``EstimatorParams``.
-        seed_tool_from_object: optional first seed, 16 numbers (row-major 4x4).
+        estimator: the robust wrapper's knobs (``perception.pose.EstimatorParams``:
+            ``max_points``, ``noise_m``, ``accept_ratio``, ``screen_points``, ...).
+        seed_tool_from_object: optional first seed, 16 numbers (row-major 4x4, rigid).
         poll_secs: period of the timer that solves the newest patch.
     """
 
     object: str = "mug"
     body_only: bool = True
-    max_points: int = 10000
-    noise_m: float = 0.0015
-    accept_ratio: float = 1.3
-    min_points: int = 10
-    max_seeds: int = 14
-    track: bool = True
+    estimator: EstimatorParams = field(default_factory=EstimatorParams)
     seed_tool_from_object: list[float] = field(default_factory=list)
     poll_secs: float = 0.001
 
     def __post_init__(self) -> None:
         if self.object not in objects.NAMES:
             raise ValueError(f"object must be one of {objects.NAMES}, got {self.object!r}")
-        if self.seed_tool_from_object and len(self.seed_tool_from_object) != 16:
-            raise ValueError(
-                f"seed_tool_from_object must have 16 numbers, got {len(self.seed_tool_from_object)}"
+        if self.seed_tool_from_object:
+            if len(self.seed_tool_from_object) != 16:
+                raise ValueError(
+                    "seed_tool_from_object must have 16 numbers, "
+                    f"got {len(self.seed_tool_from_object)}"
+                )
+            check_rigid(
+                np.asarray(self.seed_tool_from_object, dtype=np.float64).reshape(4, 4),
+                "seed_tool_from_object",
             )
         if not (self.poll_secs > 0.0):
             raise ValueError(f"poll_secs must be > 0, got {self.poll_secs}")
-        self.estimator_params()  # its own checks, named by field
-
-    def estimator_params(self) -> EstimatorParams:
-        return EstimatorParams(
-            noise_m=self.noise_m,
-            accept_ratio=self.accept_ratio,
-            min_points=self.min_points,
-            max_points=self.max_points,
-            max_seeds=self.max_seeds,
-            track=self.track,
-        )
 
 
 @dataclass(frozen=True, kw_only=True)
 class IpoptPoseParams(PoseParams):
-    """Plus IPOPT's knobs (see ``perception.pose.ipopt.IpoptParams``)."""
+    """Plus IPOPT's knobs, ``ipopt`` (``perception.pose.ipopt.IpoptParams``: ``tol``,
+    ``max_iterations``, ``hessian``, ``jit``, ``fit_dims``, ...)."""
 
-    tol: float = 1e-8
-    max_iterations: int = 100
-    hessian: str = "gauss_newton"
-    jit: str = "auto"
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.solver_params()
-
-    def solver_params(self) -> IpoptParams:
-        return IpoptParams(
-            tol=self.tol, max_iterations=self.max_iterations, hessian=self.hessian, jit=self.jit
-        )
+    ipopt: IpoptParams = field(default_factory=IpoptParams)
 
 
 @dataclass(frozen=True, kw_only=True)
 class LMPoseParams(PoseParams):
-    """Plus the LM solver's knobs (see ``perception.pose.lm.LMParams``)."""
+    """Plus the LM solver's knobs, ``lm`` (``perception.pose.lm.LMParams``)."""
 
-    cost_tol: float = 1e-8
-    max_iterations: int = 60
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.solver_params()
-
-    def solver_params(self) -> LMParams:
-        return LMParams(cost_tol=self.cost_tol, max_iterations=self.max_iterations)
+    lm: LMParams = field(default_factory=LMParams)
 
 
 @dataclass(frozen=True, kw_only=True)
 class IcpPoseParams(PoseParams):
-    """Plus ICP's knobs (see ``perception.pose.icp.IcpParams``)."""
+    """Plus ICP's knobs, ``icp`` (``perception.pose.icp.IcpParams``)."""
 
-    max_correspondence_m: float = 0.005
-    max_iterations: int = 100
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.solver_params()
-
-    def solver_params(self) -> IcpParams:
-        return IcpParams(
-            max_correspondence_m=self.max_correspondence_m, max_iterations=self.max_iterations
-        )
+    icp: IcpParams = field(default_factory=IcpParams)
 
 
 def fit_field(name: str, body_only: bool):  # noqa: ANN201 - a geometry.fields.Field
@@ -153,7 +121,7 @@ class _PoseNode(Node):
         self.solver = self.make_solver(fld)
         self.estimator = PoseEstimator(
             self.solver,
-            prm.estimator_params(),
+            prm.estimator,
             symmetric_about_z=fld.revolves_about_z,
         )
         self.seed = (
@@ -193,6 +161,10 @@ class _PoseNode(Node):
                 points_used=int(result.points_used),
                 solver=result.solver,
                 observable=[bool(b) for b in result.observable],
+                message=result.message,
+                noise_m=float(result.noise_m),
+                fitted_radius_m=float(result.dims_m.get("radius_m", 0.0)),
+                fitted_height_m=float(result.dims_m.get("height_m", 0.0)),
             ),
         )
 
@@ -204,18 +176,21 @@ class LMPoseNode(_PoseNode):
     Params = LMPoseParams
 
     def make_solver(self, fld):  # noqa: ANN001, ANN201
-        return LMSolver(fld, self.params.solver_params())
+        return LMSolver(fld, self.params.lm)
 
 
 @register("pose_estimator.ipopt")
 class IpoptPoseNode(_PoseNode):
-    """The paper's formulation with CasADi/IPOPT (compiled once for ``max_points``)."""
+    """The paper's formulation with CasADi/IPOPT (compiled for ``max_points`` and
+    ``screen_points``, or loaded from the per-user disk cache)."""
 
     Params = IpoptPoseParams
 
     def make_solver(self, fld):  # noqa: ANN001, ANN201
-        solver = IpoptSolver(fld, self.params.solver_params())
-        solver.prepare(self.params.max_points)
+        solver = IpoptSolver(fld, self.params.ipopt)
+        # The full cloud and the screening subsample: both compiled (or loaded) now.
+        solver.prepare(self.params.estimator.max_points)
+        solver.prepare(self.params.estimator.screen_points)
         return solver
 
 
@@ -226,4 +201,4 @@ class IcpPoseNode(_PoseNode):
     Params = IcpPoseParams
 
     def make_solver(self, fld):  # noqa: ANN001, ANN201
-        return IcpSolver(fld, self.params.solver_params())
+        return IcpSolver(fld, self.params.icp)

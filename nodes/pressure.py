@@ -1,16 +1,33 @@
-"""``pressure.sim``: one bubble's simulated pressure sensor.
+"""One bubble's pressure sensor: ``pressure.sim`` and ``pressure.usb``.
 
-Ports:
+``pressure.sim``
     inputs: ``world`` (messages.sim.WorldState) from ``world.sim``.
     outputs: ``pressure`` (Pressure): gauge pascals, one per world state, with its
         stamp, when the scene lists ``pressure`` (nothing otherwise).
+    The pressure itself (ideal gas at constant temperature, ``sim.pressure``) is part
+    of the world's mechanics, since the grip force follows from it; this node reports it.
 
-The pressure itself (ideal gas at constant temperature, ``sim.pressure``) is part of
-the world's mechanics, since the grip force follows from it; this node reports it.
+``pressure.usb``
+    outputs: ``pressure`` (Pressure): gauge pascals from a Honeywell ABP sensor read
+        over I2C through a Microchip MCP2221A USB bridge (``devices.abp``,
+        ``devices.mcp2221``), ``rate_hz`` times a second, stamped with the wall clock.
+    The bridge is found by its USB serial number (two bubbles: two bridges). Setup
+    fails with what to do when no bridge matches or access is denied (the udev rule).
+    An unplugged bridge is reported and looked for every ``retry_secs`` until it is
+    back; three failed reads in a row reset the bridge. Stale readings (no conversion
+    since the last read) are skipped and counted; saturated ones (counts outside the
+    calibrated 10-90 %) are published and reported when they start.
 """
 
 from __future__ import annotations
 
+import time
+from dataclasses import dataclass
+
+from devices import mcp2221
+from devices.abp import ADDRESS, COUNTS_MAX, COUNTS_MIN, PSI_PA, AbpSensor, AbpStatus, Reading
+from messages.base import Header
+from messages.errors import DeviceError, NodeError
 from messages.sim import WorldState
 from messages.types import Pressure
 from runtime.node import Node
@@ -41,3 +58,143 @@ class SimPressure(Node):
             return
         snap = from_message(msg)
         self.io.publish("pressure", pressure(snap, self.params.sensor, msg.header.stamp_nanos))
+
+
+@dataclass(frozen=True, kw_only=True)
+class UsbPressureParams:
+    """One bubble's ABP sensor behind an MCP2221A bridge (pascals, hertz, seconds).
+
+    ``serial``: the bridge's USB serial number ("" when only one bridge is plugged in);
+    ``address``: the sensor's 7-bit I2C address; ``pmin_pa``/``pmax_pa``: the sensor's
+    range (a 0..1 psi gauge part by default).
+    """
+
+    sensor: str
+    serial: str = ""
+    address: int = ADDRESS
+    pmin_pa: float = 0.0
+    pmax_pa: float = PSI_PA
+    rate_hz: float = 100.0
+    i2c_speed_hz: int = 100_000
+    retry_secs: float = 0.5
+
+    def __post_init__(self) -> None:
+        SensorParams(sensor=self.sensor)
+        if not 0 < self.address < 0x80:
+            raise ValueError(f"`address` must be a 7-bit I2C address, got {self.address!r}")
+        if not self.pmax_pa > self.pmin_pa:
+            raise ValueError(
+                f"`pmax_pa` must be > pmin_pa ({self.pmin_pa!r}), got {self.pmax_pa!r}"
+            )
+        if not 0 < self.rate_hz <= 1000:
+            raise ValueError(f"`rate_hz` must be in (0, 1000], got {self.rate_hz!r}")
+        if not 47_000 <= self.i2c_speed_hz <= 400_000:
+            raise ValueError(f"`i2c_speed_hz` must be in 47000..400000, got {self.i2c_speed_hz!r}")
+        if not self.retry_secs > 0:
+            raise ValueError(f"`retry_secs` must be > 0, got {self.retry_secs!r}")
+
+
+@register("pressure.usb")
+class UsbPressure(Node):
+    """Reads one bubble's pressure over USB (see the module docstring)."""
+
+    Params = UsbPressureParams
+    outputs = {"pressure": Pressure}
+
+    def setup(self) -> None:
+        p = self.params
+        self.bridge = mcp2221.MCP2221(p.serial, backend=mcp2221.default_backend())
+        self.sensor = AbpSensor(
+            self.bridge, address=p.address, pmin_pa=p.pmin_pa, pmax_pa=p.pmax_pa
+        )
+        self.failures = 0  # consecutive failed reads
+        self.stale = 0
+        self.saturated = False
+        self.lost_at = 0.0
+        self.next_try = 0.0
+        try:
+            self._open()
+        except DeviceError as err:
+            raise NodeError(f"{self.name}: {err}") from err
+        self.io.log.info(
+            "%s: reading %s, sensor at 0x%02x", self.name, self.bridge.where, p.address
+        )
+        self.io.add_timer(1.0 / p.rate_hz, self.tick)
+
+    def teardown(self) -> None:
+        self.bridge.disconnect()
+
+    def _open(self) -> None:
+        self.bridge.connect()
+        self.bridge.set_i2c_speed(self.params.i2c_speed_hz)
+
+    def tick(self) -> None:
+        """Read once and publish; reconnect every ``retry_secs`` while the bridge is gone."""
+        now = time.monotonic()
+        if not self.bridge.is_connected:
+            if now < self.next_try:
+                return
+            self.next_try = now + self.params.retry_secs
+            try:
+                self._open()
+            except DeviceError:
+                return  # still gone; reported when it went
+            self.io.log.warning(
+                "%s: %s is back after %.1f s", self.name, self.bridge.where, now - self.lost_at
+            )
+        try:
+            reading = self.sensor.read()
+        except mcp2221.DeviceGone as err:
+            self.io.log.error("%s: %s; retrying every %g s", self.name, err, self.params.retry_secs)
+            self.bridge.disconnect()
+            self.lost_at, self.next_try = now, now + self.params.retry_secs
+            return
+        except DeviceError as err:
+            self.failures += 1
+            self.io.log.error("%s: %s", self.name, err)
+            if self.failures >= 3:  # the bridge's I2C engine may be stuck: reset it
+                self.io.log.warning("%s: resetting %s", self.name, self.bridge.where)
+                self.failures = 0
+                self.bridge.reset()
+                self.lost_at, self.next_try = now, now + self.params.retry_secs
+            return
+        self.failures = 0
+        self._publish(reading)
+
+    def _publish(self, reading: Reading) -> None:
+        if reading.status != AbpStatus.NORMAL:
+            # Stale: no conversion since the last read (reading faster than the sensor
+            # converts); command mode: not a measurement. Neither is new data.
+            self.stale += 1
+            if self.stale in (1, 100, 10_000):
+                self.io.log.warning(
+                    "%s: %d readings skipped (status %s); lower `rate_hz`?",
+                    self.name,
+                    self.stale,
+                    reading.status.name,
+                )
+            return
+        if reading.saturated != self.saturated:
+            self.saturated = reading.saturated
+            if reading.saturated:
+                self.io.log.warning(
+                    "%s: saturated: %d counts outside %d..%d (%.0f Pa, beyond the sensor's"
+                    " range %g..%g Pa)",
+                    self.name,
+                    reading.counts,
+                    COUNTS_MIN,
+                    COUNTS_MAX,
+                    reading.pressure_pa,
+                    self.params.pmin_pa,
+                    self.params.pmax_pa,
+                )
+        self.io.publish(
+            "pressure",
+            Pressure(
+                header=Header(
+                    stamp_nanos=self.io.now_nanos(), frame_id=f"{self.params.sensor}_bubble"
+                ),
+                sensor=self.params.sensor,
+                pressure_pa=reading.pressure_pa,
+            ),
+        )

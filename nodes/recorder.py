@@ -1,16 +1,20 @@
 """The ``recorder`` node: writes every message it receives, undecoded, into an MCAP bag.
 
 Ports:
-    inputs: any, named freely in the graph (``{t0: left_camera/image, t1: pose/estimate}``);
+    inputs: any, named freely in the graph (``{t0: left_camera/image, t1: pose/pose}``);
         a raw-input node, so each message arrives as its multipart frames and any type is
-        accepted. ``launch.py GRAPH --record OUT.mcap [--topics RE]`` adds one for you.
+        accepted. ``launch.py GRAPH --record OUT.mcap [--record-topics RE]`` adds one for you.
     outputs: none.
 
 Wire format in the bag: see :mod:`runtime.bag` (one channel per topic, the frames as
 received). The bag is flushed every ``flush_period_secs``, so killing the recorder, even
 with SIGKILL, loses at most that much; a restarted recorder that finds its interrupted
-bag keeps it and records to ``NAME.1.mcap`` (``.2``, ...) instead. Per-topic drops (reported by the runtime) and
-sequence gaps are written to the bag, and a recording that dropped says so when it stops.
+bag keeps it and records to ``NAME.1.mcap`` (``.2``, ...) instead. A finished bag at
+``path`` is never replaced unless ``overwrite`` is set (``--overwrite``): the graph check
+refuses it, naming the file, before anything starts. Per-topic drops (reported by the
+runtime) and sequence gaps are written to the bag, and a recording that dropped says so
+when it stops. A write that fails (a full disk) stops the node with one line naming the
+file and how much the bag keeps: everything written before the last flush.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from messages.errors import BagError, NodeError
 from runtime.bag import MAGIC, BagWriter
 from runtime.node import Node
 from runtime.registry import register
@@ -29,7 +34,8 @@ class RecorderParams:
     """Where and how to record.
 
     ``graph_yaml`` and ``command_line`` are stored in the bag so it can be replayed through
-    the graph it came from; the launcher fills them in.
+    the graph it came from; the launcher fills them in. ``overwrite`` allows replacing a
+    finished bag at ``path``.
     """
 
     path: str
@@ -39,10 +45,19 @@ class RecorderParams:
     flush_period_secs: float = 0.5
     compression: str = "none"
     chunk_size_bytes: int = 4 << 20
+    overwrite: bool = False
 
     def __post_init__(self) -> None:
         if not self.path:
             raise ValueError("path must name the bag file, got ''")
+        path = Path(self.path)
+        if path.is_dir():
+            raise ValueError(f"path {self.path!r} is a directory; name the bag file")
+        if not self.overwrite and _finished(path):
+            raise ValueError(
+                f"path {self.path!r} is a finished bag; pass --overwrite (overwrite: true) "
+                "to replace it, or record to another path"
+            )
         if self.flush_period_secs <= 0:
             raise ValueError(f"flush_period_secs must be > 0, got {self.flush_period_secs}")
         if self.compression not in ("none", "lz4", "zstd"):
@@ -62,6 +77,14 @@ def _interrupted(path: Path) -> bool:
         with open(path, "rb") as f:
             f.seek(max(0, size - len(MAGIC)))
             return f.read() != MAGIC
+    except FileNotFoundError:
+        return False
+
+
+def _finished(path: Path) -> bool:
+    """True for a non-empty file that ends like a complete MCAP file."""
+    try:
+        return path.stat().st_size > 0 and not _interrupted(path)
     except FileNotFoundError:
         return False
 
@@ -94,29 +117,43 @@ class Recorder(Node):
                 "%s holds an interrupted recording; keeping it and recording to %s", p.path, path
             )
         self.path = path
-        self.writer = BagWriter(
-            path,
-            chunk_size_bytes=p.chunk_size_bytes,
-            compression=p.compression,
-            flush_period_secs=p.flush_period_secs,
-        )
-        self.writer.add_run_info(
-            graph_text=p.graph_yaml, graph_source=p.graph_source, command_line=p.command_line
-        )
+        try:
+            self.writer = BagWriter(
+                path,
+                chunk_size_bytes=p.chunk_size_bytes,
+                compression=p.compression,
+                flush_period_secs=p.flush_period_secs,
+            )
+            self.writer.add_run_info(
+                graph_text=p.graph_yaml, graph_source=p.graph_source, command_line=p.command_line
+            )
+        except BagError as err:
+            raise NodeError(f"{self.name}: {err}") from err
         # The timer flushes a quiet recording too: the last messages before a kill are on
         # disk even when nothing arrives after them.
         self.io.add_timer(p.flush_period_secs, self._flush)
 
     def on_raw(self, topic: str, frames: list[Any]) -> None:
-        self.writer.write_frames(topic, frames, self.io.now_nanos())
+        try:
+            self.writer.write_frames(topic, frames, self.io.now_nanos())
+        except BagError as err:
+            raise NodeError(f"{self.name}: {err}") from err
 
     def _flush(self) -> None:
         self.writer.set_runtime_drops(self.io.drops())
-        self.writer.flush()
+        try:
+            self.writer.flush()
+        except BagError as err:
+            raise NodeError(f"{self.name}: {err}") from err
 
     def teardown(self) -> None:
+        if not hasattr(self, "writer"):
+            return  # setup failed before the bag was opened
         self.writer.set_runtime_drops(self.io.drops())
-        self.writer.close()
+        try:
+            self.writer.close()
+        except BagError as err:
+            raise NodeError(f"{self.name}: {err}") from err
         total = sum(c.messages for c in self.writer.counts.values())
         lost = {
             topic: d

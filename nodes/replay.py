@@ -23,9 +23,14 @@ so downstream nodes that use message stamps behave exactly as they did live. Pac
   The launcher must run the graph with ``lockstep=True`` for the runtime to track idleness.
 
 ``start_secs``/``end_secs`` cut the bag (seconds from its first message), ``topics`` selects
-topics (a regex, ``re.search`` like ``launch.py --topics``), ``remap`` renames them (``{bag_topic: published_topic}``), and
+topics (a regex, ``re.search`` like ``launch.py --record-topics``), ``remap`` renames them (``{bag_topic: published_topic}``), and
 ``loop`` starts over at the end. When done (and not looping) the node waits for the graph
 to drain and asks it to stop.
+
+Each message is decoded (into its declared type) before it goes out: one that cannot be
+is skipped, counted and logged (the first few, with file, topic and offset), and the
+replay goes on; ``strict`` stops the node at the first instead. Chunks too damaged to
+read are skipped by the bag reader, and counted too.
 """
 
 from __future__ import annotations
@@ -36,11 +41,14 @@ from dataclasses import dataclass
 from typing import Any
 
 from messages.base import Message
-from messages.errors import BagError, NodeError
+from messages.codec import decode
+from messages.errors import BagError, FrameDecodeError, NodeError
 from runtime.bag import BagMessage, BagReader, topic_filter
 from runtime.bagtool import ReplayOptions
 from runtime.node import Node
 from runtime.registry import register
+
+_LOGGED_SKIPS = 5  # undecodable messages logged one by one; the rest are counted
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -99,7 +107,7 @@ def replay_topics(params: ReplayParams) -> dict[str, tuple[str, type[Message]]]:
             raise ValueError(
                 f"{params.path}: topic {topic}: channel at offset {channel.offset} carries "
                 f"{schema.type_name}, and {why}; the graph cannot accept it "
-                "(leave the topic out with topics/--topics, or read it with `bag echo`)"
+                "(leave the topic out with topics/--replay-topics, or read it with `bag echo`)"
             )
         if published in out:
             raise ValueError(
@@ -128,7 +136,10 @@ class Replay(Node):
 
     def setup(self) -> None:
         p = self.params
-        self.topic_map = {bag: pub for pub, (bag, _) in replay_topics(p).items()}
+        chosen = replay_topics(p)
+        self.topic_map = {bag: pub for pub, (bag, _) in chosen.items()}
+        self.kinds = {bag: kind for bag, kind in chosen.values()}
+        self.skipped = 0
         self.reader = BagReader(p.path, warn=self.io.log.warning)
         first = self.reader.first_log_nanos() or 0
         self.start_nanos = first + int(p.start_secs * 1e9)
@@ -172,6 +183,10 @@ class Replay(Node):
             if not self._due(msg, self.io.now_nanos()):
                 return
             topic = self.topic_map[msg.topic]
+            frames = self._decodable(msg, topic)
+            if frames is None:
+                self._pending = next(self._iter, None)
+                continue
             # Bound what is in flight: "as fast as the graph takes them", not faster (in
             # lockstep nothing is dropped at a high-water mark, but memory is finite).
             full = bool(self.params.window) and self._in_flight >= self.params.window
@@ -182,10 +197,28 @@ class Replay(Node):
                 if not self.io.wait_idle(self.params.idle_timeout_secs):
                     self.io.log.warning("graph not idle after %s s", self.params.idle_timeout_secs)
                 self._in_flight = 0
-            self.io.publish_raw(topic, msg.wire_frames(topic))
+            self.io.publish_raw(topic, frames)
             self.published += 1
             self._in_flight += 1
             self._pending = next(self._iter, None)
+
+    def _decodable(self, msg: BagMessage, topic: str) -> list[Any] | None:
+        """The message's frames if they decode into its type; else skip it (or stop: strict)."""
+        try:
+            frames = msg.wire_frames(topic)
+            decode(frames, expect=self.kinds[msg.topic])
+            return frames
+        except BagError as err:
+            problem = str(err)
+        except FrameDecodeError as err:
+            problem = f"{msg.where()}: {err}"
+        if self.params.strict:
+            raise NodeError(f"{self.name}: cannot decode (strict): {problem}")
+        self.skipped += 1
+        if self.skipped <= _LOGGED_SKIPS:
+            more = "; later ones are counted only" if self.skipped == _LOGGED_SKIPS else ""
+            self.io.log.warning("skipped, cannot decode: %s%s", problem, more)
+        return None
 
     def _wait_idle(self, msg: BagMessage) -> bool:
         if self.io.wait_idle(self.params.idle_timeout_secs):
@@ -204,8 +237,11 @@ class Replay(Node):
         # Let the graph drain before asking it to stop, so the last outputs are not lost.
         self.io.wait_idle(self.params.idle_timeout_secs)
         lost = self.reader.lost_messages
+        problems = [f"{lost} lost to corrupt chunks"] if lost else []
+        if self.skipped:
+            problems.append(f"{self.skipped} skipped: could not be decoded")
         reason = f"replayed {self.published} messages from {self.params.path}" + (
-            f" ({lost} lost to corrupt chunks)" if lost else ""
+            f" ({', '.join(problems)})" if problems else ""
         )
         self.io.log.info("%s", reason)
         if self.params.stop_when_done:

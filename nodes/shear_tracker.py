@@ -10,7 +10,9 @@ Ports:
 The reference of each bubble is the first frame stamped at or after the moment the
 grasp monitor reports a stable grasp; it is dropped when the grasp is released and
 retaken on a ShearReset. Without a reference the estimate says ``has_reference=False``.
-The logic is :class:`perception.shear.ShearTracker` (no sockets).
+With ``shear_frame: tool`` the frame's ``tool_from_sensor`` gives the tool axes; frames
+that do not carry it are refused (with a warning naming the field). The logic, including
+when references are taken, is :class:`perception.shear.GraspShear` (no sockets).
 """
 
 from __future__ import annotations
@@ -22,14 +24,8 @@ import numpy as np
 from geometry.camera import PinholeCamera
 from messages.base import Header
 from messages.shear import ShearReset
-from messages.types import GraspState, OverlayImage, ShearEstimate, ToFImage
-from perception.shear import (
-    ShearParams,
-    ShearResult,
-    ShearTracker,
-    draw_overlay,
-    tool_basis_in_sensor,
-)
+from messages.types import GraspState, OverlayImage, ShearEstimate, ToFImage, pose_is_known
+from perception.shear import GraspShear, ShearParams, ShearResult, draw_overlay, tool_basis
 from runtime.node import Node
 from runtime.registry import register
 
@@ -38,13 +34,14 @@ SENSORS = ("left", "right")
 
 @dataclass(frozen=True, kw_only=True)
 class ShearTrackerParams(ShearParams):
-    """The flow and mask parameters, plus the frame of ``shear_mm`` and the overlay's.
+    """The flow and mask parameters, plus the frame of ``shear_m`` and the overlay's.
 
     Attributes:
-        shear_frame: ``"tool"``: ``shear_mm`` is along the tool's y and z axes (the plane
+        shear_frame: ``"tool"``: ``shear_m`` is along the tool's y and z axes (the plane
             orthogonal to the grip force, as the ground truth) and the torsion is about
-            tool x, for both bubbles, using ``geometry.gripper``'s camera mount;
-            ``"membrane"``: along the plane fitted to the reference membrane (see
+            tool x, for both bubbles, using the camera mount each frame carries
+            (``ToFImage.tool_from_sensor``); ``"membrane"``: along the plane fitted to
+            the reference membrane (see
             ``perception.shear``).
         overlay_every_n: publish an overlay every n-th frame per bubble (0: never).
         overlay_step_px: spacing of the flow arrows drawn on the overlay.
@@ -100,34 +97,23 @@ class _ShearTrackerNode(Node):
     optional_inputs = frozenset({"left", "right", "reset"})
 
     def setup(self) -> None:
-        self.trackers = {sensor: ShearTracker(self.params) for sensor in SENSORS}
-        self.stable = False
-        self.stable_since_nanos = 0
-        self.want_reference = {sensor: False for sensor in SENSORS}
-        self.frames = {sensor: 0 for sensor in SENSORS}
-        self.warned_no_ir: set[str] = set()
+        self.shear = GraspShear(self.params, SENSORS)
+        self.frames = dict.fromkeys(SENSORS, 0)
+        self.warned: set[tuple[str, str]] = set()
+
+    def _warn_once(self, sensor: str, what: str, text: str) -> None:
+        if (sensor, what) not in self.warned:
+            self.io.log.warning("%s: %s %s", self.name, sensor, text)
+            self.warned.add((sensor, what))
 
     def on_grasp(self, msg: GraspState) -> None:
-        became_stable = msg.stable and (not self.stable or msg.event == "stable")
-        if became_stable:
-            self.stable_since_nanos = msg.header.stamp_nanos
-            for sensor in SENSORS:
-                self.trackers[sensor].drop_reference()
-                self.want_reference[sensor] = True
-        elif not msg.stable and (self.stable or msg.event == "released"):
-            for sensor in SENSORS:
-                self.trackers[sensor].drop_reference()
-                self.want_reference[sensor] = False
-        self.stable = msg.stable
+        self.shear.grasp(stable=msg.stable, event=msg.event, stamp_nanos=msg.header.stamp_nanos)
 
     def on_reset(self, msg: ShearReset) -> None:
-        if msg.sensor not in ("", *SENSORS):
-            self.io.log.warning("%s: ShearReset for unknown sensor %r", self.name, msg.sensor)
-            return
-        for sensor in SENSORS if msg.sensor == "" else (msg.sensor,):
-            self.trackers[sensor].drop_reference()
-            self.want_reference[sensor] = self.stable
-        self.stable_since_nanos = min(self.stable_since_nanos, msg.header.stamp_nanos)
+        try:
+            self.shear.reset(msg.sensor, msg.header.stamp_nanos)
+        except ValueError as err:
+            self.io.log.warning("%s: ShearReset: %s", self.name, err)
 
     def on_left(self, msg: ToFImage) -> None:
         self._image("left", msg)
@@ -138,32 +124,40 @@ class _ShearTrackerNode(Node):
     def _image(self, sensor: str, msg: ToFImage) -> None:
         if msg.ir.size == 0:
             # A camera without the IR channel (the scene's ``ir`` effect off): nothing to track.
-            if sensor not in self.warned_no_ir:
-                self.io.log.warning("%s: %s frames carry no IR image; skipped", self.name, sensor)
-                self.warned_no_ir.add(sensor)
+            self._warn_once(sensor, "ir", "frames carry no IR image; skipped")
             return
-        tracker = self.trackers[sensor]
-        shape = tracker.reference_shape
-        if shape is not None and shape != msg.ir.shape:
-            # The camera changed mode mid-grasp: the old reference cannot be compared.
-            self.io.log.warning(
-                "%s: %s image is %s, its reference %s; retaking the reference",
-                self.name,
-                sensor,
-                msg.ir.shape,
-                shape,
-            )
-            tracker.drop_reference()
-            self.want_reference[sensor] = self.stable
+        basis = None
+        if self.params.shear_frame == "tool":
+            if not pose_is_known(msg.tool_from_sensor):
+                self._warn_once(
+                    sensor,
+                    "mount",
+                    "frames carry no `tool_from_sensor` (the camera mount), which "
+                    "shear_frame 'tool' needs; refused (set shear_frame: membrane to use "
+                    "the membrane's own plane)",
+                )
+                return
+            basis = tool_basis(msg.tool_from_sensor)
         depth = msg.depth_m if msg.depth_m.shape == msg.ir.shape else None
-        if self.want_reference[sensor] and msg.header.stamp_nanos >= self.stable_since_nanos:
-            basis = tool_basis_in_sensor(sensor) if self.params.shear_frame == "tool" else None
-            tracker.set_reference(msg.ir, depth, PinholeCamera.from_frame(msg), basis)
-            self.want_reference[sensor] = False
         every = self.params.overlay_every_n
         want_overlay = every > 0 and self.frames[sensor] % every == 0
         self.frames[sensor] += 1
-        result = tracker.update(msg.ir, depth, keep_fields=want_overlay)
+        result, retaken = self.shear.image(
+            sensor,
+            msg.ir,
+            depth,
+            PinholeCamera.from_frame(msg),
+            stamp_nanos=msg.header.stamp_nanos,
+            basis=basis,
+            keep_fields=want_overlay,
+        )
+        if retaken:
+            self.io.log.warning(
+                "%s: %s image changed shape to %s; retaking the reference",
+                self.name,
+                sensor,
+                msg.ir.shape,
+            )
         header = Header(stamp_nanos=msg.header.stamp_nanos, frame_id=msg.header.frame_id)
         self.io.publish("shear", _estimate(sensor, header, result))
         if want_overlay:
@@ -187,7 +181,7 @@ def _estimate(sensor: str, header: Header, result: ShearResult) -> ShearEstimate
         magnitude_px=float(result.magnitude_px),
         direction=np.asarray(result.direction, np.float64),
         direction_defined=bool(result.direction_defined),
-        shear_mm=np.asarray(result.shear_mm, np.float64),
+        shear_m=np.asarray(result.shear_m, np.float64),
         torsion_rad=float(result.torsion_rad),
         has_reference=bool(result.has_reference),
     )

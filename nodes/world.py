@@ -3,6 +3,11 @@
 Ports:
     inputs: ``command`` (GripperCommand, optional): commands from a supervisor move
         the simulated jaws (closing on the object makes contact, opening releases it).
+        With ``wsg50_port`` the jaws are a WSG 50 emulator instead (``sim.wsg50_server``,
+        served from this process): they take commands over the WSG 50 TCP protocol
+        only, from ``gripper.wsg50``, and this input is ignored with a warning. The
+        world steps the emulated jaws with its contact model, so contact, pressure and
+        images follow what the driver commanded.
     outputs: ``state`` (messages.sim.WorldState): one per scene frame, at the cameras'
         frame rate; the sensor nodes render from it and stamp their messages with its
         stamp. ``ground_truth`` (GroundTruth): the true pose, contact and shear, when
@@ -23,29 +28,37 @@ import json
 from dataclasses import dataclass
 
 from messages.base import Header
+from messages.errors import NodeError
 from messages.sim import WorldState
 from messages.types import GripperCommand, GroundTruth, TaskEvent
 from runtime.node import Node
+from runtime.params import ExistingFile
 from runtime.registry import register
 from sim import World, ground_truth, load_scene, stamp_of
 from sim.effects import resolve
 from sim.scene import Scene, SceneError
 from sim.wire import apply_command, to_message
+from sim.wsg50_server import WSG50Server
 
 
 @dataclass(frozen=True, kw_only=True)
 class WorldParams:
     """``scene``: a scene file; ``effects``/``seed`` override the scene's when given;
-    ``rate_scale`` > 1 runs the scene faster than real time."""
+    ``rate_scale`` > 1 runs the scene faster than real time; ``wsg50_port`` >= 0 serves
+    the jaws over the WSG 50 protocol on ``wsg50_host`` (0: a free port, logged)."""
 
-    scene: str
+    scene: ExistingFile
     effects: tuple[str, ...] = ()
     seed: int = -1
     rate_scale: float = 1.0
+    wsg50_port: int = -1
+    wsg50_host: str = "127.0.0.1"
 
     def __post_init__(self) -> None:
         if not self.rate_scale > 0:
             raise ValueError(f"`rate_scale` must be > 0, got {self.rate_scale!r}")
+        if not -1 <= self.wsg50_port <= 65535:
+            raise ValueError(f"`wsg50_port` must be -1 (off) or 0..65535, got {self.wsg50_port!r}")
         if self.effects:
             try:
                 resolve(self.effects)
@@ -86,9 +99,36 @@ class WorldNode(Node):
         self.start_nanos: int | None = None
         self.max_force_n = 0.0
         self.contact_frames = 0
+        self.server: WSG50Server | None = None
+        self.ignored_commands = 0
+        if self.params.wsg50_port >= 0:
+            host, port = self.params.wsg50_host, self.params.wsg50_port
+            try:
+                self.server = WSG50Server(self.world.dynamics, host=host, port=port).start()
+            except OSError as err:
+                raise NodeError(
+                    f"{self.name}: cannot serve the WSG 50 protocol on {host}:{port}: {err}"
+                ) from err
+            self.io.log.info("%s: WSG 50 emulator listening on %s", self.name, self.server.address)
         self.io.add_timer(self.scene.frame_period_secs / self.params.rate_scale, self.tick)
 
+    def teardown(self) -> None:
+        if self.server is not None:
+            self.server.close()
+
     def on_command(self, msg: GripperCommand) -> None:
+        if self.server is not None:
+            # The jaws answer to the WSG 50 protocol only: a command that bypassed the
+            # driver would make the emulated gripper move without its client knowing.
+            if not self.ignored_commands:
+                self.io.log.warning(
+                    "%s: ignoring the command input: the jaws take commands over the WSG 50"
+                    " protocol on %s",
+                    self.name,
+                    self.server.address,
+                )
+            self.ignored_commands += 1
+            return
         refused = apply_command(self.world, msg)
         if refused:
             self.io.log.warning("%s: ignored gripper command: %s", self.name, refused)
@@ -99,7 +139,7 @@ class WorldNode(Node):
             return
         if self.start_nanos is None:
             self.start_nanos = self.io.now_nanos()
-        snap = self.world.step()
+        snap = self.server.stepped(self.world.step) if self.server else self.world.step()
         stamp = stamp_of(snap, self.start_nanos)
         self.max_force_n = max(self.max_force_n, snap.force_n)
         self.contact_frames += any(snap.in_contact.values())

@@ -10,7 +10,7 @@ image against each bubble's no-contact reference, thresholded. Here, per bubble:
 2. Difference ``reference - depth`` (contact pushes the membrane towards the camera, so
    depth falls), NaN pixels excluded, thresholded at ``threshold_m``.
 3. A small morphological opening, then connected components under ``min_component_px``
-   dropped (FACTS.md: 4.8-8.5 mm thresholds, ~150 px blobs, a small opening).
+   dropped (docs/facts.md: 4.8-8.5 mm thresholds, ~150 px blobs, a small opening).
 4. The kept pixels back-projected with the camera intrinsics and moved into the tool frame
    with ``geometry.gripper.tool_from_sensor(side, width_m)`` at the measured opening.
 
@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from geometry.camera import PinholeCamera
-from geometry.gripper import DEFAULT_GRIPPER, SIDES, GripperGeometry
+from geometry.gripper import SIDES
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -33,7 +33,7 @@ class ContactParams:
     """Contact filter knobs.
 
     Attributes:
-        threshold_m: depth decrease that counts as contact (FACTS.md: 4.8-8.5 mm).
+        threshold_m: depth decrease that counts as contact (docs/facts.md: 4.8-8.5 mm).
         min_component_px: connected components smaller than this are dropped.
         opening_px: side of the square opening kernel (0 or 1: no opening).
         max_points: the grasp cloud is subsampled (evenly) to at most this many points.
@@ -115,11 +115,8 @@ class GraspCloud:
 class ContactPatcher:
     """Holds the free-bubble references and turns depth pairs into grasp clouds."""
 
-    def __init__(
-        self, params: ContactParams | None = None, gripper: GripperGeometry = DEFAULT_GRIPPER
-    ) -> None:
+    def __init__(self, params: ContactParams | None = None) -> None:
         self.params = params or ContactParams()
-        self.gripper = gripper
         self._refs: dict[str, _Reference] = {}
 
     def has_reference(self, side: str) -> bool:
@@ -147,26 +144,27 @@ class ContactPatcher:
         return None if ref is None else ref.mean()
 
     def extract(
-        self,
-        frames: dict[str, tuple[np.ndarray, PinholeCamera]],
-        width_m: float,
+        self, frames: dict[str, tuple[np.ndarray, PinholeCamera, np.ndarray]]
     ) -> GraspCloud:
-        """The grasp cloud from each side's ``(depth_m, camera)``; sides without a
-        reference contribute an empty mask and no points."""
+        """The grasp cloud from each side's ``(depth_m, camera, tool_from_sensor)``.
+
+        ``tool_from_sensor`` is the camera's 4x4 pose in the tool frame when the frame was
+        taken: the geometry of the data itself (``ToFImage.tool_from_sensor``), not a
+        default mount. Sides without a reference contribute an empty mask and no points.
+        """
         chunks: list[np.ndarray] = []
         sides: list[np.ndarray] = []
         masks: dict[str, np.ndarray] = {}
         for k, side in enumerate(SIDES):
             if side not in frames:
                 continue
-            depth, camera = frames[side]
+            depth, camera, pose = frames[side]
             ref = self.reference(side)
             if ref is None or ref.shape != np.shape(depth):
                 masks[side] = np.zeros(np.shape(depth), dtype=bool)
                 continue
             mask = contact_mask(depth, ref, self.params)
             masks[side] = mask
-            pose = self.gripper.tool_from_sensor(side, float(width_m))
             pts = mask_points_in_tool(depth, mask, camera, pose)
             chunks.append(pts)
             sides.append(np.full(len(pts), k, dtype=np.uint8))

@@ -35,7 +35,7 @@ class GraspParams:
     """Thresholds of the stable-grasp detector.
 
     The paper gives no values. Defaults assume the simulated bubble (about 1 kPa of
-    inflation, FACTS.md), where a firm grasp raises the pressure by a few percent.
+    inflation, docs/facts.md), where a firm grasp raises the pressure by a few percent.
 
     Attributes:
         contact_rise_pa: rise over the free baseline that starts contact.

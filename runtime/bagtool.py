@@ -2,18 +2,21 @@
 
 python launch.py bag info FILE [--graph]
 python launch.py bag recover FILE OUT
-python launch.py bag echo FILE --topic T [--limit N] [--full]
-python launch.py bag diff A B [--topic T ...] [--rtol R] [--atol A] [--ignore FIELD ...]
-python launch.py replay FILE [--graph G] [--replace NODE[=IMPL] ...] [--rate X | --fast]
-                        [--loop] [--start S] [--end E] [--topics RE] [--remap A=B ...]
-                        [--lockstep] [--record OUT [--record-topics RE]] [--duration S]
+python launch.py bag echo FILE --topic T [--limit N] [--full] [--strict]
+python launch.py bag diff A B [--topic T ...] [--rtol R] [--atol A] [--ignore FIELD ...] [--strict]
+python launch.py replay FILE [--graph G] [--swap NODE[=IMPL] ...] [--rate X | --fast]
+                        [--loop] [--start S] [--end E] [--replay-topics RE] [--remap A=B ...]
+                        [--lockstep] [--strict] [--record OUT [--record-topics RE] [--overwrite]]
+                        [--duration S]
                         [--set NODE.PARAM=VALUE ...] [--print-graph]
 
 ``bag diff`` compares messages of a topic in order, field by field, decoded from each bag's
 stored description (no project classes needed); numbers and arrays with ``numpy.isclose``
 tolerances (NaN equals NaN). It exits 0 when there is no difference, 1 when there is, 2 on
-an error. ``replay`` runs the graph stored in the bag (or ``--graph``) with the nodes named
-in ``--replace`` (and everything downstream of them) live, and a ``replay`` node publishing
+an error. ``bag echo`` and ``bag diff`` skip a message that cannot be decoded, say so and
+go on (echo exits 1, diff counts it as a difference); ``--strict`` stops at it (exit 2).
+``replay`` runs the graph stored in the bag (or ``--graph``) with the nodes named
+in ``--swap`` (and everything downstream of them) live, and a ``replay`` node publishing
 the recorded topics they need (see :func:`build_replay_graph`).
 """
 
@@ -36,6 +39,7 @@ import yaml
 
 from messages.errors import BagError, GraphError
 from runtime.bag import BagMessage, BagReader, BagWriter, topic_filter
+from runtime.cli import add_deprecated, add_run_options
 
 log = logging.getLogger(__name__)
 
@@ -161,19 +165,38 @@ def _graph_nodes(text: str) -> list[str]:
 
 
 def echo_lines(
-    path: Path, topic: str, *, limit: int | None = None, full: bool = False
+    path: Path,
+    topic: str,
+    *,
+    limit: int | None = None,
+    full: bool = False,
+    strict: bool = False,
+    skipped: list[str] | None = None,
 ) -> Iterator[str]:
-    """Each message of ``topic``, decoded without project classes, arrays summarized."""
+    """Each message of ``topic``, decoded without project classes, arrays summarized.
+
+    A message that cannot be decoded prints one ``SKIPPED`` line and is added to
+    ``skipped``; with ``strict`` its :class:`BagError` ends the echo instead.
+    """
     with BagReader(path) as reader:
         reader.require_topics([topic])
         for index, msg in enumerate(reader.messages([topic])):
             if limit is not None and index >= limit:
                 return
-            fields = msg.decode_plain()
-            yield (
+            head = (
                 f"--- {topic} #{index} {msg.channel.schema.type_name} seq {msg.sequence} "
                 f"log {_stamp(msg.log_time_nanos)} {msg.position()}"
             )
+            try:
+                fields = msg.decode_plain()
+            except BagError as err:
+                if strict:
+                    raise
+                if skipped is not None:
+                    skipped.append(str(err))
+                yield f"{head} SKIPPED, cannot decode: {err}"
+                continue
+            yield head
             for name, value in fields.items():
                 yield f"{name}: {_show(value, full)}"
 
@@ -286,8 +309,13 @@ def diff_bags(
     rtol: float = 1e-9,
     atol: float = 0.0,
     ignore: Sequence[str] = (),
+    strict: bool = False,
 ) -> list[Difference]:
-    """Per-message differences of the decoded fields of ``topics`` (default: every topic)."""
+    """Per-message differences of the decoded fields of ``topics`` (default: every topic).
+
+    A message that cannot be decoded on either side is one ``(undecodable)`` difference
+    and the comparison goes on; with ``strict`` its :class:`BagError` ends the diff.
+    """
     skip = frozenset(ignore)
     with BagReader(path_a) as ra, BagReader(path_b) as rb:
         if topics:
@@ -309,9 +337,15 @@ def diff_bags(
                 if ta != tb:
                     out.append(Difference(topic, index, "(type)", f"{ta} vs {tb}"))
                     continue
-                found = compare_values(
-                    ma.decode_plain(), mb.decode_plain(), rtol=rtol, atol=atol, ignore=skip
-                )
+                try:
+                    plain_a = ma.decode_plain()
+                    plain_b = mb.decode_plain()
+                except BagError as err:
+                    if strict:
+                        raise
+                    out.append(Difference(topic, index, "(undecodable)", str(err)))
+                    continue
+                found = compare_values(plain_a, plain_b, rtol=rtol, atol=atol, ignore=skip)
                 out += [Difference(topic, index, name, detail) for name, detail in found]
         return out
 
@@ -331,6 +365,7 @@ class ReplayOptions:
     topics: str = ""
     remap: dict[str, str] = field(default_factory=dict)
     lockstep: bool = False
+    strict: bool = False  # stop at a message that cannot be decoded (default: skip, count)
 
     def __post_init__(self) -> None:
         if self.rate <= 0:
@@ -349,13 +384,6 @@ class ReplayOptions:
 def exact_topics(topics: Sequence[str]) -> str:
     """A ``topics`` pattern that selects exactly these topics."""
     return "^(?:" + "|".join(re.escape(t) for t in sorted(topics)) + ")$"
-
-
-def _node_inputs(body: Mapping[str, Any]) -> list[str]:
-    topics = []
-    for ref in (body.get("inputs") or {}).values():
-        topics.append(ref["from"] if isinstance(ref, Mapping) else str(ref))
-    return topics
 
 
 def _keep_known_params(name: str, body: dict[str, Any]) -> None:
@@ -378,37 +406,26 @@ def _keep_known_params(name: str, body: dict[str, Any]) -> None:
         body["params"] = {k: v for k, v in params.items() if k in known}
 
 
-def _reach(start: set[str], edges: Mapping[str, set[str]]) -> set[str]:
-    """Every node reachable from ``start`` along ``edges`` (``start`` included)."""
-    seen = set(start)
-    todo = list(start)
-    while todo:
-        for nxt in edges.get(todo.pop(), ()):
-            if nxt not in seen:
-                seen.add(nxt)
-                todo.append(nxt)
-    return seen
-
-
 def build_replay_graph(
     graph: Mapping[str, Any],
     bag_path: Path,
-    replace: Mapping[str, str],
+    swap: Mapping[str, str],
     options: ReplayOptions | None = None,
 ) -> dict[str, Any]:
-    """The graph that replays ``bag_path`` through ``graph`` with some nodes replaced.
+    """The graph that replays ``bag_path`` through ``graph`` with some nodes swapped.
 
-    The nodes named in ``replace`` get their new implementation (an empty string keeps
+    The nodes named in ``swap`` get their new implementation (an empty string keeps
     theirs; parameters the new one does not take are dropped, with a warning) and run
     live, as does every node downstream of them, except one that also feeds back into
     their inputs (a loop through a simulated world): the replay stays open-loop there, with
     a warning. Every topic the live nodes read comes from a ``replay`` node if the bag has
     it; otherwise the node publishing it runs live too (and so on upstream). All other
-    nodes, recorders included, are left out.
-    With nothing replaced, the replay node publishes every selected topic.
+    nodes, recorders included, are left out. The walk is the checked graph's
+    (:meth:`runtime.graph.Graph.downstream` and ``upstream``).
+    With nothing swapped, the replay node publishes every selected topic.
 
     Raises:
-        GraphError: an unknown node in ``replace``, or a needed topic that is neither in
+        GraphError: an unknown node in ``swap``, or a needed topic that is neither in
             the bag nor published by a node that can run.
         BagError: the bag cannot be read.
     """
@@ -417,42 +434,34 @@ def build_replay_graph(
     options = options or ReplayOptions()
     doc = copy.deepcopy(dict(graph))
     nodes: dict[str, Any] = doc.get("nodes") or {}
-    for name, impl in replace.items():
+    for name, impl in swap.items():
         if name not in nodes:
             raise GraphError(
-                f"--replace {name}: the graph has no node {name!r} (nodes: {', '.join(nodes)})"
+                f"{bag_path}: --swap {name}: the graph has no node {name!r} "
+                f"(nodes: {', '.join(nodes)})"
             )
         if impl and impl != nodes[name].get("impl"):
             nodes[name]["impl"] = impl
             _keep_known_params(name, nodes[name])
     checked = check(doc, source=f"{bag_path} (replay graph)")
     recorders = {n for n, spec in checked.nodes.items() if spec.cls.raw_input}
-    providers = {t: node for t, (node, _) in checked.providers().items()}
-    inputs = {n: _node_inputs(body) for n, body in nodes.items()}
-
-    feeds: dict[str, set[str]] = {n: set() for n in nodes}  # producer -> its consumers
-    for name, topics in inputs.items():
-        for topic in topics:
-            if topic in providers and name not in recorders:
-                feeds[providers[topic]].add(name)
-    downstream = _reach(set(replace), feeds) - set(replace)
-    fed_by: dict[str, set[str]] = {n: set() for n in nodes}
-    for producer, consumers in feeds.items():
-        for consumer in consumers:
-            fed_by[consumer].add(producer)
-    upstream = _reach(set(replace), fed_by) - set(replace)
-    # A node both downstream and upstream of a replaced one closes a loop back into its
+    providers = checked.producers
+    inputs = {n: [i.topic for i in spec.inputs.values()] for n, spec in checked.nodes.items()}
+    swapped = set(swap)
+    downstream = checked.downstream(swapped, skip=recorders) - swapped
+    upstream = checked.upstream(swapped, skip=recorders) - swapped
+    # A node both downstream and upstream of a swapped one closes a loop back into its
     # inputs (a supervisor commanding the simulated world that the cameras see): running
     # it live would make the world live too, so the replay stays open-loop there and that
-    # node's topics come from the bag. Name it in --replace to run it live anyway.
-    live = set(replace) | (downstream - upstream)
-    direct = set().union(*(feeds[n] for n in replace)) - set(replace)
+    # node's topics come from the bag. Name it in --swap to run it live anyway.
+    live = swapped | (downstream - upstream)
+    direct = set().union(*(checked.feeds[n] for n in swapped)) - swapped
     for name in sorted(downstream & upstream & direct):
         log.warning(
             "replay: %s is downstream of %s but feeds back into its inputs; "
-            "it does not rerun, its recorded topics stand (add --replace %s to run it live)",
+            "it does not rerun, its recorded topics stand (add --swap %s to run it live)",
             name,
-            ", ".join(sorted(replace)),
+            ", ".join(sorted(swapped)),
             name,
         )
 
@@ -496,6 +505,7 @@ def build_replay_graph(
         "topics": exact_topics(bag_names),
         "remap": {bag: pub for pub, bag in replayed.items() if pub != bag},
         "lockstep": options.lockstep,
+        "strict": options.strict,
     }
     if options.end_secs is not None:
         params["end_secs"] = options.end_secs
@@ -518,16 +528,16 @@ def _pairs(values: Sequence[str], flag: str, *, allow_bare: bool = False) -> dic
 def replay_main(argv: Sequence[str]) -> int:
     """``launch.py replay ...``: build the replay graph and run it (exit code)."""
     parser = argparse.ArgumentParser(
-        prog="python launch.py replay", description=__doc__.split("\n")[0]
+        prog="python launch.py replay",
+        description="Replay a bag through its graph (or --graph), the nodes named in --swap "
+        "and everything downstream of them live (see docs/bags.md).",
     )
     parser.add_argument("bag", type=Path)
     parser.add_argument("--graph", type=Path, default=None, help="graph file (default: the bag's)")
-    parser.add_argument(
-        "--replace",
-        action="append",
-        default=[],
-        metavar="NODE[=IMPL]",
-        help="run NODE live, with IMPL if given (repeatable)",
+    add_run_options(
+        parser,
+        swap_metavar="NODE[=IMPL]",
+        swap_help="run NODE live, with IMPL if given (repeatable)",
     )
     pace = parser.add_mutually_exclusive_group()
     pace.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1)")
@@ -535,19 +545,16 @@ def replay_main(argv: Sequence[str]) -> int:
     parser.add_argument("--loop", action="store_true")
     parser.add_argument("--start", type=float, default=0.0, metavar="SECS")
     parser.add_argument("--end", type=float, default=None, metavar="SECS")
-    parser.add_argument("--topics", default="", metavar="REGEX", help="bag topics to replay")
-    parser.add_argument("--remap", action="append", default=[], metavar="BAG_TOPIC=TOPIC")
-    parser.add_argument("--lockstep", action="store_true", help="deterministic: wait for idle")
-    parser.add_argument("--record", type=Path, default=None, metavar="OUT.mcap")
-    parser.add_argument("--record-topics", default=None, metavar="REGEX")
-    parser.add_argument("--duration", type=float, default=None, metavar="SECS")
     parser.add_argument(
-        "--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"]
+        "--replay-topics", default="", metavar="REGEX", help="the bag topics to replay"
     )
+    parser.add_argument("--remap", action="append", default=[], metavar="BAG_TOPIC=TOPIC")
     parser.add_argument(
-        "--set", dest="sets", action="append", default=[], metavar="NODE.PARAM=VALUE"
+        "--strict", action="store_true", help="stop at a message that cannot be decoded"
     )
     parser.add_argument("--print-graph", action="store_true", help="print the graph; run nothing")
+    add_deprecated(parser, "--replace", "--swap", "swaps", append=True)
+    add_deprecated(parser, "--topics", "--replay-topics", "replay_topics")
     args = parser.parse_args(list(argv))
     try:
         if args.graph is not None:
@@ -567,12 +574,13 @@ def replay_main(argv: Sequence[str]) -> int:
             loop=args.loop,
             start_secs=args.start,
             end_secs=args.end,
-            topics=args.topics,
+            topics=args.replay_topics,
             remap=_pairs(args.remap, "--remap"),
             lockstep=args.lockstep,
+            strict=args.strict,
         )
         replay_graph = build_replay_graph(
-            graph, args.bag, _pairs(args.replace, "--replace", allow_bare=True), options
+            graph, args.bag, _pairs(args.swaps, "--swap", allow_bare=True), options
         )
         if args.sets:
             from runtime.graph import apply_overrides
@@ -591,6 +599,7 @@ def replay_main(argv: Sequence[str]) -> int:
         source=f"{args.bag} (replay)",
         record=args.record,
         topics=args.record_topics,
+        overwrite=args.overwrite,
         # Counts are tracked in every mode, so that the replay node, when it has published
         # everything, can wait for the graph to drain before it asks it to stop.
         lockstep=True,
@@ -615,6 +624,9 @@ def main(argv: Sequence[str]) -> int:
     p_echo.add_argument("--topic", required=True)
     p_echo.add_argument("--limit", type=int, default=None)
     p_echo.add_argument("--full", action="store_true", help="print arrays in full")
+    p_echo.add_argument(
+        "--strict", action="store_true", help="stop at a message that cannot be decoded"
+    )
     p_recover = sub.add_parser("recover", help="rewrite a damaged or cut bag with a summary")
     p_recover.add_argument("file", type=Path)
     p_recover.add_argument("out", type=Path)
@@ -628,6 +640,9 @@ def main(argv: Sequence[str]) -> int:
         "--ignore", action="append", default=[], metavar="FIELD", help="e.g. header.stamp_nanos"
     )
     p_diff.add_argument("--max-lines", type=int, default=50)
+    p_diff.add_argument(
+        "--strict", action="store_true", help="stop at a message that cannot be decoded"
+    )
     args = parser.parse_args(list(argv))
     try:
         if args.command == "info":
@@ -640,11 +655,28 @@ def main(argv: Sequence[str]) -> int:
             print(f"{args.out}: {copied} message(s) recovered from {args.file}")
             return 0
         if args.command == "echo":
-            for line in echo_lines(args.file, args.topic, limit=args.limit, full=args.full):
+            skipped: list[str] = []
+            lines = echo_lines(
+                args.file,
+                args.topic,
+                limit=args.limit,
+                full=args.full,
+                strict=args.strict,
+                skipped=skipped,
+            )
+            for line in lines:
                 print(line)
-            return 0
+            if skipped:
+                print(f"bag echo: {len(skipped)} message(s) could not be decoded", file=sys.stderr)
+            return 1 if skipped else 0
         diffs = diff_bags(
-            args.a, args.b, args.topic or None, rtol=args.rtol, atol=args.atol, ignore=args.ignore
+            args.a,
+            args.b,
+            args.topic or None,
+            rtol=args.rtol,
+            atol=args.atol,
+            ignore=args.ignore,
+            strict=args.strict,
         )
     except BagError as err:
         print(f"bag {args.command}: {err}", file=sys.stderr)

@@ -1,45 +1,72 @@
-"""Graph files: load, apply command-line overrides, and check before anything starts.
+"""Graphs: the checked model (nodes, producers, consumers, reachability) and its checker.
 
-A graph file (YAML, read with a duplicate-key-refusing ``safe_load``)::
+A graph file (YAML, read with a duplicate-key-refusing ``safe_load``, see
+:mod:`runtime.graphfile`)::
 
     nodes:
-      camera: {impl: synthetic.source, params: {rate_hz: 30}}
+      contact_patch: {impl: contact_patch, inputs: {left: left_camera/image, ...}}
       pose:
         impl: pose_estimator.ipopt            # registered name, or module:Class
-        params: {tolerance: 1.0e-6}
+        params: {object: mug, max_points: 4000}
         inputs: {patch: {from: contact_patch/patch, policy: latest}}
         restart: {policy: on-failure, max_restarts: 3, backoff_secs: 0.5}
         required: true                        # a final crash stops the graph
         host: 127.0.0.1                       # tcp on this address; ipc otherwise
 
-The checker collects every error (unknown implementation, unknown output, edge type
-mismatch, missing required input, unknown or ill-typed parameter, duplicate name,
-YAML syntax) and raises one :class:`GraphError` whose lines each name the file, the
-node and the field.
+:func:`check` runs the node checks (name, keys, implementation, parameters, inputs'
+form, restart policy, host, socket path) on each node, then the edge checks (each
+input has one producer of the right type, each required input is connected, each topic
+one publisher) on the nodes that passed: a node that failed its own checks has unknown
+ports, so edges into or out of it are not reported again. Every error names the file,
+the node and the field; they are raised together as one :class:`GraphError`.
+
+Checking imports only the module of each implementation a graph names (its class is
+where its ports and parameters are declared); it starts no process.
 """
 
 from __future__ import annotations
 
+import ipaddress
+import math
 import re
+import tempfile
 from collections import defaultdict
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
+import zmq
 
 from messages.base import Message
 from messages.errors import GraphError
+from runtime.graphfile import apply_overrides, load_document, parse_yaml
 from runtime.node import Node
-from runtime.params import build_params
+from runtime.params import ParamError, build_params
 from runtime.registry import resolve
+
+__all__ = ["Graph", "InputSpec", "NodeSpec", "RestartSpec", "check", "load"]
+__all__ += ["apply_overrides", "load_document", "parse_yaml"]  # the file side, for callers
 
 POLICIES = ("queue", "latest")
 RESTART_POLICIES = ("never", "on-failure")
 NODE_KEYS = {"impl", "params", "inputs", "restart", "required", "host", "hang_timeout_secs"}
 TOP_KEYS = {"nodes", "name", "description"}
-_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_\-]*$")
+MAX_QUEUE_SIZE = 2**31 - 1  # ZeroMQ's high-water mark is a C int
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_\-]*")
+# The launcher's run directory: tempfile.mkdtemp(prefix=f"{RUNDIR_PREFIX}{pid}-").
+RUNDIR_PREFIX = "sbg-"
+
+
+def ipc_path(rundir: str | Path, name: str) -> str:
+    """Where node ``name`` binds its publisher when it has no ``host``."""
+    return f"{rundir}/{name}.pub"
+
+
+def _longest_ipc_path(name: str) -> str:
+    # the largest Linux pid has 7 digits; mkdtemp adds 8 characters
+    rundir = Path(tempfile.gettempdir()) / (RUNDIR_PREFIX + "9" * 7 + "-" + "x" * 8)
+    return ipc_path(rundir, name)
 
 
 @dataclass(frozen=True)
@@ -52,7 +79,7 @@ class InputSpec:
     queue_size: int = 1000
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class RestartSpec:
     """What the supervisor does when a node dies or stops answering."""
 
@@ -60,6 +87,19 @@ class RestartSpec:
     max_restarts: int = 5
     backoff_secs: float = 0.5
     backoff_max_secs: float = 8.0
+
+    def __post_init__(self) -> None:
+        if self.policy not in RESTART_POLICIES:
+            raise ValueError(f"`policy` must be one of {RESTART_POLICIES}, got {self.policy!r}")
+        if self.max_restarts < 0:
+            raise ValueError(f"`max_restarts` must be >= 0, got {self.max_restarts!r}")
+        if not self.backoff_secs >= 0:
+            raise ValueError(f"`backoff_secs` must be >= 0, got {self.backoff_secs!r}")
+        if not self.backoff_max_secs >= self.backoff_secs:
+            raise ValueError(
+                f"`backoff_max_secs` must be >= backoff_secs ({self.backoff_secs}), "
+                f"got {self.backoff_max_secs!r}"
+            )
 
 
 @dataclass
@@ -88,21 +128,62 @@ class NodeSpec:
         return {output: self.topic(output) for output in self.outputs}
 
 
+def _reach(start: Iterable[str], edges: Mapping[str, set[str]]) -> set[str]:
+    """Every node reachable from ``start`` along ``edges``, ``start`` included."""
+    seen = set(start)
+    todo = list(seen)
+    while todo:
+        for nxt in edges.get(todo.pop(), ()):
+            if nxt not in seen:
+                seen.add(nxt)
+                todo.append(nxt)
+    return seen
+
+
 @dataclass
 class Graph:
-    """A checked graph, ready to launch."""
+    """A checked graph, ready to launch: its nodes and, computed once, its wiring.
+
+    Attributes:
+        producers: topic -> the node publishing it (the first, if the checker found two).
+        types: topic -> the message type published on it.
+        consumers: topic -> ``(node, port)`` of every input reading it.
+        feeds: node -> the nodes reading any of its topics (its direct consumers).
+        fed_by: node -> the nodes whose topics it reads (its direct producers).
+    """
 
     source: str
     nodes: dict[str, NodeSpec]
     document: dict[str, Any]
+    producers: dict[str, str] = field(init=False)
+    types: dict[str, type[Message]] = field(init=False)
+    consumers: dict[str, list[tuple[str, str]]] = field(init=False)
+    feeds: dict[str, set[str]] = field(init=False)
+    fed_by: dict[str, set[str]] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.producers, self.types = {}, {}
+        for spec in self.nodes.values():
+            for out, kind in spec.outputs.items():
+                topic = spec.topic(out)
+                if topic not in self.producers:
+                    self.producers[topic] = spec.name
+                    self.types[topic] = kind
+        self.consumers = defaultdict(list)
+        self.feeds = {name: set() for name in self.nodes}
+        self.fed_by = {name: set() for name in self.nodes}
+        for spec in self.nodes.values():
+            for inp in spec.inputs.values():
+                self.consumers[inp.topic].append((spec.name, inp.port))
+                producer = self.producers.get(inp.topic)
+                if producer is not None:
+                    self.feeds[producer].add(spec.name)
+                    self.fed_by[spec.name].add(producer)
+        self.consumers = dict(self.consumers)
 
     def providers(self) -> dict[str, tuple[str, type[Message]]]:
         """Topic -> (publishing node, message type)."""
-        return {
-            spec.topic(out): (spec.name, kind)
-            for spec in self.nodes.values()
-            for out, kind in spec.outputs.items()
-        }
+        return {topic: (node, self.types[topic]) for topic, node in self.producers.items()}
 
     def edges(self) -> list[tuple[str, str, str]]:
         """(topic, subscribing node, port) for every input of every node."""
@@ -111,6 +192,16 @@ class Graph:
             for spec in self.nodes.values()
             for inp in spec.inputs.values()
         ]
+
+    def downstream(self, start: Iterable[str], *, skip: Iterable[str] = ()) -> set[str]:
+        """Nodes reachable from ``start`` along edges (``start`` included), not through ``skip``."""
+        avoid = set(skip)
+        return _reach(start, {n: c - avoid for n, c in self.feeds.items() if n not in avoid})
+
+    def upstream(self, start: Iterable[str], *, skip: Iterable[str] = ()) -> set[str]:
+        """Nodes from which ``start`` can be reached (``start`` included), not through ``skip``."""
+        avoid = set(skip)
+        return _reach(start, {n: p - avoid for n, p in self.fed_by.items() if n not in avoid})
 
     def barrier_topics(self) -> set[str]:
         """Topics from which a message can reach a node that merges several publishers.
@@ -123,114 +214,19 @@ class Graph:
         topic and pipelines the others. Nodes with ``merges_in_any_order`` (the recorder)
         do not count as fan-ins.
         """
-        providers = {topic: node for topic, (node, _) in self.providers().items()}
-        readers: dict[str, set[str]] = defaultdict(set)
-        for topic, node, _ in self.edges():
-            readers[topic].add(node)
         fan_ins = {
-            spec.name
-            for spec in self.nodes.values()
-            if not spec.cls.merges_in_any_order
-            and len({providers.get(inp.topic) for inp in spec.inputs.values()}) > 1
+            name
+            for name, spec in self.nodes.items()
+            if not spec.cls.merges_in_any_order and len(self.fed_by[name]) > 1
         }
-        barriers = set()
-        for start in providers:
-            seen: set[str] = set()
-            todo = [start]
-            while todo:
-                topic = todo.pop()
-                for node in readers[topic] - seen:
-                    seen.add(node)
-                    todo.extend(self.nodes[node].topics.values())
-            if seen & fan_ins:
-                barriers.add(start)
-        return barriers
+        return {
+            topic
+            for topic in self.producers
+            if self.downstream(node for node, _ in self.consumers.get(topic, ())) & fan_ins
+        }
 
 
-class _UniqueKeyLoader(yaml.SafeLoader):  # type: ignore[misc]
-    """``safe_load`` that refuses duplicate mapping keys instead of keeping the last."""
-
-
-def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> Any:
-    seen: set[Any] = set()
-    for key_node, _ in node.value:
-        key = loader.construct_object(key_node, deep=deep)
-        if key in seen:
-            raise yaml.constructor.ConstructorError(
-                None, None, f"duplicate key {key!r}", key_node.start_mark
-            )
-        seen.add(key)
-    return loader.construct_mapping(node, deep)
-
-
-_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
-
-
-def parse_yaml(text: str, source: str) -> Any:
-    """YAML text to Python data, safely; a syntax error or duplicate key raises GraphError."""
-    try:
-        return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
-    except yaml.YAMLError as err:
-        raise GraphError(f"{source}: YAML error: {err}") from err
-
-
-def load_document(path: str | Path) -> dict[str, Any]:
-    """Read a graph file into a plain dict (not yet checked)."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as err:
-        raise GraphError(f"{path}: cannot read graph file: {err.strerror}") from err
-    doc = parse_yaml(text, str(path))
-    if not isinstance(doc, dict):
-        raise GraphError(f"{path}: a graph file must be a mapping with a 'nodes' key")
-    return doc
-
-
-def apply_overrides(
-    doc: dict[str, Any],
-    *,
-    sets: Sequence[str] = (),
-    swaps: Sequence[str] = (),
-    only: Sequence[str] = (),
-    source: str = "<graph>",
-) -> dict[str, Any]:
-    """Return a copy of ``doc`` with ``--set node.param=value``, ``--swap node=impl`` and
-    ``--only a,b`` applied. Values of ``--set`` are parsed as YAML (``3``, ``true``, ``[1, 2]``).
-    """
-    doc = yaml.safe_load(yaml.safe_dump(doc))  # a deep copy of plain data
-    nodes = doc.get("nodes") or {}
-    for item in swaps:
-        name, sep, impl = item.partition("=")
-        if not sep or name not in nodes:
-            raise GraphError(
-                f"{source}: --swap {item!r}: expected NODE=IMPL with a node of the graph"
-            )
-        nodes[name]["impl"] = impl
-    for item in sets:
-        target, sep, value = item.partition("=")
-        name, dot, param = target.partition(".")
-        if not sep or not dot or name not in nodes:
-            raise GraphError(
-                f"{source}: --set {item!r}: expected NODE.PARAM=VALUE with a node of the graph"
-            )
-        nodes[name].setdefault("params", {})
-        nodes[name]["params"][param] = parse_yaml(value, f"--set {item}")
-    if only:
-        keep = set(only)
-        unknown = keep - set(nodes)
-        if unknown:
-            raise GraphError(f"{source}: --only names unknown node(s) {sorted(unknown)}")
-        for name in list(nodes):
-            if name not in keep:
-                del nodes[name]
-        for spec in nodes.values():
-            inputs = spec.get("inputs") or {}
-            for port, ref in list(inputs.items()):
-                topic = ref.get("from") if isinstance(ref, dict) else ref
-                if isinstance(topic, str) and topic.partition("/")[0] not in keep:
-                    del inputs[port]
-    return doc
+# -- node checks ---------------------------------------------------------------------------------
 
 
 def _restart(value: Any, where: str, errors: list[str]) -> RestartSpec:
@@ -239,21 +235,13 @@ def _restart(value: Any, where: str, errors: list[str]) -> RestartSpec:
     if isinstance(value, str):
         value = {"policy": value}
     if not isinstance(value, dict):
-        errors.append(f"{where}.restart: expected a policy name or a mapping, got {value!r}")
+        errors.append(f"{where}.restart: must be a policy name or a mapping, got {value!r}")
         return RestartSpec()
     try:
         spec: RestartSpec = build_params(RestartSpec, value)
-    except ValueError as err:
-        errors.append(f"{where}.restart: {err}")
+    except ParamError as err:
+        errors.append(f"{where}.{err.line('restart')}")
         return RestartSpec()
-    if spec.policy not in RESTART_POLICIES:
-        errors.append(
-            f"{where}.restart.policy: must be one of {RESTART_POLICIES}, got {spec.policy!r}"
-        )
-    if spec.max_restarts < 0 or spec.backoff_secs < 0 or spec.backoff_max_secs < spec.backoff_secs:
-        errors.append(
-            f"{where}.restart: max_restarts >= 0 and 0 <= backoff_secs <= backoff_max_secs"
-        )
     return spec
 
 
@@ -262,115 +250,177 @@ def _input(port: str, ref: Any, where: str, errors: list[str]) -> InputSpec | No
         ref = {"from": ref}
     if not isinstance(ref, dict) or not isinstance(ref.get("from"), str):
         errors.append(
-            f"{where}.inputs.{port}: expected 'node/output' or {{from: node/output, ...}}"
+            f"{where}.inputs.{port}: must be 'node/output' or {{from: node/output, ...}}, got {ref!r}"
         )
         return None
     unknown = set(ref) - {"from", "policy", "queue_size"}
     if unknown:
-        errors.append(f"{where}.inputs.{port}: unknown key(s) {sorted(unknown)}")
+        errors.append(
+            f"{where}.inputs.{port}: unknown key(s) {sorted(unknown)}; "
+            "valid: from, policy, queue_size"
+        )
     topic = ref["from"]
     if topic.count("/") != 1 or not all(topic.split("/")):
-        errors.append(f"{where}.inputs.{port}: {topic!r} is not of the form node/output")
+        errors.append(f"{where}.inputs.{port}: must be of the form node/output, got {topic!r}")
         return None
     policy = ref.get("policy", "queue")
     if policy not in POLICIES:
         errors.append(f"{where}.inputs.{port}.policy: must be one of {POLICIES}, got {policy!r}")
     size = ref.get("queue_size", 1000)
-    if not isinstance(size, int) or isinstance(size, bool) or size < 1:
-        errors.append(f"{where}.inputs.{port}.queue_size: must be an integer >= 1, got {size!r}")
+    if not isinstance(size, int) or isinstance(size, bool) or not 1 <= size <= MAX_QUEUE_SIZE:
+        errors.append(
+            f"{where}.inputs.{port}.queue_size: must be an integer in [1, {MAX_QUEUE_SIZE}], "
+            f"got {size!r}"
+        )
         size = 1000
     return InputSpec(port=port, topic=topic, policy=policy, queue_size=size)
 
 
-def check(doc: Mapping[str, Any], source: str = "<graph>") -> Graph:
-    """Check a graph document completely; raise one GraphError listing every problem."""
-    errors: list[str] = []
-    if (
-        not isinstance(doc, Mapping)
-        or not isinstance(doc.get("nodes"), Mapping)
-        or not doc["nodes"]
-    ):
-        raise GraphError(f"{source}: a graph needs a non-empty 'nodes' mapping")
-    for key in set(doc) - TOP_KEYS:
-        errors.append(f"{source}: unknown top-level key {key!r} (valid: {sorted(TOP_KEYS)})")
-    specs: dict[str, NodeSpec] = {}
-    raw_inputs: dict[str, dict[str, InputSpec]] = {}
-    for name, body in doc["nodes"].items():
-        where = f"{source}: node {name!r}"
-        if not isinstance(name, str) or not _NAME.match(name):
-            errors.append(f"{where}: a node name is letters, digits, '_' and '-'")
-            continue
-        if not isinstance(body, Mapping):
-            errors.append(f"{where}: expected a mapping with 'impl'")
-            continue
-        for key in set(body) - NODE_KEYS:
-            errors.append(f"{where}: unknown key {key!r} (valid: {sorted(NODE_KEYS)})")
-        impl = body.get("impl")
-        if not isinstance(impl, str):
-            errors.append(f"{where}.impl: required, a registered name or module:Class")
-            continue
-        try:
-            cls = resolve(impl)
-        except KeyError as err:
-            errors.append(f"{where}.impl: {err.args[0]}")
-            continue
-        raw_params = dict(body.get("params") or {})
-        try:
-            params = build_params(cls.Params, raw_params)
-            inputs_decl, outputs = cls.ports(params)
-        except (ValueError, TypeError) as err:
-            errors.append(f"{where}.params: {err}")
-            continue
-        inputs: dict[str, InputSpec] = {}
-        for port, ref in (body.get("inputs") or {}).items():
-            if not cls.raw_input and port not in inputs_decl:
-                errors.append(
-                    f"{where}.inputs.{port}: {impl} has no input {port!r} (inputs: {sorted(inputs_decl)})"
-                )
-                continue
-            parsed = _input(str(port), ref, where, errors)
-            if parsed is not None:
-                inputs[str(port)] = parsed
-        hang = body.get("hang_timeout_secs", 30.0)
-        if not isinstance(hang, int | float) or hang <= 0:
-            errors.append(f"{where}.hang_timeout_secs: must be > 0, got {hang!r}")
-            hang = 30.0
-        host = body.get("host")
-        if host is not None and not isinstance(host, str):
-            errors.append(f"{where}.host: expected an address string, got {host!r}")
-            host = None
-        specs[name] = NodeSpec(
-            name=name,
-            impl=impl,
-            cls=cls,
-            params=params,
-            raw_params=raw_params,
-            inputs=inputs,
-            input_types=dict(inputs_decl),
-            outputs=dict(outputs),
-            restart=_restart(body.get("restart"), where, errors),
-            required=bool(body.get("required", True)),
-            host=host,
-            hang_timeout_secs=float(hang),
+def _host(host: Any, where: str, errors: list[str]) -> str | None:
+    """A host the node's publisher can bind (tried now, as the node will at start), and a
+    loopback one: frames and control travel unencrypted, and no graph can enable
+    encryption yet."""
+    if host is None:
+        return None
+    if not isinstance(host, str) or not host.strip() or host != host.strip() or "/" in host:
+        errors.append(
+            f"{where}.host: must be an address or interface of this machine, got {host!r}"
         )
-        raw_inputs[name] = inputs
-    graph = Graph(source=source, nodes=specs, document=dict(doc))
-    providers: dict[str, tuple[str, type[Message]]] = {}
-    for spec in specs.values():
-        for out, kind in spec.outputs.items():
+        return None
+    ctx: zmq.Context[Any] = zmq.Context.instance()
+    sock = ctx.socket(zmq.PUB)
+    sock.setsockopt(zmq.LINGER, 0)
+    try:
+        sock.bind(f"tcp://{host}:*")
+        bound = sock.getsockopt(zmq.LAST_ENDPOINT).decode()
+    except zmq.ZMQError as err:
+        errors.append(
+            f"{where}.host: must be an address or interface of this machine, got {host!r} "
+            f"(binding tcp://{host}:* fails: {err.strerror})"
+        )
+        return None
+    finally:
+        sock.close(linger=0)
+    address = ipaddress.ip_address(bound.removeprefix("tcp://").rpartition(":")[0].strip("[]"))
+    if not address.is_loopback:
+        errors.append(
+            f"{where}.host: must be a loopback address (127.0.0.1), got {host!r} (it binds "
+            f"{address}): frames and control would travel unencrypted on the network, and "
+            "encryption is not supported yet"
+        )
+        return None
+    return host
+
+
+def _check_name(name: Any, where: str, errors: list[str]) -> bool:
+    if not isinstance(name, str) or not _NAME.fullmatch(name):
+        errors.append(
+            f"{where}: a node name must be a letter or '_' then letters, digits, '_' or '-'"
+        )
+        return False
+    return True
+
+
+def _check_node(name: str, body: Any, source: str, errors: list[str]) -> NodeSpec | None:
+    """One node's own checks; its spec, or None when its ports cannot be known."""
+    where = f"{source}: node {name!r}"
+    if not isinstance(body, Mapping):
+        errors.append(f"{where}: must be a mapping with 'impl', got {body!r}")
+        return None
+    for key in sorted(set(body) - NODE_KEYS, key=str):
+        errors.append(f"{where}: unknown key {key!r} (valid: {sorted(NODE_KEYS)})")
+    impl = body.get("impl")
+    if not isinstance(impl, str):
+        errors.append(f"{where}.impl: required, a registered name or module:Class")
+        return None
+    try:
+        cls = resolve(impl)
+    except KeyError as err:
+        errors.append(f"{where}.impl: {err.args[0]}")
+        return None
+    raw_params = body.get("params") or {}
+    if not isinstance(raw_params, Mapping):
+        errors.append(f"{where}.params: must be a mapping, got {raw_params!r}")
+        return None
+    try:
+        params = build_params(cls.Params, raw_params)
+        inputs_decl, outputs = cls.ports(params)
+    except ParamError as err:
+        errors.append(f"{where}.{err.line()}")
+        return None
+    except (ValueError, TypeError) as err:  # ports() of a node reading a file (replay)
+        errors.append(f"{where}.params: {err}")
+        return None
+    inputs: dict[str, InputSpec] = {}
+    refs = body.get("inputs") or {}
+    if not isinstance(refs, Mapping):
+        errors.append(f"{where}.inputs: must be a mapping port -> node/output, got {refs!r}")
+        refs = {}
+    for port, ref in refs.items():
+        if not cls.raw_input and port not in inputs_decl:
+            errors.append(
+                f"{where}.inputs.{port}: {impl} has no input {port!r} (inputs: {sorted(inputs_decl)})"
+            )
+            continue
+        parsed = _input(str(port), ref, where, errors)
+        if parsed is not None:
+            inputs[str(port)] = parsed
+    hang = body.get("hang_timeout_secs", 30.0)
+    if not isinstance(hang, int | float) or isinstance(hang, bool) or not 0 < hang < math.inf:
+        errors.append(f"{where}.hang_timeout_secs: must be a finite number > 0, got {hang!r}")
+        hang = 30.0
+    required = body.get("required", True)
+    if not isinstance(required, bool):
+        errors.append(f"{where}.required: must be true or false, got {required!r}")
+    host = _host(body.get("host"), where, errors)
+    if host is None and "host" not in body:
+        path = _longest_ipc_path(name)
+        if len(path.encode()) > zmq.IPC_PATH_MAX_LEN:
+            errors.append(
+                f"{where}: the name is too long for its socket path ({path!r} would be "
+                f"{len(path.encode())} bytes, the OS allows {zmq.IPC_PATH_MAX_LEN}): "
+                "shorten the name, set TMPDIR to a shorter folder, or give the node a host"
+            )
+    return NodeSpec(
+        name=name,
+        impl=impl,
+        cls=cls,
+        params=params,
+        raw_params=dict(raw_params),
+        inputs=inputs,
+        input_types=dict(inputs_decl),
+        outputs=dict(outputs),
+        restart=_restart(body.get("restart"), where, errors),
+        required=bool(required),
+        host=host,
+        hang_timeout_secs=float(hang),
+    )
+
+
+# -- edge checks ---------------------------------------------------------------------------------
+
+
+def _check_edges(graph: Graph, failed: set[str], errors: list[str]) -> None:
+    """Edges between nodes that passed their own checks; ``failed`` nodes' edges are skipped."""
+    source = graph.source
+    for spec in graph.nodes.values():
+        for out in spec.outputs:
             topic = spec.topic(out)
-            if topic in providers:
+            first = graph.producers[topic]
+            if first != spec.name:
                 errors.append(
-                    f"{source}: node {spec.name!r}: topic {topic!r} is also published by {providers[topic][0]!r}"
+                    f"{source}: node {spec.name!r}.outputs: topic {topic!r} is also published "
+                    f"by {first!r}"
                 )
-            providers[topic] = (spec.name, kind)
-    for spec in specs.values():
+    for spec in graph.nodes.values():
         where = f"{source}: node {spec.name!r}"
         for port, inp in spec.inputs.items():
-            if inp.topic not in providers:
-                node, _, out = inp.topic.partition("/")
-                if node in specs:
-                    outs = sorted(specs[node].outputs)
+            node, _, out = inp.topic.partition("/")
+            if inp.topic not in graph.producers:
+                if node in failed:
+                    continue  # that node's own error is the root cause
+                if node in graph.nodes:
+                    outs = sorted(graph.nodes[node].outputs)
                     errors.append(
                         f"{where}.inputs.{port}: node {node!r} has no output {out!r} (outputs: {outs})"
                     )
@@ -379,8 +429,7 @@ def check(doc: Mapping[str, Any], source: str = "<graph>") -> Graph:
                 continue
             if spec.cls.raw_input:
                 continue
-            got = providers[inp.topic][1]
-            want = spec.input_types[port]
+            got, want = graph.types[inp.topic], spec.input_types[port]
             if got is not want:
                 errors.append(
                     f"{where}.inputs.{port}: type mismatch: {inp.topic} carries {got.__name__}, "
@@ -390,8 +439,35 @@ def check(doc: Mapping[str, Any], source: str = "<graph>") -> Graph:
             missing = set(spec.input_types) - set(spec.inputs) - spec.cls.optional_inputs
             for port in sorted(missing):
                 errors.append(
-                    f"{where}.inputs.{port}: required input is not connected ({spec.input_types[port].__name__})"
+                    f"{where}.inputs.{port}: required input is not connected "
+                    f"({spec.input_types[port].__name__})"
                 )
+
+
+def check(doc: Mapping[str, Any], source: str = "<graph>") -> Graph:
+    """Check a graph document completely; raise one GraphError listing every root cause."""
+    if (
+        not isinstance(doc, Mapping)
+        or not isinstance(doc.get("nodes"), Mapping)
+        or not doc["nodes"]
+    ):
+        raise GraphError(f"{source}: a graph needs a non-empty 'nodes' mapping")
+    errors = [
+        f"{source}: unknown top-level key {key!r} (valid: {sorted(TOP_KEYS)})"
+        for key in sorted(set(doc) - TOP_KEYS, key=str)
+    ]
+    specs: dict[str, NodeSpec] = {}
+    failed: set[str] = set()
+    for name, body in doc["nodes"].items():
+        spec = None
+        if _check_name(name, f"{source}: node {name!r}", errors):
+            spec = _check_node(name, body, source, errors)
+        if spec is None:
+            failed.add(str(name))
+        else:
+            specs[name] = spec
+    graph = Graph(source=source, nodes=specs, document=dict(doc))
+    _check_edges(graph, failed, errors)
     if errors:
         raise GraphError("\n".join(errors))
     return graph

@@ -7,9 +7,14 @@ heartbeat stops, or that stays busy in one handler longer than its
 ``hang_timeout_secs``, is handled by its restart policy (``never``, or
 ``on-failure`` with exponential back-off and a cap); when a node marked
 ``required`` fails for good, the graph stops with a non-zero exit and that node's
-last log lines. Stopping (Ctrl-C, SIGTERM, ``--duration``, a node's request):
-every node is asked to stop, then terminated after a grace period, then killed;
-children die with the launcher even on SIGKILL (``PR_SET_PDEATHSIG``).
+last log lines. A node that is starting (first start or restart) has
+``STARTUP_TIMEOUT_SECS`` to say ready; the heartbeat rule applies once it runs.
+Stopping (Ctrl-C, SIGTERM, ``--duration``, a node's request): every node is asked to
+stop, then terminated after a grace period, then killed; after a signal the whole
+stop takes at most ``SIGNAL_STOP_SECS`` and the exit code is 128 + the signal's
+number. Children die with the launcher even on SIGKILL (``runtime.child``), and the
+last of them removes the run folder. Control messages are signed with a per-run
+secret and checked (``runtime.protocol``); a bad one is counted and logged.
 """
 
 from __future__ import annotations
@@ -21,7 +26,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from collections import defaultdict, deque
@@ -33,8 +37,11 @@ import yaml
 import zmq
 
 from messages.errors import GraphError
-from runtime import protocol
-from runtime.graph import Graph, NodeSpec, check
+from runtime import child, protocol
+from runtime.counters import add_stats, table
+from runtime.graph import Graph, NodeSpec, check, ipc_path
+from runtime.isolation import make_rundir
+from runtime.protocol import ControlServer
 from runtime.registry import class_path
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
@@ -43,6 +50,9 @@ HEARTBEAT_TIMEOUT_SECS = 5.0
 DRAIN_SECS = 3.0
 STOP_GRACE_SECS = 5.0
 TERM_GRACE_SECS = 2.0
+# After Ctrl-C or SIGTERM: "stop", then SIGTERM, then SIGKILL, all within 2 s.
+SIGNAL_STOP_GRACE_SECS = 1.0
+SIGNAL_TERM_GRACE_SECS = 0.5
 LOG_TAIL_LINES = 20
 
 
@@ -50,6 +60,8 @@ LOG_TAIL_LINES = 20
 class _Proc:
     spec: NodeSpec
     popen: subprocess.Popen[bytes] | None = None
+    rid: bytes | None = None  # the ROUTER id of the node's main control socket
+    spawned_at: float = 0.0
     endpoint: str | None = None
     state: str = "new"  # new | hello | ready | running | exited | waiting_restart | failed
     restarts: int = 0
@@ -100,14 +112,24 @@ class Launcher:
         self.started_at = 0.0
         self.stopped_at = 0.0
         self._print_lock = threading.Lock()
-        self._signals = 0
-        self.rundir = Path(tempfile.mkdtemp(prefix="sbg-"))
-        self.ctx: zmq.Context[Any] = zmq.Context()
-        self.control = self.ctx.socket(zmq.ROUTER)
-        self.control.setsockopt(zmq.LINGER, 0)
-        self.control.setsockopt(zmq.ROUTER_MANDATORY, 1)
+        self._signals: list[int] = []
+        self.secret = protocol.new_secret()
+        self.rundir: Path | None = None
+        self.ctx: zmq.Context[Any] | None = None
+
+    def _open(self) -> None:
+        """The run folder (for ``ipc://`` endpoints) and the control socket."""
+        self.rundir = make_rundir()
+        self.ctx = zmq.Context()
         self.control_endpoint = f"ipc://{self.rundir}/control"
-        self.control.bind(self.control_endpoint)
+        self.control = ControlServer(self.ctx, self.control_endpoint, self.secret, self.say)
+
+    def _close(self) -> None:
+        if self.ctx is not None:
+            self.control.close()
+            self.ctx.term()
+        if self.rundir is not None:
+            shutil.rmtree(self.rundir, ignore_errors=True)
 
     # -- output ----------------------------------------------------------------
     def say(self, text: str, node: str = "launch") -> None:
@@ -128,7 +150,8 @@ class Launcher:
             return proc.endpoint
         if proc.spec.host:
             return f"tcp://{proc.spec.host}:*"
-        return f"ipc://{self.rundir}/{proc.spec.name}.pub"
+        assert self.rundir is not None, "the run folder is made before any node starts"
+        return f"ipc://{ipc_path(self.rundir, proc.spec.name)}"
 
     def _spawn(self, proc: _Proc) -> None:
         spec = proc.spec
@@ -150,6 +173,7 @@ class Launcher:
             "expected_subscribers": dict(self.expected[spec.name]),
             "bind": self._bind_endpoint(proc),
             "control": self.control_endpoint,
+            "secret": self.secret.hex(),
             "parent_pid": os.getpid(),
             "lockstep": self.lockstep,
             "barrier_topics": sorted(self.barrier_topics & set(spec.topics.values())),
@@ -160,23 +184,29 @@ class Launcher:
             filter(None, [str(PROJECT_ROOT), env.get("PYTHONPATH")])
         )
         env["PYTHONUNBUFFERED"] = "1"
+        env[child.PARENT_ENV] = str(os.getpid())
+        env[child.RUNDIR_ENV] = str(self.rundir)
+        # Its own process group: a Ctrl-C at the terminal reaches the launcher only,
+        # which stops the nodes in order.
         popen = subprocess.Popen(
-            [sys.executable, "-m", "runtime.process"],
+            [sys.executable, "-m", "runtime.child"],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             cwd=os.getcwd(),
             env=env,
+            process_group=0,
         )
         assert popen.stdin is not None and popen.stdout is not None
         popen.stdin.write(json.dumps(child_spec).encode())
         popen.stdin.close()
         threading.Thread(target=self._pump, args=(proc, popen.stdout), daemon=True).start()
         proc.popen = popen
+        proc.rid = None
         proc.state = "new"
-        proc.last_heartbeat = time.monotonic()
+        proc.spawned_at = proc.last_heartbeat = time.monotonic()
         proc.busy_secs = 0.0
-        proc.stats_base = _add_stats(proc.stats_base, proc.stats)
+        proc.stats_base = add_stats(proc.stats_base, proc.stats)
         proc.stats = {}
 
     def _reap(self) -> None:
@@ -193,6 +223,10 @@ class Launcher:
                 proc.cpu_secs += usage.ru_utime + usage.ru_stime
             code = os.waitstatus_to_exitcode(status)
             proc.popen.returncode = code
+            try:  # what the node started and left behind (the group outlives its leader)
+                os.killpg(pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
             proc.exit_codes.append(code)
             self._on_exit(proc, code)
 
@@ -227,29 +261,19 @@ class Launcher:
             self.say(f"node {name!r} failed ({reason}); not required, the graph goes on")
 
     def _kill_hung(self, proc: _Proc, why: str) -> None:
-        if proc.popen is not None:
-            try:
-                proc.popen.kill()
-            except ProcessLookupError:
-                pass
+        _signal(proc, signal.SIGKILL)
         self.say(f"node {proc.spec.name!r} {why}; killed")
 
     # -- control messages --------------------------------------------------------
     def _send(self, name: str, kind: str, **body: Any) -> None:
-        try:
-            self.control.send_multipart([name.encode(), protocol.pack(kind, **body)])
-        except zmq.ZMQError:
-            pass  # the node is gone; its exit is handled by _reap
+        self.control.send(self.procs[name].rid, kind, **body)
 
-    def _on_message(self, ident: bytes, raw: bytes) -> None:
-        name, _, suffix = ident.decode().partition("#")
-        proc = self.procs.get(name)
-        if proc is None:
-            return
-        msg = protocol.unpack(raw)
+    def _on_message(self, proc: _Proc, rid: bytes, msg: dict[str, Any]) -> None:
+        name = proc.spec.name
         kind = msg["kind"]
         proc.last_heartbeat = time.monotonic()
         if kind == "hello":
+            proc.rid = rid  # where this incarnation's main socket hears the launcher
             proc.endpoint = msg["endpoint"]
             proc.state = "hello"
             if self.started_at:  # a restart: peers' endpoints are known
@@ -271,10 +295,10 @@ class Launcher:
             proc.counts_published = msg["published"]
             proc.counts_received = msg["received"]
         elif kind == "wait_idle":
-            self.idle_waiters.append(ident)
+            self.idle_waiters.append(rid)
         elif kind == "stop_request":
             reason = msg.get("reason", "")
-            verdict = int(msg.get("exit_code", 0) or 0)
+            verdict = msg["exit_code"]
             if verdict:
                 self.verdict_code = self.verdict_code or verdict
                 self.say(f"node {name!r} reports failure (exit code {verdict}): {reason}")
@@ -302,19 +326,15 @@ class Launcher:
         return True
 
     def _serve(self, timeout_ms: int) -> None:
-        if self.control.poll(timeout_ms):
-            while True:
-                try:
-                    ident, raw = self.control.recv_multipart(zmq.NOBLOCK)
-                except zmq.Again:
-                    break
-                self._on_message(ident, raw)
+        for rid, msg in self.control.receive(timeout_ms):
+            proc = self.procs.get(msg["node"])
+            if proc is None:
+                self.control.refuse(f"signed, but names no node of the graph: {msg['node']!r:.40}")
+            else:
+                self._on_message(proc, rid, msg)
         if self.idle_waiters and self._graph_idle():
-            for ident in self.idle_waiters:
-                try:
-                    self.control.send_multipart([ident, protocol.pack("idle")])
-                except zmq.ZMQError:
-                    pass
+            for rid in self.idle_waiters:
+                self.control.send(rid, "idle")
             self.idle_waiters.clear()
 
     # -- run ---------------------------------------------------------------------
@@ -323,15 +343,16 @@ class Launcher:
             self.stop_reason = reason
 
     def _on_signal(self, signum: int, frame: Any) -> None:
-        self._signals += 1
+        self._signals.append(signum)
         self._request_stop(f"signal {signal.Signals(signum).name}")
-        if self._signals >= 3:  # an impatient user: no more grace
+        if len(self._signals) >= 3:  # an impatient user: no more grace
             for proc in self.procs.values():
-                if proc.popen is not None and proc.popen.returncode is None:
-                    proc.popen.kill()
+                _signal(proc, signal.SIGKILL)
 
     def _startup(self) -> bool:
         for proc in self.procs.values():
+            if self.stop_reason is not None:
+                return False
             self._spawn(proc)
         deadline = time.monotonic() + STARTUP_TIMEOUT_SECS
         connected = False
@@ -378,7 +399,13 @@ class Launcher:
             for proc in self.procs.values():
                 if proc.state == "waiting_restart" and now >= proc.restart_at:
                     self._spawn(proc)
-                elif proc.state in ("running", "new", "hello", "ready"):
+                elif proc.state in ("new", "hello", "ready"):
+                    # A restart is a start: the same allowance as the first one (it may be
+                    # importing torch or building a solver, and sends no heartbeat yet).
+                    if now - proc.spawned_at > STARTUP_TIMEOUT_SECS:
+                        self._kill_hung(proc, f"did not start within {STARTUP_TIMEOUT_SECS:.0f} s")
+                        proc.spawned_at = now
+                elif proc.state == "running":
                     if now - proc.last_heartbeat > HEARTBEAT_TIMEOUT_SECS:
                         self._kill_hung(
                             proc, f"sent no heartbeat for {HEARTBEAT_TIMEOUT_SECS:.0f} s"
@@ -400,7 +427,7 @@ class Launcher:
         """
         asked = time.monotonic()
         end = asked + DRAIN_SECS
-        while time.monotonic() < end and self._signals == 0:
+        while time.monotonic() < end and not self._signals:
             self._serve(50)
             self._reap()
             running = [p for p in self.procs.values() if p.state == "running"]
@@ -426,10 +453,14 @@ class Launcher:
             p for p in self.procs.values() if p.popen is not None and p.popen.returncode is None
         ]
         for proc in live:
-            self._send(proc.spec.name, "stop")
+            if proc.rid is None:  # still importing: it cannot hear "stop" yet
+                _signal(proc, signal.SIGTERM)
+            else:
+                self._send(proc.spec.name, "stop")
+        hurry = bool(self._signals)
         for signum, grace in (
-            (None, STOP_GRACE_SECS),
-            (signal.SIGTERM, TERM_GRACE_SECS),
+            (None, SIGNAL_STOP_GRACE_SECS if hurry else STOP_GRACE_SECS),
+            (signal.SIGTERM, SIGNAL_TERM_GRACE_SECS if hurry else TERM_GRACE_SECS),
             (signal.SIGKILL, 5.0),
         ):
             live = [
@@ -440,10 +471,7 @@ class Launcher:
             if signum is not None:
                 self.say(f"{len(live)} node(s) still running: sending {signum.name}")
                 for proc in live:
-                    try:
-                        os.kill(proc.popen.pid, signum)  # type: ignore[union-attr]
-                    except ProcessLookupError:
-                        pass
+                    _signal(proc, signum)
             end = time.monotonic() + grace
             while time.monotonic() < end and any(p.popen.returncode is None for p in live):  # type: ignore[union-attr]
                 self._serve(50)
@@ -454,6 +482,7 @@ class Launcher:
         """Start, supervise until something stops the graph, shut down, print the report."""
         old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         try:
+            self._open()
             self.say(f"starting {len(self.procs)} node(s) from {self.graph.source}")
             if self._startup():
                 self.started_at = time.monotonic()
@@ -466,37 +495,18 @@ class Launcher:
             self._shutdown()
             self.say(self.report())
         finally:
+            self._close()
             for s, handler in old.items():
                 signal.signal(s, handler)
-            self.control.close(linger=0)
-            self.ctx.term()
-            shutil.rmtree(self.rundir, ignore_errors=True)
+        if self._signals and self.exit_code == 0:
+            self.exit_code = 128 + self._signals[0]
         return self.exit_code or self.verdict_code
 
     # -- the end-of-run table ----------------------------------------------------
-    def totals(self) -> tuple[dict[str, dict[str, float]], dict[str, dict[str, Any]]]:
-        """Per topic (messages, rate, dropped, superseded, bad frames) and per node figures."""
-        elapsed = max(
-            (self.stopped_at or time.monotonic()) - (self.started_at or time.monotonic()), 1e-9
-        )
-        topics: dict[str, dict[str, float]] = {}
-        for proc in self.procs.values():
-            stats = _add_stats(proc.stats_base, proc.stats)
-            for topic, count in stats.get("published", {}).items():
-                row = topics.setdefault(
-                    topic, {"messages": 0, "dropped": 0, "superseded": 0, "bad_frames": 0}
-                )
-                row["messages"] += count
-        for proc in self.procs.values():
-            stats = _add_stats(proc.stats_base, proc.stats)
-            for inp in stats.get("inputs", {}).values():
-                row = topics.setdefault(
-                    inp["topic"], {"messages": 0, "dropped": 0, "superseded": 0, "bad_frames": 0}
-                )
-                for key in ("dropped", "superseded", "bad_frames"):
-                    row[key] += inp[key]
-        for row in topics.values():
-            row["rate_hz"] = row["messages"] / elapsed
+    def report(self) -> str:
+        """Per topic (messages, rate, dropped, superseded, bad, non-finite) and per node."""
+        elapsed = (self.stopped_at or time.monotonic()) - (self.started_at or time.monotonic())
+        stats = {name: add_stats(p.stats_base, p.stats) for name, p in self.procs.items()}
         nodes = {
             name: {
                 "restarts": p.restarts,
@@ -505,55 +515,39 @@ class Launcher:
             }
             for name, p in self.procs.items()
         }
-        return topics, nodes
-
-    def report(self) -> str:
-        topics, nodes = self.totals()
-        lines = [
-            f"{'topic':40} {'messages':>9} {'rate_hz':>9} {'dropped':>8} {'superseded':>10} {'bad':>5}"
-        ]
-        for topic in sorted(topics):
-            r = topics[topic]
-            lines.append(
-                f"{topic:40} {int(r['messages']):9d} {r['rate_hz']:9.1f} {int(r['dropped']):8d} "
-                f"{int(r['superseded']):10d} {int(r['bad_frames']):5d}"
+        text = table(stats, nodes, elapsed)
+        if self.control.refused:
+            text += (
+                f"\ncontrol: refused {self.control.refused} message(s) (malformed or not signed)"
             )
-        lines.append("")
-        lines.append(f"{'node':28} {'restarts':>8} {'cpu_secs':>9} {'exit':>5}")
-        for name in sorted(nodes):
-            n = nodes[name]
-            lines.append(f"{name:28} {n['restarts']:8d} {n['cpu_secs']:9.2f} {str(n['exit']):>5}")
-        return "\n".join(lines)
+        return text
 
 
-def _add_stats(base: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
-    """Sum two stats snapshots (of two incarnations of one node)."""
-    if not base:
-        return dict(more)
-    if not more:
-        return dict(base)
-    published = dict(base.get("published", {}))
-    for topic, count in more.get("published", {}).items():
-        published[topic] = published.get(topic, 0) + count
-    inputs = {port: dict(v) for port, v in base.get("inputs", {}).items()}
-    for port, v in more.get("inputs", {}).items():
-        if port in inputs:
-            for key in ("received", "dropped", "superseded", "bad_frames"):
-                inputs[port][key] += v[key]
-        else:
-            inputs[port] = dict(v)
-    return {"published": published, "inputs": inputs}
+def _signal(proc: _Proc, signum: int) -> None:
+    """Signal a node's process group: the node and any process it started (a compiler)."""
+    if proc.popen is not None and proc.popen.returncode is None:
+        try:
+            os.killpg(proc.popen.pid, signum)
+        except (ProcessLookupError, PermissionError):
+            pass
 
 
 def add_recorder(
-    doc: dict[str, Any], path: Path, topics: str | None, command_line: str, source: str = ""
+    doc: dict[str, Any],
+    path: Path,
+    topics: str | None,
+    command_line: str,
+    source: str = "",
+    *,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
-    """Return ``doc`` with a ``recorder`` node subscribed to every topic matching ``topics``."""
+    """Return ``doc`` with a ``recorder`` node subscribed to every topic matching ``topics``
+    (``overwrite``: it may replace a finished bag at ``path``)."""
     graph = check(doc)
     pattern = re.compile(topics or ".*")
     chosen = sorted(t for t in graph.providers() if pattern.search(t))
     if not chosen:
-        raise GraphError(f"--topics {topics!r} matches no topic of the graph")
+        raise GraphError(f"--record-topics {topics!r} matches no topic of the graph")
     doc = yaml.safe_load(yaml.safe_dump(doc))
     name = "recorder"
     while name in doc["nodes"]:
@@ -565,6 +559,7 @@ def add_recorder(
             "graph_yaml": yaml.safe_dump(graph.document, sort_keys=False),
             "graph_source": source,
             "command_line": command_line,
+            "overwrite": overwrite,
         },
         "inputs": {
             f"t{i}": {"from": t, "policy": "queue", "queue_size": 10000}
@@ -581,6 +576,7 @@ def launch(
     source: str,
     record: Path | None = None,
     topics: str | None = None,
+    overwrite: bool = False,
     lockstep: bool = False,
     duration_secs: float | None = None,
     log_level: str = "INFO",
@@ -589,12 +585,19 @@ def launch(
     """Check and run a graph document; returns the exit code (2 when the check fails)."""
     try:
         if record is not None:
-            graph = add_recorder(graph, record, topics, command_line or " ".join(sys.argv), source)
+            graph = add_recorder(
+                graph,
+                record,
+                topics,
+                command_line or " ".join(sys.argv),
+                source,
+                overwrite=overwrite,
+            )
         checked = check(graph, source=source)
+        launcher = Launcher(
+            checked, lockstep=lockstep, duration_secs=duration_secs, log_level=log_level
+        )
     except GraphError as err:
         print(f"graph check failed:\n{err}", file=sys.stderr)
         return 2
-    launcher = Launcher(
-        checked, lockstep=lockstep, duration_secs=duration_secs, log_level=log_level
-    )
     return launcher.run()

@@ -1,6 +1,8 @@
 """One node, one OS process: ZeroMQ transport, handshake, heartbeats, clean stop.
 
-Started by the launcher as ``python -m runtime.process`` with a JSON spec on stdin.
+Started by the launcher through ``runtime.child`` (``python -m runtime.child``, the
+node's JSON spec on stdin), which sets up parent death and signals before this module
+and the node's own module are imported.
 
 Transport. The node binds one XPUB (verbose, so it sees every subscription) and
 connects one SUB per input to the publisher of that input's topic. Frames are the
@@ -23,21 +25,25 @@ can reach a node merging several publishers, see ``Graph.barrier_topics``).
 
 Drops. Every output stamps ``header.seq``; a receiver counts sequence gaps as
 ``dropped`` (lost at a high-water mark) and, on ``latest`` inputs, skipped messages
-as ``superseded``. Frames that fail to decode are counted as ``bad_frames`` and
-logged, and never stop the node.
+as ``superseded``. Frames that fail to decode are counted as ``bad_frames`` (not also
+as dropped) and logged, and never stop the node; a seq that breaks the sequence is
+believed only once the next message follows it (see :meth:`InputCounters.note_seq`).
+Messages whose finite-by-meaning fields (``Message.finite_fields``) hold NaN or
+infinity are counted as ``nonfinite`` and warned about once per input, and delivered.
 
 Handshake. hello (endpoint) -> connect (peers' endpoints) -> wait until every
 expected subscription has arrived on the XPUB -> setup done -> ready -> start. No
 node publishes before start, so no subscriber misses the first message.
 
-Parent death. ``PR_SET_PDEATHSIG`` delivers SIGTERM when the launcher dies, and the
-heartbeat thread checks the parent pid as a fallback.
+Control. Every control message is signed with the run's secret and checked
+(``runtime.protocol``); one that fails is logged and dropped.
+
+Parent death. ``PR_SET_PDEATHSIG`` (set by ``runtime.child``) delivers SIGTERM when the
+launcher dies, and the heartbeat thread checks the parent pid as a fallback.
 """
 
 from __future__ import annotations
 
-import ctypes
-import json
 import logging
 import math
 import os
@@ -55,13 +61,14 @@ import zmq
 
 from messages.base import Message
 from messages.codec import decode, encode
-from messages.errors import FrameDecodeError
+from messages.errors import FrameDecodeError, NodeError
 from runtime import protocol
+from runtime.counters import InputCounters
 from runtime.node import Node
 from runtime.params import build_params
+from runtime.protocol import ControlError
 from runtime.registry import resolve
 
-PR_SET_PDEATHSIG = 1
 _BAD_FRAME_LOG_EVERY = 100
 _BATCH_NANOS = 2_000_000
 # Plain ints: pyzmq 27's flags are enum members, and arithmetic on them costs about a
@@ -100,15 +107,6 @@ def recv_parts(sock: zmq.Socket[Any]) -> list[zmq.Frame] | None:
 
 
 @dataclass
-class InputCounters:
-    received: int = 0  # every message taken off the socket, superseded ones included
-    dropped: int = 0
-    superseded: int = 0
-    bad_frames: int = 0
-    last_seq: int | None = None
-
-
-@dataclass
 class _Input:
     port: str
     topic: str
@@ -133,16 +131,6 @@ class _Timer:
     due_nanos: int
 
 
-def _die_with_parent(parent_pid: int) -> None:
-    try:
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-    except OSError:
-        pass  # not Linux: the heartbeat thread's parent check still covers it
-    if os.getppid() != parent_pid:  # the parent died before prctl took effect
-        os._exit(0)
-
-
 class ZmqIO:
     """The node's IO in a live graph (see :class:`runtime.node.IO`)."""
 
@@ -160,8 +148,8 @@ class ZmqIO:
         self.pub.setsockopt(zmq.SNDHWM, 0 if self.lockstep else spec.get("sndhwm", 1000))
         self.pub.setsockopt(zmq.LINGER, 1000)
         self.endpoint = self._bind(spec["bind"])
+        self.secret = bytes.fromhex(spec["secret"])
         self.control = ctx.socket(zmq.DEALER)
-        self.control.setsockopt(zmq.IDENTITY, self.name.encode())
         self.control.setsockopt(zmq.LINGER, 1000)
         self.control.connect(spec["control"])
         self.inputs: list[_Input] = []
@@ -211,18 +199,34 @@ class ZmqIO:
         return time.time_ns()
 
     def request_stop(self, reason: str, *, exit_code: int = 0) -> None:
-        self.control.send(protocol.pack("stop_request", reason=reason, exit_code=exit_code))
+        self.tell("stop_request", reason=reason, exit_code=exit_code)
+
+    def tell(self, kind: str, sock: zmq.Socket[Any] | None = None, **body: Any) -> None:
+        """Send one signed control message to the launcher (on ``sock``, else the main one)."""
+        frames = protocol.pack(self.secret, kind, node=self.name, **body)
+        (sock or self.control).send_multipart(frames)
+
+    def hear(self) -> dict[str, Any] | None:
+        """The next control message from the launcher; None (logged) if it fails the checks."""
+        frames = self.control.recv_multipart()
+        try:
+            return protocol.unpack(self.secret, frames, from_node=False)
+        except ControlError as err:
+            self.log.warning("refused a control message: %s", err)
+            return None
 
     def wait_idle(self, timeout_secs: float) -> bool:
         if not self.lockstep:
             return True
         self.send_counts()
-        self.control.send(protocol.pack("wait_idle"))
+        self.tell("wait_idle")
         deadline = time.monotonic() + timeout_secs
         while (left := deadline - time.monotonic()) > 0:
             if not self.control.poll(int(left * 1000) + 1):
                 break
-            msg = protocol.unpack(self.control.recv())
+            msg = self.hear()
+            if msg is None:
+                continue
             if msg["kind"] == "idle":
                 return True
             if msg["kind"] == "stop":
@@ -247,6 +251,7 @@ class ZmqIO:
                     "dropped": i.counters.dropped,
                     "superseded": i.counters.superseded,
                     "bad_frames": i.counters.bad_frames,
+                    "nonfinite": i.counters.nonfinite,
                 }
                 for i in self.inputs
             },
@@ -254,12 +259,10 @@ class ZmqIO:
         }
 
     def send_counts(self) -> None:
-        self.control.send(
-            protocol.pack(
-                "counts",
-                published=dict(self.published),
-                received={i.port: i.counters.received for i in self.inputs},
-            )
+        self.tell(
+            "counts",
+            published=dict(self.published),
+            received={i.port: i.counters.received for i in self.inputs},
         )
 
 
@@ -286,7 +289,7 @@ class Runner:
     # -- lifecycle -------------------------------------------------------------
     def run(self) -> int:
         io = self.io
-        io.control.send(protocol.pack("hello", endpoint=io.endpoint))
+        io.tell("hello", endpoint=io.endpoint)
         self._hb_thread.start()
         connect = self._wait_control("connect")
         if connect is None:
@@ -316,7 +319,7 @@ class Runner:
         self.busy_since = time.monotonic()
         self.node.setup()
         self.busy_since = 0.0
-        io.control.send(protocol.pack("ready"))
+        io.tell("ready")
         if self._wait_control("start") is None:
             return self._finish(0)
         self._loop()
@@ -327,7 +330,7 @@ class Runner:
         try:
             self.node.teardown()
         finally:
-            self.io.control.send(protocol.pack("final", stats=self.io.stats()))
+            self.io.tell("final", stats=self.io.stats())
             for source in self.sources:
                 source.socket.close(linger=0)
             self.io.pub.close(linger=1000)
@@ -346,10 +349,10 @@ class Runner:
             if self.io.pub in events:
                 self._drain_subscriptions()
             if self.io.control in events:
-                msg = protocol.unpack(self.io.control.recv())
-                if msg["kind"] == "stop":
+                msg = self.io.hear()
+                if msg is not None and msg["kind"] == "stop":
                     return None
-                if msg["kind"] == kind:
+                if msg is not None and msg["kind"] == kind:
                     return msg
         return None
 
@@ -373,8 +376,8 @@ class Runner:
             if self.io.pub in events:
                 self._drain_subscriptions()
             if self.io.control in events:
-                msg = protocol.unpack(self.io.control.recv())
-                if msg["kind"] == "stop":
+                msg = self.io.hear()
+                if msg is not None and msg["kind"] == "stop":
                     self.io.stop_requested = True
                     return
 
@@ -408,12 +411,9 @@ class Runner:
                 io.send_counts()
 
     def _on_control(self) -> None:
-        while True:
-            try:
-                msg = protocol.unpack(self.io.control.recv(zmq.NOBLOCK))
-            except zmq.Again:
-                return
-            if msg["kind"] == "stop":
+        while self.io.control.poll(0):
+            msg = self.io.hear()
+            if msg is not None and msg["kind"] == "stop":
                 self.io.stop_requested = True
 
     def _run_timers(self) -> None:
@@ -467,14 +467,24 @@ class Runner:
             _, msg = decode(frames, expect=inp.kind)
         except FrameDecodeError as err:
             counters.bad_frames += 1
+            counters.unseq += 1 + skipped
             if counters.bad_frames % _BAD_FRAME_LOG_EVERY == 1:
                 self.io.log.warning("%s: bad frame #%d: %s", inp.port, counters.bad_frames, err)
             return
-        seq = msg.header.seq if hasattr(msg, "header") else None
-        if seq is not None:
-            if counters.last_seq is not None and seq > counters.last_seq + 1:
-                counters.dropped += max(0, seq - counters.last_seq - 1 - skipped)
-            counters.last_seq = seq  # a restarted publisher starts again at 0
+        header = getattr(msg, "header", None)
+        if header is not None:
+            counters.note_seq(header.seq, skipped)
+        if msg.finite_fields and (bad := msg.nonfinite_fields()):
+            counters.nonfinite += 1
+            if counters.nonfinite == 1:
+                self.io.log.warning(
+                    "input %r (%s): non-finite %s in a %s; such messages are counted "
+                    "(the 'nonfinite' column at the end), this is the only warning",
+                    inp.port,
+                    inp.topic,
+                    ", ".join(bad),
+                    type(msg).__name__,
+                )
         self._call(lambda: self.node.handle(inp.port, msg))
 
     def _call(self, fn: Callable[[], None]) -> None:
@@ -487,7 +497,6 @@ class Runner:
     # -- heartbeat thread ------------------------------------------------------
     def _heartbeat(self) -> None:
         sock = self.ctx.socket(zmq.DEALER)
-        sock.setsockopt(zmq.IDENTITY, f"{self.name}#hb".encode())
         sock.setsockopt(zmq.LINGER, 0)
         sock.connect(self.spec["control"])
         parent = self.spec["parent_pid"]
@@ -497,14 +506,13 @@ class Runner:
                     os.kill(os.getpid(), signal.SIGTERM)
                     return
                 busy = time.monotonic() - self.busy_since if self.busy_since else 0.0
-                sock.send(protocol.pack("heartbeat", busy_secs=busy, stats=self.io.stats()))
+                self.io.tell("heartbeat", sock, busy_secs=busy, stats=self.io.stats())
         finally:
             sock.close()
 
 
-def main() -> int:
-    spec = json.loads(sys.stdin.read())
-    _die_with_parent(spec["parent_pid"])
+def main(spec: dict[str, Any]) -> int:
+    """Run the node of ``spec`` (see ``runtime.child``, which calls this)."""
     logging.basicConfig(
         level=spec.get("log_level", "INFO"),
         format="%(levelname)s %(message)s",
@@ -519,11 +527,12 @@ def main() -> int:
     signal.signal(signal.SIGINT, on_signal)
     try:
         return runner.run()
+    except NodeError as err:
+        # A node's own error names the node and says what is wrong: one line, no traceback.
+        logging.getLogger(spec["name"]).error("%s", err)
+        sys.stdout.flush()
+        return 1
     except Exception:
         traceback.print_exc()
         sys.stdout.flush()
         return 1
-
-
-if __name__ == "__main__":
-    sys.exit(main())

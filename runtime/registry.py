@@ -1,7 +1,10 @@
 """Node implementations by name: ``@register("pose_estimator.ipopt")``.
 
-The ``nodes`` package registers its implementations on import; ``launch.py`` imports
-it. A graph may also name any class as ``module:Class``.
+A class registers itself when its module is imported. So that nothing imports every
+node module to find one name, a package of nodes also hands the registry an *index*
+(:func:`add_index`): a function returning ``{name: "module:Class"}``, read from the
+source without importing it. :func:`resolve` imports only the module of the name it
+is asked for. A graph may also name any class as ``module:Class``.
 """
 
 from __future__ import annotations
@@ -12,6 +15,8 @@ from collections.abc import Callable
 from runtime.node import Node
 
 _REGISTRY: dict[str, type[Node]] = {}
+_INDEXES: list[Callable[[], dict[str, str]]] = []
+_INDEX: dict[str, str] = {}
 
 
 def register(name: str) -> Callable[[type[Node]], type[Node]]:
@@ -29,9 +34,20 @@ def register(name: str) -> Callable[[type[Node]], type[Node]]:
     return wrap
 
 
+def add_index(index: Callable[[], dict[str, str]]) -> None:
+    """Add a source of ``{name: "module:Class"}`` for names not imported yet (read lazily)."""
+    _INDEXES.append(index)
+
+
+def _index() -> dict[str, str]:
+    while _INDEXES:
+        _INDEX.update(_INDEXES.pop(0)())
+    return _INDEX
+
+
 def known() -> list[str]:
-    """Every registered implementation name, sorted."""
-    return sorted(_REGISTRY)
+    """Every implementation name, registered or indexed, sorted."""
+    return sorted(set(_REGISTRY) | set(_index()))
 
 
 def class_path(cls: type[Node]) -> str:
@@ -39,22 +55,37 @@ def class_path(cls: type[Node]) -> str:
     return f"{cls.__module__}:{cls.__qualname__}"
 
 
+def _import_class(impl: str) -> type[Node]:
+    module_name, _, attr = impl.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as err:
+        raise KeyError(f"cannot import module {module_name!r} for {impl!r}: {err}") from err
+    cls = getattr(module, attr, None)
+    if not (isinstance(cls, type) and issubclass(cls, Node)):
+        raise KeyError(f"{impl!r} is not a Node subclass")
+    return cls
+
+
 def resolve(impl: str) -> type[Node]:
     """A registered name or ``module:Class`` to the node class.
+
+    Imports at most the one module that defines it.
 
     Raises:
         KeyError: unknown name (the message lists the valid ones) or a bad ``module:Class``.
     """
     if impl in _REGISTRY:
         return _REGISTRY[impl]
-    if ":" in impl:
-        module_name, _, attr = impl.partition(":")
-        try:
-            module = importlib.import_module(module_name)
-        except ImportError as err:
-            raise KeyError(f"cannot import module {module_name!r} for {impl!r}: {err}") from err
-        cls = getattr(module, attr, None)
-        if not (isinstance(cls, type) and issubclass(cls, Node)):
-            raise KeyError(f"{impl!r} is not a Node subclass")
+    path = _index().get(impl)
+    if path is not None:
+        cls = _import_class(path)
+        if _REGISTRY.get(impl) is not cls:
+            raise KeyError(f"{path} does not register itself as {impl!r}")
         return cls
-    raise KeyError(f"unknown implementation {impl!r}; valid: {', '.join(known()) or '(none)'}")
+    if ":" in impl:
+        return _import_class(impl)
+    hint = "" if _INDEX else " (no index of node modules: 'import nodes' first)"
+    raise KeyError(
+        f"unknown implementation {impl!r}; valid: {', '.join(known()) or '(none)'}{hint}"
+    )

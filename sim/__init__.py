@@ -98,8 +98,8 @@ def ground_truth(
         tool_from_object=np.array(snap.tool_from_object, dtype=np.float64),
         object_class=object_class,
         in_contact=bool(any(snap.in_contact.values())),
-        shear_left_mm=np.asarray(snap.shear_in_tool_m["left"], dtype=np.float64) * 1000.0,
-        shear_right_mm=np.asarray(snap.shear_in_tool_m["right"], dtype=np.float64) * 1000.0,
+        shear_left_m=np.asarray(snap.shear_in_tool_m["left"], dtype=np.float64),
+        shear_right_m=np.asarray(snap.shear_in_tool_m["right"], dtype=np.float64),
         noise_seed=int(noise_seed),
     )
 

@@ -2,7 +2,7 @@
 
 A scene lists its effects; :func:`resolve` closes the list over ``needs`` and returns it
 in the one order they run in. The simulator computes those and nothing else
-(DESIGN.md, principle 3). Camera effects run per bubble in ``sim.tof``; world effects
+(docs/design.md, principle 3). Camera effects run per bubble in ``sim.tof``; world effects
 run once per instant in ``sim.world``.
 
 =============  ======  ======================  =====================================

@@ -41,6 +41,11 @@ class GripperDynamics:
         self._speed = 0.0
         self._force = 0.0
 
+    @property
+    def target_m(self) -> float:
+        """Where the running motion ends (a grasp's target is closed, 0, under force control)."""
+        return self._target_m
+
     def command(
         self, command: str, *, width_m: float, speed_m_per_s: float, force_n: float
     ) -> None:

@@ -10,7 +10,14 @@ moves by a uniform offset of up to ``randomness`` times half the lattice spacing
 a diameter uniformly in ``[min, max]``, and is dropped if it would come closer than a
 small gap to a dot already kept (the stencil must not merge holes). Randomness 0 gives
 the regular lattice; 1 gives a jittered, non-repeating pattern that dense optical flow
-can track without aliasing.
+can track without aliasing. Dropped dots and the sheet's edges leave the pattern short of
+the density asked, so a second pass places dots where they fit: random positions, each
+dot as large as its drawn diameter or as the room there allows (never under the
+minimum), until the sheet holds ``density * area`` dots or no room is found (not with
+randomness 0, which asks for the regular lattice). Where the
+density is not reachable (large dots, dense pattern), the pattern says how far it got
+(:attr:`DotPattern.density_per_mm2` against :attr:`DotPattern.requested_density_per_mm2`)
+and the command line says which knob to change.
 
 Command line::
 
@@ -23,10 +30,14 @@ from __future__ import annotations
 import argparse
 import functools
 import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+SHORT_FRACTION = 0.01  # the command line reports a pattern this much under the density asked
+FILL_ATTEMPTS_PER_DOT = 40  # random positions tried per missing dot before giving up
 
 
 @dataclass(frozen=True)
@@ -37,6 +48,12 @@ class DotPattern:
     height_mm: float
     centers_mm: np.ndarray
     diameters_mm: np.ndarray
+    requested_density_per_mm2: float
+
+    @property
+    def density_per_mm2(self) -> float:
+        """The density reached: dots per mm^2 of the sheet."""
+        return len(self.diameters_mm) / (self.width_mm * self.height_mm)
 
 
 def generate(
@@ -93,37 +110,71 @@ def generate(
         & (centers[:, 1] + diameters / 2 <= height_mm)
     )
     centers, diameters = centers[inside], diameters[inside]
-    keep = _drop_overlaps(centers, diameters, min_gap_mm, spacing)
-    return DotPattern(width_mm, height_mm, centers[keep], diameters[keep])
+    sheet = _Sheet(width_mm, height_mm, min_gap_mm, max(spacing, max_diameter_mm + min_gap_mm))
+    for center, diameter in zip(centers, diameters, strict=True):
+        if sheet.room_mm(center) >= diameter:
+            sheet.add(center, diameter)
+    target = round(density_per_mm2 * width_mm * height_mm)
+    # A stream of its own: the lattice pass stays the same whatever the fill does.
+    fill_rng = np.random.default_rng([seed, 1])
+    # Randomness 0 asks for the regular lattice: nothing is placed off it.
+    missing = max(target - sheet.count, 0) if randomness > 0 else 0
+    attempts = FILL_ATTEMPTS_PER_DOT * missing
+    low = np.array([min_diameter_mm / 2] * 2)
+    high = np.array([width_mm, height_mm]) - min_diameter_mm / 2
+    for center, drawn in zip(
+        fill_rng.uniform(low, high, (attempts, 2)),
+        fill_rng.uniform(min_diameter_mm, max_diameter_mm, attempts),
+        strict=True,
+    ):
+        if sheet.count >= target:
+            break
+        room = sheet.room_mm(center)
+        if room >= min_diameter_mm:
+            sheet.add(center, min(drawn, room))
+    return DotPattern(width_mm, height_mm, *sheet.arrays(), density_per_mm2)
 
 
-def _drop_overlaps(
-    centers: np.ndarray, diameters: np.ndarray, gap: float, spacing: float
-) -> np.ndarray:
-    # Greedy in lattice order on a hash grid: a dot only meets dots within two cells.
-    cell = max(spacing, float(diameters.max(initial=0.0)) + gap)
-    keys = np.floor(centers / cell).astype(np.int64)
-    grid: dict[tuple[int, int], list[int]] = {}
-    keep = np.zeros(len(centers), dtype=bool)
-    for i in range(len(centers)):
-        kx, ky = int(keys[i, 0]), int(keys[i, 1])
-        ok = True
+class _Sheet:
+    """Dots placed so far, on a hash grid: a dot only meets dots in the cells around it."""
+
+    def __init__(self, width_mm: float, height_mm: float, gap_mm: float, cell_mm: float) -> None:
+        self.size = (width_mm, height_mm)
+        self.gap = gap_mm
+        self.cell = cell_mm  # >= the largest dot plus the gap
+        self.grid: dict[tuple[int, int], list[int]] = {}
+        self.centers: list[tuple[float, float]] = []
+        self.diameters: list[float] = []
+
+    @property
+    def count(self) -> int:
+        return len(self.diameters)
+
+    def room_mm(self, center: np.ndarray) -> float:
+        """The largest dot diameter that fits at ``center``: inside the sheet, and a gap
+        away from every dot placed."""
+        x, y = float(center[0]), float(center[1])
+        radius = min(x, y, self.size[0] - x, self.size[1] - y)
+        kx, ky = int(x // self.cell), int(y // self.cell)
         for dx in (-1, 0, 1):
             for dy in (-1, 0, 1):
-                for j in grid.get((kx + dx, ky + dy), ()):
-                    limit = (diameters[i] + diameters[j]) / 2 + gap
-                    d = centers[i] - centers[j]
-                    if d[0] * d[0] + d[1] * d[1] < limit * limit:
-                        ok = False
-                        break
-                if not ok:
-                    break
-            if not ok:
-                break
-        if ok:
-            keep[i] = True
-            grid.setdefault((kx, ky), []).append(i)
-    return keep
+                for j in self.grid.get((kx + dx, ky + dy), ()):
+                    cx, cy = self.centers[j]
+                    reach = math.hypot(x - cx, y - cy) - self.diameters[j] / 2 - self.gap
+                    radius = min(radius, reach)
+        return 2.0 * radius
+
+    def add(self, center: np.ndarray, diameter: float) -> None:
+        x, y = float(center[0]), float(center[1])
+        self.grid.setdefault((int(x // self.cell), int(y // self.cell)), []).append(self.count)
+        self.centers.append((x, y))
+        self.diameters.append(float(diameter))
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        return (
+            np.array(self.centers, dtype=np.float64).reshape(-1, 2),
+            np.array(self.diameters, dtype=np.float64),
+        )
 
 
 def to_svg(pattern: DotPattern) -> str:
@@ -215,11 +266,20 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as err:
         parser.error(str(err))
     args.out.write_text(to_svg(pattern))
-    area = args.width_mm * args.height_mm
+    reached, asked = pattern.density_per_mm2, pattern.requested_density_per_mm2
     print(
-        f"{args.out}: {len(pattern.diameters_mm)} dots on {args.width_mm:g} x {args.height_mm:g} mm"
-        f" ({len(pattern.diameters_mm) / area:.4f} dots/mm^2)"
+        f"{args.out}: {len(pattern.diameters_mm)} dots on {args.width_mm:g} x {args.height_mm:g} mm,"
+        f" {reached:.4f} dots/mm^2 ({asked:g} asked)"
     )
+    if reached < asked * (1.0 - SHORT_FRACTION):
+        print(
+            f"density not reached: {reached:.4f} of the {asked:g} dots/mm^2 asked;"
+            f" {args.min_diameter_mm:g}-{args.max_diameter_mm:g} mm dots with 0.2 mm gaps do not"
+            " fit that densely at random. Lower --max-diameter-mm (or --min-diameter-mm), or"
+            " ask a lower --density.",
+            file=sys.stderr,
+        )
+        return 1
     return 0
 
 

@@ -4,8 +4,8 @@ A scene names the object (one of ``geometry.objects``, with optional dimension
 overrides), its pose trajectory in the tool frame, the scripted gripper commands, the
 bubbles, the cameras, the dot pattern, the noise, the seed and the ``effects`` to
 simulate, and optionally a ``support`` the arm lowers the held object onto
-(``sim.support``). Every section but ``object`` is optional and defaults to FACTS.md
-figures::
+(``sim.support``). Every section but ``object`` is optional and defaults to
+docs/facts.md figures::
 
     name: mug_grasp
     seed: 7
@@ -135,7 +135,7 @@ class ScriptedCommand:
 
 @dataclass(frozen=True, kw_only=True)
 class GripperSpec:
-    """WSG 50 emulation: start opening, speed limit, scripted commands (FACTS.md)."""
+    """WSG 50 emulation: start opening, speed limit, scripted commands (docs/facts.md)."""
 
     initial_width_m: float = 0.11
     max_width_m: float = 0.11
@@ -189,7 +189,7 @@ class BubbleSpec:
 
 @dataclass(frozen=True, kw_only=True)
 class CameraSpec:
-    """Internal ToF camera (FACTS.md: pico flexx class) and its mount on the finger."""
+    """Internal ToF camera (docs/facts.md: pico flexx class) and its mount on the finger."""
 
     width_px: int = 224
     height_px: int = 172
@@ -241,7 +241,7 @@ class PatternSpec:
 
 @dataclass(frozen=True, kw_only=True)
 class NoiseSpec:
-    """ToF noise and validity (FACTS.md: ~1% of range; driver invalidity rules)."""
+    """ToF noise and validity (docs/facts.md: ~1% of range; driver invalidity rules)."""
 
     range_sigma_fraction: float = 0.01
     reference_amplitude: float = 1500.0
@@ -493,13 +493,26 @@ def scene_from_dict(data: Any, *, path: str = "<dict>") -> Scene:
         raise SceneError(f"{path}: {err}") from err
 
 
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
+
+
+def scene_path(path: str | Path) -> Path:
+    """Where a scene file is: as given, or, for a relative path that does not exist from
+    the working directory, in the project (``scenes/mug_grasp.yaml`` works from any
+    directory once the project is installed with ``pip install -e .``)."""
+    p = Path(path)
+    if not p.is_absolute() and not p.exists() and (PROJECT_ROOT / p).exists():
+        return PROJECT_ROOT / p
+    return p
+
+
 def load_scene(path: str | Path) -> Scene:
-    """Load and check a scene file (``yaml.safe_load``).
+    """Load and check a scene file (``yaml.safe_load``); see :func:`scene_path`.
 
     Raises:
         SceneError: unreadable file, bad YAML, or a bad field (named in the message).
     """
-    p = Path(path)
+    p = scene_path(path)
     try:
         text = p.read_text()
     except OSError as err:

@@ -28,7 +28,6 @@ import numpy as np
 from geometry.se3 import invert
 from messages.base import Header
 from messages.types import MaskImage, ToFImage
-from sim import pattern as dot_pattern
 from sim.effects import EFFECTS, camera_effects
 from sim.membrane import CulledField, cull_to_bounds, march_to_surface
 from sim.scene import Scene
@@ -45,6 +44,7 @@ class BubbleFrame:
 
     side: str
     arrays: dict[str, np.ndarray]
+    tool_from_sensor: np.ndarray  # 4x4, the camera in the tool frame at this opening
 
     def tof_image(self, camera: Any, stamp_nanos: int) -> ToFImage:
         """The wire message: depth (float32, NaN invalid) and IR (uint16), or empty arrays
@@ -63,6 +63,7 @@ class BubbleFrame:
             fy_px=camera.fy_px,
             cx_px=camera.cx_px,
             cy_px=camera.cy_px,
+            tool_from_sensor=self.tool_from_sensor,
         )
 
     def contact_mask(self, stamp_nanos: int) -> MaskImage:
@@ -153,7 +154,7 @@ class BubbleRenderer:
             missing = [a for a in EFFECTS[name].adds if a not in frame]
             if missing:
                 raise RuntimeError(f"effect {name!r} did not add {missing}")
-        return BubbleFrame(self.side, frame)
+        return BubbleFrame(self.side, frame, self.tool_from_sensor(snap.width_m))
 
     def tool_from_sensor(self, width_m: float) -> np.ndarray:
         return self.geometry.tool_from_sensor(self.side, width_m)
@@ -299,7 +300,7 @@ class BubbleRenderer:
         r = frame["range_m"]
         amp = frame["amplitude"]
         h, w = r.shape
-        # Range noise: ~1% of range at the reference amplitude (FACTS.md), growing as
+        # Range noise: ~1% of range at the reference amplitude (docs/facts.md), growing as
         # the return weakens (shot-noise limited: sigma ~ 1 / sqrt(amplitude)).
         sigma = (
             noise.range_sigma_fraction
@@ -326,6 +327,10 @@ class BubbleRenderer:
             p = self.scene.pattern
             sheet_w = round(2 * fy * 1000 + 4.0)
             sheet_h = round(2 * fz * 1000 + 4.0)
+            # Imported here, not at the top: ``sim`` imports this module, and a
+            # ``sim.pattern`` already imported makes ``python -m sim.pattern`` warn.
+            from sim import pattern as dot_pattern
+
             tex = dot_pattern.texture(
                 density_per_mm2=p.density_per_mm2,
                 min_diameter_mm=p.min_diameter_mm,

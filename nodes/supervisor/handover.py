@@ -59,7 +59,7 @@ def describe_shear(msg: ShearEstimate) -> str:
     angle = float(np.degrees(np.arctan2(msg.direction[1], msg.direction[0])))
     return (
         f"on the {msg.sensor} bubble: {msg.magnitude_px:.2f} px at {angle:.0f} deg "
-        f"({np.linalg.norm(msg.shear_mm):.2f} mm)"
+        f"({np.linalg.norm(msg.shear_m) * 1000.0:.2f} mm)"
     )
 
 

@@ -15,7 +15,7 @@ run is deterministic per seed and a resumed run draws the same grasps it would h
   (docs/classifier.md): a held-out set keeps the generator's own spread;
 * feasibility, as a grasp generator would check it: what lies between the bubbles (the
   object's surface inside the bubbles' footprint) must fit the gripper (WSG 50 stroke,
-  FACTS.md, less the bubbles), and nothing may hit a plate; the object is centred
+  docs/facts.md, less the bubbles), and nothing may hit a plate; the object is centred
   between the jaws. Infeasible draws are redrawn.
 
 The result is what the supervisor sends: the object, ``tool_from_object`` (4x4), and

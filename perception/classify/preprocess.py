@@ -8,12 +8,12 @@ side by side and the pair is resized to one square image (``input_px`` x ``input
 Normalisation, per channel:
 
 * depth: metres mapped with a fixed centre and scale (55 mm and 10 mm: the simulated
-  camera sees the membrane at 3-8 cm, the real one works at 4-11 cm, FACTS.md), so an
+  camera sees the membrane at 3-8 cm, the real one works at 4-11 cm, docs/facts.md), so an
   indentation means the same value in every frame; invalid (NaN) pixels become the
   centre, i.e. 0, and values are clipped to +-4. A checkpoint stores both figures.
 * IR: amplitude standardised per frame over the valid pixels of both bubbles (mean and
   standard deviation), clipped to +-4: amplitude scales with exposure and distance, a
-  viewer stretches it the same way (mean +- 2 sigma, FACTS.md).
+  viewer stretches it the same way (mean +- 2 sigma, docs/facts.md).
 """
 
 from __future__ import annotations

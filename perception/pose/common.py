@@ -16,7 +16,8 @@ and ``observable`` reports them as ``False``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import functools
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -35,15 +36,22 @@ class FitResult:
         residual_rms_m: RMS of the field values at the estimate (metres).
         cost: sum of squared field values (m^2).
         iterations: solver iterations (summed over re-seeds when recovering).
-        status: ``ok``, ``recovered`` (a wrong minimum was detected and a re-seed won),
-            ``suspect`` (even the best minimum fits worse than the acceptance RMS),
-            ``no_patch`` (too few points: the seed is returned), or ``failed``.
+        status: from a local solver ``ok`` (converged), ``not_converged`` (stopped by
+            its iteration limit or a numerical failure; the pose is its last iterate) or
+            ``failed``; from the estimator ``ok``, ``recovered`` (the first seed's minimum
+            lost to another seed's), ``suspect`` (see ``message``: the fit is worse
+            than the noise allows, another distinct minimum fits about as well, too few
+            directions are observable, or the solver did not converge), ``no_patch``
+            (too few points, or no spread in 3-D: the prior is returned) or ``failed``.
         solve_secs: wall time of the solve.
         points_used: points after dropping non-finite ones and subsampling.
         observable: per ``(tx, ty, tz, rx, ry, rz)`` in the object frame.
         solver: which solver produced it.
         seeds_tried: how many starting poses were solved from.
-        message: why a solve failed (empty otherwise).
+        message: why the status is not ``ok`` (the solver's own verdict for IPOPT).
+        noise_m: the depth noise the acceptance test used (estimated from the data
+            unless configured); 0 when not computed.
+        dims_m: fitted dimensions (``radius_m``, ``height_m``), empty unless fitted.
     """
 
     object_from_tool: np.ndarray
@@ -57,6 +65,8 @@ class FitResult:
     solver: str = ""
     seeds_tried: int = 1
     message: str = ""
+    noise_m: float = 0.0
+    dims_m: dict[str, float] = field(default_factory=dict)
 
     @property
     def tool_from_object(self) -> np.ndarray:
@@ -76,6 +86,93 @@ def clean_points(points: np.ndarray, max_points: int | None = None, seed: int = 
         idx = np.random.default_rng(seed).choice(len(pts), size=max_points, replace=False)
         pts = pts[np.sort(idx)]
     return pts
+
+
+MIN_POINTS = 6  # six unknowns
+MIN_SPREAD_M = 1e-5  # the smallest principal standard deviation a cloud must reach
+
+
+def spread_problem(points: np.ndarray, min_spread_m: float = MIN_SPREAD_M) -> str:
+    """Why finite (N, 3) points cannot fix a pose ("" if they can): too few, all at one
+    point, on a line or on a plane (principal standard deviations under ``min_spread_m``)."""
+    n = len(points)
+    if n < MIN_POINTS:
+        return f"{n} finite points, at least {MIN_POINTS} needed"
+    centred = points - points.mean(axis=0)
+    # Eigenvalues of the 3x3 scatter, largest first: far cheaper than an SVD of (N, 3).
+    std = np.sqrt(np.maximum(np.linalg.eigvalsh(centred.T @ centred / n)[::-1], 0.0))
+    shape = ("at one point", "on a line", "on a plane")
+    for k, name in enumerate(shape):
+        if std[k] < min_spread_m:
+            return f"the points lie {name} (principal spreads {np.round(std * 1e3, 4)} mm)"
+    return ""
+
+
+def check_problem(
+    points: np.ndarray, object_from_tool: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The points and seed a local solver may trust, as float64; else a ``ValueError``.
+
+    Points: (N, 3), all finite, spread in 3-D (:func:`spread_problem`). Seed: a finite
+    rigid 4x4 (orthonormal rotation, determinant +1, last row 0 0 0 1, to 1e-6).
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"points_in_tool must have shape (N, 3), got {pts.shape}")
+    bad = int(np.sum(~np.all(np.isfinite(pts), axis=1)))
+    if bad:
+        raise ValueError(f"points_in_tool has {bad} non-finite row(s) of {len(pts)}")
+    problem = spread_problem(pts)
+    if problem:
+        raise ValueError(f"points_in_tool: {problem}")
+    check_rigid(object_from_tool, "object_from_tool")
+    return pts, np.asarray(object_from_tool, dtype=np.float64)
+
+
+def check_rigid(pose: np.ndarray, name: str) -> None:
+    """``ValueError`` naming ``name`` unless ``pose`` is a finite rigid 4x4."""
+    arr = np.asarray(pose, dtype=np.float64)
+    if arr.shape != (4, 4) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be a finite 4x4, got shape {arr.shape}")
+    rot = arr[:3, :3]
+    err = float(np.max(np.abs(rot.T @ rot - np.eye(3))))
+    if err > 1e-6 or np.linalg.det(rot) < 0.0 or not np.allclose(arr[3], [0, 0, 0, 1]):
+        raise ValueError(
+            f"{name} is not rigid: |R^T R - I| = {err:.2e}, det R = {np.linalg.det(rot):.6f}, "
+            f"last row {arr[3].tolist()}"
+        )
+
+
+def estimate_noise_m(
+    points: np.ndarray, *, sample: int = 1000, neighbours: int = 40, queries: int = 150
+) -> float:
+    """The depth noise of a cloud from the data alone: the median RMS of the residuals of
+    local quadric fits (``neighbours`` nearest points around ``queries`` points, height
+    over their principal plane, six coefficients), corrected for the fitted degrees of
+    freedom. The cloud is first thinned to ``sample`` points, so a neighbourhood spans
+    several millimetres whatever the point count (a dense cloud's tiny neighbourhoods
+    would take 3 mm noise for curvature). Curvature is absorbed by the quadric, so a curved patch is not taken for
+    noise; a neighbourhood across an edge is, and the median ignores the few there."""
+    from scipy.spatial import cKDTree  # here, not at import: checking a graph need not pay
+
+    pts = clean_points(points, sample)
+    k = min(neighbours, len(pts))
+    if k < 10:
+        return 0.0
+    rng = np.random.default_rng(0)
+    centres = pts[rng.choice(len(pts), size=min(queries, len(pts)), replace=False)]
+    _, idx = cKDTree(pts).query(centres, k=k)
+    hood = pts[idx]  # (Q, k, 3)
+    hood = hood - hood.mean(axis=1, keepdims=True)
+    _, vecs = np.linalg.eigh(np.einsum("qki,qkj->qij", hood, hood))
+    local = np.einsum("qki,qij->qkj", hood, vecs)  # coordinates in the principal frame
+    u, v, w = local[..., 2], local[..., 1], local[..., 0]  # w along the least spread
+    design = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=-1)
+    gram = np.einsum("qki,qkj->qij", design, design) + 1e-18 * np.eye(6)
+    coef = np.linalg.solve(gram, np.einsum("qki,qk->qi", design, w)[..., None])[..., 0]
+    resid = w - np.einsum("qki,qi->qk", design, coef)
+    var = np.sum(resid * resid, axis=1) / (k - 6)
+    return float(np.sqrt(np.median(var)))
 
 
 def residuals_and_jacobian(
@@ -188,10 +285,9 @@ def seed_poses(points_in_tool: np.ndarray, bubble: np.ndarray | None = None) -> 
     axes: list[np.ndarray] = []
     for g in groups:
         if len(g) >= 3:
-            _, _, vt = np.linalg.svd(g - g.mean(axis=0), full_matrices=False)
-            axes.append(vt[0])
-            if len(vt) > 1:
-                axes.append(vt[1])
+            centred = g - g.mean(axis=0)
+            _, vecs = np.linalg.eigh(centred.T @ centred)  # ascending: principal last
+            axes += [vecs[:, 2], vecs[:, 1]]
     axes += [np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0])]
     unique: list[np.ndarray] = []
     for a in axes:
@@ -203,3 +299,55 @@ def seed_poses(points_in_tool: np.ndarray, bubble: np.ndarray | None = None) -> 
         seeds.append(frame_from_axis(a, centre))
         seeds.append(frame_from_axis(-a, centre))
     return seeds
+
+
+@functools.cache
+def symmetry_rotations(fld: Field) -> tuple[np.ndarray, ...]:
+    """The turns that map the field onto itself among the 24 axis-permuting rotations
+    (a box's 90- and 180-degree turns, a cylinder's flip; the identity first), found by
+    checking the field on its own surface samples. Yaw of a body of revolution is
+    continuous and handled by comparing axes instead (:func:`pose_difference`)."""
+    pts = fld.sample_surface(400, np.random.default_rng(7))
+    scale = characteristic_length(fld)
+    out = []
+    for perm in ((0, 1, 2), (1, 2, 0), (2, 0, 1), (0, 2, 1), (2, 1, 0), (1, 0, 2)):
+        for signs in np.ndindex(2, 2, 2):
+            rot = np.zeros((3, 3))
+            rot[np.arange(3), perm] = [1.0 if s == 0 else -1.0 for s in signs]
+            if np.linalg.det(rot) < 0.0:
+                continue
+            if float(np.max(np.abs(fld.value(pts @ rot.T)))) < 1e-6 * scale:
+                out.append(rot)
+    out.sort(key=lambda r: -float(np.trace(r)))  # the identity first
+    return tuple(out)
+
+
+def pose_difference(
+    fld: Field, a: np.ndarray, b: np.ndarray, observable: tuple[bool, ...] = (True,) * 6
+) -> tuple[float, float]:
+    """How far apart two ``object_from_tool`` estimates are, up to the object's symmetry:
+    ``(angle_deg, offset_m)``.
+
+    For a body of revolution the angle is between the axes (as lines when the flip is
+    a symmetry) and the offset is that of ``b``'s origin from ``a``'s axis; otherwise
+    the smallest rotation angle over the symmetry turns and the distance of the
+    origins. Translations along directions ``observable`` marks ``False`` (in ``a``'s
+    object frame) are not counted: the patch does not fix them.
+    """
+    ta, tb = se3.invert(a), se3.invert(b)
+    turns = symmetry_rotations(fld)
+    # b's origin from a's, in a's object frame, along the observable axes only.
+    seen = np.asarray(observable[:3], dtype=np.float64)
+    offset = float(np.linalg.norm(seen * (a[:3, :3] @ (tb[:3, 3] - ta[:3, 3]))))
+    if not any(observable[3:]):  # a sphere's turns are all invisible
+        return 0.0, offset
+    if fld.revolves_about_z:
+        flip = any(r[2, 2] < 0 for r in turns)
+        return (
+            axis_error_deg(tb, ta, flip_symmetric=flip),
+            offaxis_error_m(tb, ta),
+        )
+    angle = min(
+        float(np.degrees(se3.rotation_angle((ta[:3, :3] @ r).T @ tb[:3, :3]))) for r in turns
+    )
+    return angle, offset

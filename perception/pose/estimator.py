@@ -4,21 +4,32 @@ Wraps any local solver (``LMSolver``, ``IpoptSolver``, ``IcpSolver``: each has
 ``solve(points_in_tool, object_from_tool_seed) -> FitResult``) with what the issue
 asks for around it:
 
-- Seeds: a given seed pose if any, else the last estimate (tracking warm start), else
-  poses from the data and the cardinal poses (``common.seed_poses``).
-- Wrong minima: a local solver can converge, and report success, with the axis about
-  90 degrees off; such minima fit far worse than the depth noise. A result whose
-  residual RMS exceeds ``accept_ratio * noise_m`` is rejected, and the solve is re-run
-  from the estimate turned 90 degrees about each of its object axes, turned over, and
-  from the data and cardinal seeds; the lowest cost wins. A cold start (no prior)
-  always checks its first minimum against the turns. ``status`` says ``ok`` (the first
-  solve fit within the threshold), ``recovered`` (it did not; a re-seed did) or
-  ``suspect`` (nothing fits that well; the lowest cost is returned). Every
-  result reports ``seeds_tried``.
-- Degenerate input: fewer than ``min_points`` finite points gives ``no_patch`` with the
-  prior pose (seed, last estimate, or identity), residual 0 and nothing observable;
-  a solver error or a non-finite pose gives ``failed`` with the seed pose. Never an
-  exception for bad data, never a NaN pose.
+- Tracking: the last accepted estimate is solved from alone; it stands (``ok``) when it
+  fits within the acceptance, its RMS has not risen by more than ``track_rise_ratio``
+  and enough directions are observable. Otherwise, and for a given seed (vision, the
+  node's parameter: unverified) or a cold start, the search below runs.
+- Search: the prior (if any), the data seeds (``common.seed_poses``: the axis along
+  each patch's principal directions and the cardinal axes) and then the best
+  minimum's turns (90 degrees about its x and y axes, over, and about z for objects
+  that are not bodies of revolution; turns that are symmetries of the object are
+  skipped) are solved on a subsample (``screen_points``); the two best distinct minima
+  (up to the object's symmetry) are polished on the full cloud.
+- Judgement, with the noise measured from the cloud itself (``common.estimate_noise_m``)
+  unless ``noise_m`` is configured: ``suspect``, with the reasons in ``message``, when
+  the best minimum fits worse than ``accept_ratio`` times the noise, when another
+  distinct minimum fits about as well (``ambiguity_ratio``: a box squeezed over an
+  edge, a planar patch), when fewer than ``min_observable`` directions are observable,
+  or when the solver did not converge; else ``ok`` when the first seed's minimum won
+  and ``recovered`` when another seed's did.
+- Unobservable directions: the local solvers keep them at their seed. When the winner
+  did not come from the prior, its unobservable translations are moved so the patch's
+  centroid sits at the object's origin along them (a turned seed otherwise leaves a
+  cylinder's patch at a cap).
+- Degenerate input: fewer than ``min_points`` finite points, or points at one point, on
+  a line or on a plane, give ``no_patch`` with the reason and the prior pose (seed,
+  last estimate, or identity), residual 0 and nothing observable; a solver error or a
+  non-finite pose gives ``failed`` with the seed pose. Bad points never raise and never
+  give a NaN pose; a seed that is not rigid is a ``ValueError``.
 """
 
 from __future__ import annotations
@@ -31,7 +42,18 @@ import numpy as np
 
 from geometry import se3
 from geometry.fields import Field
-from perception.pose.common import FitResult, clean_points, residuals, seed_poses
+from perception.pose.common import (
+    MIN_POINTS,
+    FitResult,
+    check_rigid,
+    clean_points,
+    estimate_noise_m,
+    pose_difference,
+    residuals,
+    seed_poses,
+    spread_problem,
+    symmetry_rotations,
+)
 
 
 class LocalSolver(Protocol):
@@ -46,39 +68,72 @@ class EstimatorParams:
     """Knobs of the robust wrapper.
 
     Attributes:
-        noise_m: the depth noise sigma the patches carry (FACTS.md: about 1.5 mm).
-        accept_ratio: a minimum whose residual RMS exceeds ``accept_ratio * noise_m``
-            is taken as wrong. Noise along the camera rays leaves an RMS of about 0.7
-            sigma at the right pose; the 90-degree wrong minima leave about 2 sigma.
+        noise_m: the depth noise sigma; 0 (default) estimates it from each cloud
+            (``common.estimate_noise_m``, the spread about local quadric fits).
+        min_noise_m: floor under the estimated noise (a noiseless cloud still has
+            model and sampling error).
+        accept_ratio: a minimum whose residual RMS exceeds ``accept_ratio * noise`` is
+            taken as wrong. The right pose leaves about 1.0-1.25 times the estimated
+            noise; the 75-90 degree wrong minima about 2 and more.
+        ambiguity_ratio: two distinct minima (further apart than ``distinct_deg`` or
+            ``distinct_m``, up to the object's symmetry) whose mean squared residuals
+            differ by less than ``ambiguity_ratio * noise^2`` cannot be told apart: the
+            answer is ``suspect``.
+        distinct_deg, distinct_m: how far apart two minima must be to count as distinct.
+        bias_ratio: a mean residual beyond ``(bias_ratio + 2 / sqrt(N)) * noise``
+            (either sign; the second term is two standard errors of a mean of N points)
+            is ``suspect``: noise along the rays averages out at the right pose (under
+            0.05 of the noise on synthetic and simulated clouds of 3000 points or more),
+            a model of the wrong size leaves the points on one side (a radius 1 mm off:
+            0.1-3 times the noise).
+        min_observable: fewer observable directions than this is ``suspect``.
         min_points: below this many finite points there is no estimate.
         max_points: the cloud is subsampled (fixed seed) to at most this many points.
-        max_seeds: at most this many solves per estimate (first one included).
-        track: warm-start from the last estimate.
+        screen_points: seeds are screened on a subsample of this many points; the best
+            minima are then polished on the full cloud.
+        max_seeds: at most this many screening solves per estimate.
+        track: warm-start from the last accepted estimate.
+        track_rise_ratio: a tracking solve is accepted alone when its RMS is within the
+            acceptance and at most this times the last accepted one; otherwise the
+            seeds and turns are searched as on a cold start.
     """
 
-    noise_m: float = 0.0015
-    accept_ratio: float = 1.3
+    noise_m: float = 0.0
+    min_noise_m: float = 0.0002
+    accept_ratio: float = 1.5
+    ambiguity_ratio: float = 0.05
+    distinct_deg: float = 2.0
+    distinct_m: float = 0.002
+    bias_ratio: float = 0.07
+    min_observable: int = 3
     min_points: int = 10
     max_points: int = 10000
-    max_seeds: int = 14
+    screen_points: int = 500
+    max_seeds: int = 16
     track: bool = True
-
-    @property
-    def accept_rms_m(self) -> float:
-        """Residual RMS above which a minimum is taken as wrong."""
-        return self.accept_ratio * self.noise_m
+    track_rise_ratio: float = 1.25
 
     def __post_init__(self) -> None:
-        for name in ("noise_m", "accept_ratio"):
+        for name in ("noise_m", "min_noise_m", "ambiguity_ratio", "bias_ratio"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name} must be >= 0, got {value}")
+        for name in ("accept_ratio", "distinct_deg", "distinct_m", "track_rise_ratio"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0.0):
                 raise ValueError(f"{name} must be > 0, got {value}")
-        if self.min_points < 6:
-            raise ValueError(f"min_points must be >= 6 (six unknowns), got {self.min_points}")
+        if self.min_points < MIN_POINTS:
+            raise ValueError(
+                f"min_points must be >= {MIN_POINTS} (six unknowns), got {self.min_points}"
+            )
         if self.max_points < self.min_points:
             raise ValueError(f"max_points must be >= min_points, got {self.max_points}")
+        if self.screen_points < self.min_points:
+            raise ValueError(f"screen_points must be >= min_points, got {self.screen_points}")
         if self.max_seeds < 1:
             raise ValueError(f"max_seeds must be >= 1, got {self.max_seeds}")
+        if not 0 <= self.min_observable <= 6:
+            raise ValueError(f"min_observable must be in [0, 6], got {self.min_observable}")
 
 
 def _turns(object_from_tool: np.ndarray, *, yaw: bool) -> list[np.ndarray]:
@@ -97,6 +152,12 @@ def _turns(object_from_tool: np.ndarray, *, yaw: bool) -> list[np.ndarray]:
     return out
 
 
+@dataclass
+class _Minimum:
+    result: FitResult
+    rank: int  # order of its seed (0: the prior, or the first data seed)
+
+
 class PoseEstimator:
     """Estimates ``object_from_tool`` from grasp clouds, one call per patch."""
 
@@ -111,11 +172,21 @@ class PoseEstimator:
         self.params = params or EstimatorParams()
         # Yaw turns only help where yaw is observable at all.
         self.yaw_turns = not symmetric_about_z
+        fld = solver.field
+        self._turn_is_symmetry = [
+            bool(np.allclose(t[:3, :3] @ r, np.eye(3)) for r in symmetry_rotations(fld))
+            for t in _turns(np.eye(4), yaw=self.yaw_turns)
+        ]
+        self._flip_is_symmetry = any(r[2, 2] < 0 for r in symmetry_rotations(fld))
         self.last_object_from_tool: np.ndarray | None = None
+        self.last_rms_m = 0.0
+        self.last_noise_m = 0.0
 
     def reset(self) -> None:
         """Forget the last estimate (the next call starts cold)."""
         self.last_object_from_tool = None
+        self.last_rms_m = 0.0
+        self.last_noise_m = 0.0
 
     def estimate(
         self,
@@ -130,31 +201,29 @@ class PoseEstimator:
             points_in_tool: (N, 3) points.
             bubble: (N,) which bubble saw each point (0 left, 1 right), for seeding.
             seed_tool_from_object: a prior pose (e.g. from vision); overrides tracking.
+
+        Raises:
+            ValueError: a seed that is not a finite rigid 4x4 (bad points never raise).
         """
         start = time.perf_counter()
         prm = self.params
-        raw = np.asarray(points_in_tool, dtype=np.float64).reshape(-1, 3)
-        finite = np.all(np.isfinite(raw), axis=1)
-        sides = None
-        if bubble is not None and len(bubble) == len(raw):
-            sides = np.asarray(bubble)[finite]
-        pts = raw[finite]
-        if len(pts) > prm.max_points:
-            idx = np.sort(np.random.default_rng(0).choice(len(pts), prm.max_points, replace=False))
-            pts = pts[idx]
-            sides = sides[idx] if sides is not None else None
-        pts = clean_points(pts)
-
+        pts, sides = self._prepare(points_in_tool, bubble)
+        tracking = False
         prior: np.ndarray | None = None
-        if seed_tool_from_object is not None and np.all(np.isfinite(seed_tool_from_object)):
+        if seed_tool_from_object is not None:
+            check_rigid(seed_tool_from_object, "seed_tool_from_object")
             prior = se3.invert(np.asarray(seed_tool_from_object, dtype=np.float64))
         elif prm.track and self.last_object_from_tool is not None:
-            prior = self.last_object_from_tool
+            prior, tracking = self.last_object_from_tool, True
 
-        if len(pts) < prm.min_points:
-            pose = prior if prior is not None else np.eye(4)
+        problem = (
+            spread_problem(pts)
+            if len(pts) >= prm.min_points
+            else (f"{len(pts)} finite points, at least {prm.min_points} needed")
+        )
+        if problem:
             return FitResult(
-                object_from_tool=pose,
+                object_from_tool=prior if prior is not None else np.eye(4),
                 residual_rms_m=0.0,
                 cost=0.0,
                 iterations=0,
@@ -163,61 +232,215 @@ class PoseEstimator:
                 points_used=len(pts),
                 solver=self.solver.name,
                 seeds_tried=0,
+                message=problem,
             )
+        if tracking and prior is not None:
+            # The sensor's noise does not change between frames: measured on a search,
+            # kept while tracking.
+            noise = prm.noise_m or self.last_noise_m
+            accept = prm.accept_ratio * noise
+            first = self._solve(pts, prior)
+            if (
+                first.status == "ok"
+                and first.residual_rms_m <= accept
+                and first.residual_rms_m <= prm.track_rise_ratio * self.last_rms_m
+                and sum(first.observable) >= prm.min_observable
+                and abs(self._bias_m(first, pts)) <= self._bias_limit_m(noise, len(pts))
+            ):
+                return self._finish(first, "ok", "", first.iterations, 1, noise, start)
 
-        data_seeds = [se3.invert(s) for s in seed_poses(pts, sides)]
-        queue = [prior] if prior is not None else []
-        queue += data_seeds
-        best: FitResult | None = None
-        tried = 0
+        noise = prm.noise_m or max(estimate_noise_m(pts), prm.min_noise_m)
+        minima, iterations, tried = self._search(pts, sides, prior, noise)
+        return self._judge(pts, minima, iterations, tried, prior is not None, noise, start)
+
+    def _prepare(
+        self, points_in_tool: np.ndarray, bubble: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Finite rows (and their bubbles), subsampled to ``max_points`` (fixed seed)."""
+        raw = np.asarray(points_in_tool, dtype=np.float64).reshape(-1, 3)
+        finite = np.all(np.isfinite(raw), axis=1)
+        sides = None
+        if bubble is not None and len(bubble) == len(raw):
+            sides = np.asarray(bubble)[finite]
+        pts = raw[finite]
+        if len(pts) > self.params.max_points:
+            idx = np.sort(
+                np.random.default_rng(0).choice(len(pts), self.params.max_points, replace=False)
+            )
+            pts = pts[idx]
+            sides = sides[idx] if sides is not None else None
+        return pts, sides
+
+    def _search(
+        self, pts: np.ndarray, sides: np.ndarray | None, prior: np.ndarray | None, noise: float
+    ) -> tuple[list[_Minimum], int, int]:
+        """Screen the prior, the data seeds and the best minimum's turns on a subsample,
+        then polish the best distinct minimum on the full cloud, and the runner-up too
+        when it was within four times the ambiguity margin on the subsample."""
+        prm = self.params
+        screen = clean_points(pts, prm.screen_points)
+        data = [se3.invert(s) for s in seed_poses(pts, sides)]
+        if self._flip_is_symmetry:
+            data = data[::2]  # each axis comes with its flip, the same pose here
+        seeds = ([prior] if prior is not None else []) + data
+        screened: list[_Minimum] = []
         iterations = 0
-        turned = False
-        cold = prior is None
-        checks = 0  # turns still to solve before a good minimum may end the search
-        first_good: bool | None = None
-        while queue and tried < prm.max_seeds:
-            seed = queue.pop(0)
-            tried += 1
-            result = self._solve(pts, seed)
+        for rank, seed in enumerate(seeds[: prm.max_seeds]):
+            result = self._solve(screen, seed)
             iterations += result.iterations
-            if best is None or result.cost < best.cost:
-                best = result
-            good = best.status == "ok" and best.residual_rms_m <= prm.accept_rms_m
-            if first_good is None:
-                first_good = good
-            if not turned and best.status == "ok" and (cold or not good):
-                # The usual wrong minimum is the axis about 90 degrees off: try turns
-                # first. Without a prior every turn is solved (a wrong minimum can fit
-                # within the threshold on a noisy patch); with one, only until one fits.
-                turns = _turns(best.object_from_tool, yaw=self.yaw_turns)
-                queue = turns + queue
-                turned = True
-                checks = len(turns) if cold else 0
-                continue
-            if checks > 0:
-                checks -= 1
-                if checks > 0:
-                    continue
-            if good:
-                break
-        assert best is not None
-        if best.status != "ok":
-            status = best.status  # every solve failed: the first seed, with its fit
-        elif best.residual_rms_m > prm.accept_rms_m:
+            screened.append(_Minimum(result, rank))
+        turned = min(screened, key=lambda m: m.result.cost)
+        turns = _turns(turned.result.object_from_tool, yaw=self.yaw_turns)
+        budget = max(prm.max_seeds - len(screened), 0)
+        turns = [t for t, sym in zip(turns, self._turn_is_symmetry, strict=True) if not sym]
+        for seed in turns[:budget]:
+            result = self._solve(screen, seed)
+            iterations += result.iterations
+            screened.append(_Minimum(result, len(screened)))
+        ranked = self._distinct(sorted(screened, key=lambda m: m.result.cost))
+        polished = []
+        close = 4.0 * prm.ambiguity_ratio * noise**2 * len(screen)
+        for m in ranked[:1] + [
+            r for r in ranked[1:2] if r.result.cost - ranked[0].result.cost < close
+        ]:
+            result = (
+                self._solve(pts, m.result.object_from_tool)
+                if len(screen) < len(pts)
+                else (m.result)
+            )
+            iterations += result.iterations
+            polished.append(_Minimum(result, m.rank))
+        polished.sort(key=lambda m: m.result.cost)
+        return self._distinct(polished), iterations, len(screened)
+
+    def _distinct(self, minima: list[_Minimum]) -> list[_Minimum]:
+        """Minima (cheapest first) with those near a cheaper one dropped; a minimum keeps
+        the earliest seed rank of those it absorbs."""
+        prm = self.params
+        kept: list[_Minimum] = []
+        for m in minima:
+            for k in kept:
+                angle, offset = pose_difference(
+                    self.solver.field,
+                    k.result.object_from_tool,
+                    m.result.object_from_tool,
+                    k.result.observable,
+                )
+                if angle < prm.distinct_deg and offset < prm.distinct_m:
+                    k.rank = min(k.rank, m.rank)
+                    break
+            else:
+                kept.append(_Minimum(m.result, m.rank))
+        return kept
+
+    def _judge(
+        self,
+        pts: np.ndarray,
+        minima: list[_Minimum],
+        iterations: int,
+        tried: int,
+        had_prior: bool,
+        noise: float,
+        start: float,
+    ) -> FitResult:
+        prm = self.params
+        usable = [m for m in minima if m.result.status != "failed"]
+        if not usable:
+            first = minima[0].result
+            return self._finish(first, "failed", first.message, iterations, tried, noise, start)
+        best = usable[0]
+        result = best.result
+        if best.rank != 0 or not had_prior:
+            result = self._centre_unobservable(result, pts)
+        n = max(len(pts), 1)
+        reasons = []
+        if result.status == "not_converged":
+            reasons.append(f"the solver did not converge ({result.message})")
+        accept = prm.accept_ratio * noise
+        if result.residual_rms_m > accept:
+            reasons.append(
+                f"residual {1e3 * result.residual_rms_m:.2f} mm above {1e3 * accept:.2f} mm "
+                f"({prm.accept_ratio} x noise {1e3 * noise:.2f} mm)"
+            )
+        if len(usable) > 1:
+            other = usable[1].result
+            gap = (other.cost - best.result.cost) / n
+            if gap < prm.ambiguity_ratio * noise**2:
+                angle, offset = pose_difference(
+                    self.solver.field, result.object_from_tool, other.object_from_tool
+                )
+                reasons.append(
+                    f"another minimum {angle:.1f} deg / {1e3 * offset:.1f} mm away fits as well "
+                    f"(mean square {1e6 * gap:.4f} mm^2 worse, under "
+                    f"{prm.ambiguity_ratio} x noise^2)"
+                )
+        bias = self._bias_m(result, pts)
+        if abs(bias) > self._bias_limit_m(noise, len(pts)):
+            reasons.append(
+                f"the residuals are biased (mean {1e3 * bias:+.3f} mm, noise "
+                f"{1e3 * noise:.2f} mm): the object may differ from its model in size (fit_dims)"
+            )
+        seen = sum(result.observable)
+        if seen < prm.min_observable:
+            reasons.append(f"only {seen} of 6 directions observable")
+        if reasons:
             status = "suspect"
-        elif not first_good:
-            status = "recovered"
         else:
-            status = "ok"
+            status = "ok" if best.rank == 0 else "recovered"
+        return self._finish(result, status, "; ".join(reasons), iterations, tried, noise, start)
+
+    def _bias_limit_m(self, noise: float, n: int) -> float:
+        return (self.params.bias_ratio + 2.0 / np.sqrt(max(n, 1))) * noise
+
+    def _bias_m(self, result: FitResult, pts: np.ndarray) -> float:
+        """The mean residual of a fit (with its fitted dimensions), metres."""
+        fitted = self.solver.field.resized(**result.dims_m)
+        return float(np.mean(residuals(fitted, result.object_from_tool, pts)))
+
+    def _centre_unobservable(self, result: FitResult, pts: np.ndarray) -> FitResult:
+        """Move the pose along its unobservable translations so the patch's centroid
+        sits at the object's origin along them (mid-body, not at a cap a turned seed
+        happened to reach); kept only if the cost does not rise."""
+        unseen = [k for k in range(3) if not result.observable[k]]
+        if not unseen:
+            return result
+        pose = result.object_from_tool.copy()
+        centroid = pose[:3, :3] @ pts.mean(axis=0) + pose[:3, 3]
+        pose[unseen, 3] -= centroid[unseen]
+        r = residuals(self.solver.field.resized(**result.dims_m), pose, pts)
+        cost = float(r @ r)
+        if not cost <= result.cost * (1.0 + 1e-6) + 1e-12:
+            return result
+        return replace(
+            result,
+            object_from_tool=pose,
+            cost=cost,
+            residual_rms_m=float(np.sqrt(cost / max(len(pts), 1))),
+        )
+
+    def _finish(
+        self,
+        result: FitResult,
+        status: str,
+        message: str,
+        iterations: int,
+        tried: int,
+        noise: float,
+        start: float,
+    ) -> FitResult:
         final = replace(
-            best,
+            result,
             status=status,
+            message=message,
             iterations=iterations,
             seeds_tried=tried,
+            noise_m=noise,
             solve_secs=time.perf_counter() - start,
         )
         if status in ("ok", "recovered"):
             self.last_object_from_tool = final.object_from_tool
+            self.last_rms_m = final.residual_rms_m
+            self.last_noise_m = noise
         return final
 
     def _solve(self, pts: np.ndarray, seed: np.ndarray) -> FitResult:

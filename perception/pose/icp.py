@@ -1,6 +1,6 @@
 """Point-to-point ICP against a sampled model surface: the baseline soft-bubble code uses.
 
-FACTS.md: public pipelines run Open3D point-to-point ICP with a 5 mm correspondence
+docs/facts.md: public pipelines run Open3D point-to-point ICP with a 5 mm correspondence
 distance and up to 1000 iterations. Here the model surface is sampled once (uniform
 by area, object frame) into a k-d tree; each iteration pairs every tool point, moved
 by the current ``object_from_tool``, with its nearest model point within
@@ -15,23 +15,27 @@ from __future__ import annotations
 import functools
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from geometry.fields import Field
 from perception.pose.common import (
     FitResult,
     characteristic_length,
+    check_problem,
     observability,
     residuals_and_jacobian,
     scaled_information,
 )
 
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
+
 
 @dataclass(frozen=True, kw_only=True)
 class IcpParams:
-    """Knobs of the ICP baseline (defaults from FACTS.md, iterations capped lower)."""
+    """Knobs of the ICP baseline (defaults from docs/facts.md, iterations capped lower)."""
 
     max_correspondence_m: float = 0.005
     max_iterations: int = 100
@@ -50,6 +54,8 @@ class IcpParams:
 
 @functools.lru_cache(maxsize=8)
 def _model_tree(fld: Field, n: int) -> tuple[np.ndarray, cKDTree]:
+    from scipy.spatial import cKDTree  # only when ICP runs: 0.4 s a node need not pay
+
     pts = fld.sample_surface(n, np.random.default_rng(12345))
     return pts, cKDTree(pts)
 
@@ -79,23 +85,29 @@ class IcpSolver:
         self.model_points, self.tree = _model_tree(fld, self.params.model_points)
 
     def solve(self, points_in_tool: np.ndarray, object_from_tool: np.ndarray) -> FitResult:
-        """Refine ``object_from_tool`` on finite (N, 3) tool-frame points."""
+        """Refine ``object_from_tool`` on finite (N, 3) tool-frame points spread in 3-D.
+
+        Raises:
+            ValueError: bad points or a seed that is not rigid (``common.check_problem``).
+        """
         start = time.perf_counter()
         prm = self.params
-        pts = np.asarray(points_in_tool, dtype=np.float64)
-        pose = np.array(object_from_tool, dtype=np.float64)
+        pts, pose = check_problem(points_in_tool, object_from_tool)
+        pose = pose.copy()
         last_rms = np.inf
         iterations = 0
+        converged = False
         for iterations in range(1, prm.max_iterations + 1):  # noqa: B007 - count survives
             moved = pts @ pose[:3, :3].T + pose[:3, 3]
             dist, idx = self.tree.query(moved, distance_upper_bound=prm.max_correspondence_m)
             pair = np.isfinite(dist)
             if int(pair.sum()) < 3:
-                break
+                break  # nothing within reach: not converged
             update = kabsch(moved[pair], self.model_points[idx[pair]])
             pose = update @ pose
             rms = float(np.sqrt(np.mean(dist[pair] ** 2)))
             if abs(last_rms - rms) < prm.rms_tol_m:
+                converged = True
                 break
             last_rms = rms
         r, jac = residuals_and_jacobian(self.field, pose, pts)
@@ -106,9 +118,10 @@ class IcpSolver:
             residual_rms_m=float(np.sqrt(cost / max(len(pts), 1))),
             cost=cost,
             iterations=iterations,
-            status="ok",
+            status="ok" if converged else "not_converged",
             solve_secs=time.perf_counter() - start,
             points_used=len(pts),
             observable=flags,
             solver=self.name,
+            message="" if converged else "no convergence within max_iterations or reach",
         )

@@ -13,10 +13,13 @@ Made fast without changing the answer:
 - Fixed sizes: the cloud is padded (weight 0) to the next power of two (at least
   ``min_bucket``), and one solver per (field, size, options) is built once and cached,
   so a compiled function serves every patch of that size class.
-- ``jit`` needs a C compiler: ``jit="auto"`` uses one when a trial compile succeeds
-  and otherwise falls back to CasADi's virtual machine (same answer, slower). Only the
-  Gauss-Newton form is compiled: CasADi's exact Hessian of the mapped cost is generated
-  unrolled (about 24 MB of C at 10k points) and is run on the virtual machine.
+- Compiled once per user, not per process: the NLP's functions are generated as C and
+  built into a shared library kept on disk (``jit_cache``: keyed by the source, CasADi
+  version, compiler and flags; atomic writes), which IPOPT then loads. ``jit="auto"``
+  compiles when a C compiler works and otherwise falls back to CasADi's virtual machine
+  (same answer, slower). Only the Gauss-Newton form is compiled: CasADi's exact Hessian
+  of the mapped cost is generated unrolled (about 24 MB of C at 10k points) and is run
+  on the virtual machine.
 - ``hessian="gauss_newton"``: the Hessian of the Lagrangian is handed to IPOPT as
   ``(2/N) sum w_i J_i^T J_i`` (mapped with a sum reduction) plus the gauge term and
   ``2 lam_g I`` on the quaternion block. It matches the exact Hessian near the optimum
@@ -33,14 +36,23 @@ seed sees the caps): the solve is repeated from its answer, with the answer's ga
 until the weak subspace stops changing (at most three solves; the repeat is cheap, it
 starts converged). Without the repeat, 6 of 100 solves from 60 degrees ended 2-3
 degrees off.
+
+Dimensions (``fit_dims``, e.g. ``("radius",)``): chosen dimensions of the field
+(``Field.dims_m``) join ``theta`` as decision variables bounded to
+``1 +- dims_bound_ratio`` of the model's, with a faint prior toward the model
+(``dims_prior_weight`` per squared relative change, far below what a millimetre of
+misfit costs) so a dimension the patch does not see stays put.
+
+IPOPT's verdict is mapped honestly: ``Solve_Succeeded``, ``Solved_To_Acceptable_Level``
+and ``Search_Direction_Becomes_Too_Small`` (converged to the noise floor) are ``ok``;
+every other return (iteration or time limit, restoration failure, invalid numbers, ...)
+is ``not_converged`` with IPOPT's status in ``message``. Input is checked first
+(``common.check_problem``).
 """
 
 from __future__ import annotations
 
 import functools
-import os
-import shutil
-import tempfile
 import time
 from dataclasses import dataclass
 
@@ -49,9 +61,11 @@ import numpy as np
 
 from geometry import se3
 from geometry.fields import Field
+from perception.pose import jit_cache
 from perception.pose.common import (
     FitResult,
     characteristic_length,
+    check_problem,
     observability,
     residuals_and_jacobian,
     scaled_information,
@@ -71,6 +85,11 @@ class IpoptParams:
         min_bucket: the smallest padded point count.
         observability_floor: as in ``LMParams``.
         gauge_weight: weight of the prior on unobservable directions.
+        fit_dims: dimensions fitted beside the pose: ``radius``, ``height`` (the
+            field's ``dims_m`` without ``_m``).
+        dims_bound_ratio: a fitted dimension stays within this fraction of the model's.
+        dims_prior_weight: weight of the faint prior holding a dimension at the model.
+        cache_dir: where compiled solvers are kept ("" for the per-user default).
     """
 
     tol: float = 1e-8
@@ -81,6 +100,10 @@ class IpoptParams:
     min_bucket: int = 256
     observability_floor: float = 1e-4
     gauge_weight: float = 1.0
+    fit_dims: tuple[str, ...] = ()
+    dims_bound_ratio: float = 0.2
+    dims_prior_weight: float = 1e-6
+    cache_dir: str = ""
 
     def __post_init__(self) -> None:
         if self.hessian not in ("gauss_newton", "exact"):
@@ -95,48 +118,33 @@ class IpoptParams:
             raise ValueError(f"min_bucket must be >= 8, got {self.min_bucket}")
         if not (self.gauge_weight >= 0.0):
             raise ValueError(f"gauge_weight must be >= 0, got {self.gauge_weight}")
+        if len(set(self.fit_dims)) != len(self.fit_dims):
+            raise ValueError(f"fit_dims must not repeat a name, got {list(self.fit_dims)}")
+        if not (0.0 < self.dims_bound_ratio < 1.0):
+            raise ValueError(f"dims_bound_ratio must be in (0, 1), got {self.dims_bound_ratio}")
+        if not (self.dims_prior_weight >= 0.0):
+            raise ValueError(f"dims_prior_weight must be >= 0, got {self.dims_prior_weight}")
 
 
-@functools.cache
-def _jit_dir() -> str:
-    # Generated sources and objects go here, not into the working directory; CasADi
-    # removes its own files after loading them.
-    return tempfile.mkdtemp(prefix="pose_ipopt_jit_")
+#: IPOPT return statuses that mean a converged solve.
+CONVERGED = frozenset(
+    {"Solve_Succeeded", "Solved_To_Acceptable_Level", "Search_Direction_Becomes_Too_Small"}
+)
 
 
-def _jit_options(compiler: str, flags: str) -> dict:
-    # ``jit_name`` is the generated C file's path stem: without a directory in it CasADi
-    # writes ``jit_tmp*.c`` into the working directory.
-    return {
-        "jit": True,
-        "compiler": "shell",
-        "jit_name": "pose",
-        "jit_cleanup": True,
-        "jit_options": {"compiler": compiler, "flags": [flags], "directory": _jit_dir()},
-        "jit_temp_suffix": True,
-    }
+def dim_keys(fld: Field, names: tuple[str, ...]) -> tuple[str, ...]:
+    """``("radius",)`` -> ``("radius_m",)``, checked against the field's dims."""
+    keys = tuple(f"{n}_m" for n in names)
+    unknown = [n for n, k in zip(names, keys, strict=True) if k not in fld.dims_m]
+    if unknown:
+        valid = sorted(k[:-2] for k in fld.dims_m)
+        raise ValueError(f"fit_dims: {unknown} not adjustable on this object; valid: {valid}")
+    return keys
 
 
-def _remove_strays() -> None:
-    """Delete the copies of our generated C sources that nlpsol's jit leaves in the
-    working directory (it writes each source there and in ``directory``; only the latter
-    is cleaned). Only files whose unique, suffixed names are in our jit directory go."""
-    for name in os.listdir(_jit_dir()):
-        if name.startswith("pose") and name.endswith(".c") and os.path.isfile(name):
-            os.remove(name)
-
-
-@functools.cache
 def jit_available(compiler: str = "gcc") -> bool:
-    """Whether CasADi can jit-compile with ``compiler`` here (a trial build, cached)."""
-    if shutil.which(compiler) is None:
-        return False
-    x = ca.SX.sym("x")
-    try:
-        f = ca.Function("jit_probe", [x], [x * x], _jit_options(compiler, "-O1"))
-        return float(f(3.0)) == 9.0
-    except RuntimeError:
-        return False
+    """Whether CasADi can compile with ``compiler`` here (a trial build, cached)."""
+    return jit_cache.jit_available(compiler)
 
 
 def _rotation(q: ca.MX | ca.SX) -> ca.MX | ca.SX:
@@ -165,10 +173,13 @@ class _Compiled:
     """One IPOPT solver for one field, point count and set of options."""
 
     def __init__(self, fld: Field, size: int, prm: IpoptParams, use_jit: bool) -> None:
-        theta = ca.SX.sym("theta", 7)
+        keys = dim_keys(fld, prm.fit_dims)
+        nx = 7 + len(keys)
+        theta = ca.SX.sym("theta", nx)
         p = ca.SX.sym("p", 3)
         w = ca.SX.sym("w")
-        phi = fld.casadi(ca.mtimes(_rotation(theta[3:]), p) + theta[:3])
+        dims = {k: theta[7 + i] for i, k in enumerate(keys)}
+        phi = fld.casadi_sized(ca.mtimes(_rotation(theta[3:7]), p) + theta[:3], dims)
         grad = ca.gradient(phi, theta)
         point_cost = ca.Function("point_cost", [theta, p, w], [w * phi * phi])
         point_gn = ca.Function("point_gn", [theta, p, w], [w * ca.mtimes(grad, grad.T)])
@@ -176,16 +187,25 @@ class _Compiled:
         cost_map = point_cost.map("cost_map", "serial", size, [0], [0])
         gn_map = point_gn.map("gn_map", "serial", size, [0], [0])
 
-        x = ca.MX.sym("x", 7)
+        x = ca.MX.sym("x", nx)
         pts = ca.MX.sym("pts", 3, size)
         wts = ca.MX.sym("wts", 1, size)
-        theta0 = ca.MX.sym("theta0", 7)
-        gauge = ca.MX.sym("gauge", 6, 7)
+        theta0 = ca.MX.sym("theta0", nx)
+        gauge = ca.MX.sym("gauge", 6, nx)
         inv_n = ca.MX.sym("inv_n")
         params = ca.vertcat(ca.vec(pts), ca.vec(wts), theta0, ca.vec(gauge), inv_n)
         dx = gauge @ (x - theta0)
-        f = inv_n * cost_map(x, pts, wts) + prm.gauge_weight * ca.dot(dx, dx)
-        g = ca.dot(x[3:], x[3:])
+        # The faint prior on dimensions, in relative units: D = diag(w / d0^2).
+        prior = np.zeros(nx)
+        for i, k in enumerate(keys):
+            prior[7 + i] = prm.dims_prior_weight / fld.dims_m[k] ** 2
+        dd = x - theta0
+        f = (
+            inv_n * cost_map(x, pts, wts)
+            + prm.gauge_weight * ca.dot(dx, dx)
+            + ca.dot(dd, ca.DM(prior) * dd)
+        )
+        g = ca.dot(x[3:7], x[3:7])
         opts: dict = {
             "ipopt.print_level": 0,
             "print_time": False,
@@ -193,31 +213,42 @@ class _Compiled:
             "ipopt.max_iter": prm.max_iterations,
             "ipopt.sb": "yes",
         }
-        jit_opts = _jit_options(prm.compiler, "-O2")
-        # The exact Hessian of the mapped cost comes out unrolled (about 24 MB of C for
-        # 10k points, growing with N): never jit it; the Gauss-Newton one is a 40 kB loop.
-        use_jit = use_jit and prm.hessian == "gauss_newton"
-        if use_jit:
-            opts.update(jit_opts)
+        nlp = {"x": x, "p": params, "f": f, "g": g}
         if prm.hessian == "gauss_newton":
             lam_f = ca.MX.sym("lam_f")
             lam_g = ca.MX.sym("lam_g")
             hess = lam_f * (
-                2.0 * inv_n * gn_map(x, pts, wts) + 2.0 * prm.gauge_weight * (gauge.T @ gauge)
+                2.0 * inv_n * gn_map(x, pts, wts)
+                + 2.0 * prm.gauge_weight * (gauge.T @ gauge)
+                + 2.0 * ca.diag(ca.DM(prior))
             )
-            hess = hess + ca.diagcat(ca.MX.zeros(3, 3), 2.0 * lam_g * ca.MX.eye(4))
+            quat = np.zeros(nx)
+            quat[3:7] = 1.0
+            hess = hess + 2.0 * lam_g * ca.diag(ca.DM(quat))
             opts["hess_lag"] = ca.Function(
-                "hess_lag",
+                "nlp_hess_l",
                 [x, params, lam_f, lam_g],
                 [ca.triu(hess)],
                 ["x", "p", "lam_f", "lam_g"],
                 ["triu_hess_gamma_x_x"],
-                jit_opts if use_jit else {},
             )
         self.size = size
-        self.solver = ca.nlpsol("pose_ipopt", "ipopt", {"x": x, "p": params, "f": f, "g": g}, opts)
-        if use_jit:
-            _remove_strays()
+        self.keys = keys
+        self.solver = ca.nlpsol("pose_ipopt", "ipopt", nlp, opts)
+        # The exact Hessian of the mapped cost comes out unrolled (about 24 MB of C for
+        # 10k points, growing with N): never compile it; the Gauss-Newton one is a loop.
+        if use_jit and prm.hessian == "gauss_newton":
+            names = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_grad")
+            functions = [self.solver.oracle(), opts["hess_lag"]]
+            functions += [self.solver.get_function(n) for n in names]
+            lib = jit_cache.library(
+                functions,
+                name=f"pose_ipopt_{size}",
+                compiler=prm.compiler,
+                cache_dir=prm.cache_dir or None,
+            )
+            opts.pop("hess_lag")
+            self.solver = ca.nlpsol("pose_ipopt", "ipopt", str(lib), opts)
 
 
 @functools.lru_cache(maxsize=16)
@@ -253,6 +284,7 @@ class IpoptSolver:
     def __init__(self, fld: Field, params: IpoptParams | None = None) -> None:
         self.field = fld
         self.params = params or IpoptParams()
+        self.dim_keys = dim_keys(fld, self.params.fit_dims)
         if self.params.jit == "on" and not jit_available(self.params.compiler):
             raise RuntimeError(f"jit='on' but compiler {self.params.compiler!r} does not work")
         self.use_jit = self.params.jit == "on" or (
@@ -262,14 +294,14 @@ class IpoptSolver:
         self._prepared: frozenset[int] = frozenset()
 
     def prepare(self, n_points: int) -> None:
-        """Build (and compile) the solver for clouds of exactly ``n_points`` ahead of time;
-        clouds a little smaller reuse it (padded)."""
+        """Build (and compile, or load from the disk cache) the solver for clouds of
+        exactly ``n_points`` ahead of time; clouds a little smaller reuse it (padded)."""
         self._prepared = self._prepared | {int(n_points)}
         _compiled(self.field, int(n_points), self.params, self.use_jit)
 
-    def _weak_directions(self, pose: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    def _weak_directions(self, fld: Field, pose: np.ndarray, pts: np.ndarray) -> np.ndarray:
         """Unobservable directions at ``pose``: (6, k) orthonormal, scaled twist coordinates."""
-        _, jac = residuals_and_jacobian(self.field, pose, pts)
+        _, jac = residuals_and_jacobian(fld, pose, pts)
         evals, evecs = np.linalg.eigh(scaled_information(jac, self.length_m))
         return evecs[:, evals < self.params.observability_floor]
 
@@ -280,25 +312,37 @@ class IpoptSolver:
         weights: np.ndarray,
         n: int,
         seed: np.ndarray,
+        dims: np.ndarray,
         weak: np.ndarray,
-    ) -> tuple[np.ndarray, dict]:
-        theta0 = np.concatenate([seed[:3, 3], se3.quat_from_matrix(seed[:3, :3])])
+    ) -> tuple[np.ndarray, np.ndarray, dict]:
+        model = np.array([self.field.dims_m[k] for k in comp.keys])
+        theta0 = np.concatenate([seed[:3, 3], se3.quat_from_matrix(seed[:3, :3]), model])
+        start = theta0.copy()
+        start[7:] = dims
         scale_inv = np.array([1.0] * 3 + [self.length_m] * 3)  # twist -> scaled twist
-        gauge = np.zeros((6, 7))
+        gauge = np.zeros((6, len(theta0)))
         if weak.shape[1]:
-            gauge[: weak.shape[1]] = weak.T @ (scale_inv[:, None] * _theta_jacobian(seed))
+            gauge[: weak.shape[1], :7] = weak.T @ (scale_inv[:, None] * _theta_jacobian(seed))
         param = np.concatenate(
             [padded.ravel(order="F"), weights, theta0, gauge.ravel(order="F"), [1.0 / n]]
         )
-        sol = comp.solver(x0=theta0, p=param, lbg=1.0, ubg=1.0)
+        ratio = self.params.dims_bound_ratio
+        lbx = np.concatenate([np.full(7, -np.inf), model * (1.0 - ratio)])
+        ubx = np.concatenate([np.full(7, np.inf), model * (1.0 + ratio)])
+        sol = comp.solver(x0=start, p=param, lbg=1.0, ubg=1.0, lbx=lbx, ubx=ubx)
         theta = np.asarray(sol["x"]).ravel()
-        return se3.pose_from_quat(theta[3:], theta[:3]), comp.solver.stats()
+        pose = se3.pose_from_quat(theta[3:7], theta[:3])
+        return pose, np.clip(theta[7:], lbx[7:], ubx[7:]), comp.solver.stats()
 
     def solve(self, points_in_tool: np.ndarray, object_from_tool: np.ndarray) -> FitResult:
-        """Refine ``object_from_tool`` on finite (N, 3) tool-frame points (N >= 1)."""
+        """Refine ``object_from_tool`` on finite (N, 3) tool-frame points spread in 3-D.
+
+        Raises:
+            ValueError: bad points or a seed that is not rigid (``common.check_problem``).
+        """
         start = time.perf_counter()
         prm = self.params
-        pts = np.asarray(points_in_tool, dtype=np.float64)
+        pts, pose = check_problem(points_in_tool, object_from_tool)
         n = len(pts)
         size = _bucket(n, prm.min_bucket, self._prepared)
         comp = _compiled(self.field, size, prm, self.use_jit)
@@ -306,30 +350,36 @@ class IpoptSolver:
         padded[:, :n] = pts.T
         weights = np.zeros(size)
         weights[:n] = 1.0
-        pose = np.asarray(object_from_tool, dtype=np.float64)
-        weak = self._weak_directions(pose, pts)
+        dims = np.array([self.field.dims_m[k] for k in self.dim_keys])
+        fld = self.field
+        weak = self._weak_directions(fld, pose, pts)
         iterations = 0
+        stats: dict = {}
         # The gauge is fixed where the solve starts; far from the answer the seed's weak
         # directions can differ from the answer's (a 60-degree seed sees the caps), and
         # a prior on a direction the answer needs biases it by degrees. So re-solve from
         # the answer, with its own gauge, until the weak subspace stops changing.
         for _ in range(3):
-            pose, stats = self._solve_once(comp, padded, weights, n, pose, weak)
+            pose, dims, stats = self._solve_once(comp, padded, weights, n, pose, dims, weak)
             iterations += int(stats.get("iter_count", 0))
-            new_weak = self._weak_directions(pose, pts)
+            fld = self.field.resized(**dict(zip(self.dim_keys, dims, strict=True)))
+            new_weak = self._weak_directions(fld, pose, pts)
             same = new_weak.shape[1] == weak.shape[1] and (
                 weak.shape[1] == 0 or float(np.sum((weak.T @ new_weak) ** 2)) > weak.shape[1] - 1e-3
             )
             weak = new_weak
             if same:
                 break
-        r, jac = residuals_and_jacobian(self.field, pose, pts)
+        r, jac = residuals_and_jacobian(fld, pose, pts)
         flags, _, _ = observability(scaled_information(jac, self.length_m), prm.observability_floor)
         cost = float(r @ r)
-        # IPOPT's own verdict is kept in ``message`` only: it reports success at wrong
-        # minima too, and an iteration-capped solve may still be good. The estimator
-        # judges by the residual.
-        status = "ok" if np.all(np.isfinite(pose)) and np.isfinite(cost) else "failed"
+        verdict = str(stats.get("return_status", ""))
+        if not (np.all(np.isfinite(pose)) and np.isfinite(cost)):
+            status = "failed"
+        elif verdict in CONVERGED:
+            status = "ok"
+        else:
+            status = "not_converged"
         return FitResult(
             object_from_tool=pose,
             residual_rms_m=float(np.sqrt(cost / max(n, 1))),
@@ -340,5 +390,6 @@ class IpoptSolver:
             points_used=n,
             observable=flags,
             solver=self.name,
-            message=str(stats.get("return_status", "")),
+            message="" if status == "ok" else f"IPOPT: {verdict}",
+            dims_m=dict(zip(self.dim_keys, (float(d) for d in dims), strict=True)),
         )

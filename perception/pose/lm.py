@@ -10,7 +10,10 @@ seen only on its side) receive no step: they stay at the seed, which is the gaug
 fixing the issue asks for, and the result reports them.
 
 Stops when the relative cost decrease falls under ``cost_tol`` (after an accepted
-step), when the scaled step falls under ``step_tol_m``, or after ``max_iterations``.
+step), when the scaled step falls under ``step_tol_m`` or no damped step decreases the
+cost (converged: status ``ok``), or after ``max_iterations`` (status ``not_converged``).
+Input is checked first (``common.check_problem``): finite points spread in 3-D and a
+rigid seed, else ``ValueError``.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from geometry.fields import Field
 from perception.pose.common import (
     FitResult,
     characteristic_length,
+    check_problem,
     observability,
     residuals_and_jacobian,
     scaled_information,
@@ -62,22 +66,28 @@ class LMSolver:
         self._scale = np.array([1.0] * 3 + [1.0 / self.length_m] * 3)
 
     def solve(self, points_in_tool: np.ndarray, object_from_tool: np.ndarray) -> FitResult:
-        """Refine ``object_from_tool`` on finite (N, 3) tool-frame points (N >= 1)."""
+        """Refine ``object_from_tool`` on finite (N, 3) tool-frame points spread in 3-D.
+
+        Raises:
+            ValueError: bad points or a seed that is not rigid (``common.check_problem``).
+        """
         start = time.perf_counter()
         prm = self.params
-        pts = np.asarray(points_in_tool, dtype=np.float64)
+        pts, pose = check_problem(points_in_tool, object_from_tool)
         n = len(pts)
-        pose = np.array(object_from_tool, dtype=np.float64)
+        pose = pose.copy()
         r, jac = residuals_and_jacobian(self.field, pose, pts)
         cost = float(r @ r)
         damping = prm.damping_init
         iterations = 0
         flags: tuple[bool, ...] = (False,) * 6
+        converged = False
         for iterations in range(1, prm.max_iterations + 1):  # noqa: B007 - count survives
             info = scaled_information(jac, self.length_m)
             grad_s = (jac * self._scale).T @ r / n
             flags, vecs, vals = observability(info, prm.observability_floor)
             if vals.size == 0:
+                converged = True
                 break
             proj = vecs.T @ grad_s
             top = float(vals.max())
@@ -94,14 +104,16 @@ class LMSolver:
                     break
                 damping *= 10.0
             if not accepted:
+                converged = True  # no damped step decreases the cost
                 break
             decrease = cost - cost_trial
             pose, r, jac = trial, r_trial, jac_trial
             cost = cost_trial
             damping = max(damping / 4.0, 1e-12)
-            if decrease <= prm.cost_tol * max(cost + decrease, 1e-300):
-                break
-            if float(np.linalg.norm(step_s)) < prm.step_tol_m:
+            if decrease <= prm.cost_tol * max(cost + decrease, 1e-300) or (
+                float(np.linalg.norm(step_s)) < prm.step_tol_m
+            ):
+                converged = True
                 break
         # ``flags`` come from the last linearization, one (converged, tiny) step back.
         return FitResult(
@@ -109,9 +121,10 @@ class LMSolver:
             residual_rms_m=float(np.sqrt(cost / max(n, 1))),
             cost=cost,
             iterations=iterations,
-            status="ok",
+            status="ok" if converged else "not_converged",
             solve_secs=time.perf_counter() - start,
             points_used=n,
             observable=flags,
             solver=self.name,
+            message="" if converged else f"max_iterations ({prm.max_iterations}) reached",
         )

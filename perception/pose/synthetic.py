@@ -4,7 +4,7 @@ For tests and benchmarks without the simulator. The object's surface is sampled
 uniformly, moved into the tool frame, and each bubble keeps the part it envelops: the
 points within ``depth_m`` of the object's extreme along the closing axis (tool x, see
 ``geometry.gripper``), inside the bubble's footprint on its plate, and facing the
-bubble. Noise is added along each point's ray from its camera (FACTS.md: about 1 mm at
+bubble. Noise is added along each point's ray from its camera (docs/facts.md: about 1 mm at
 these ranges). ``bubble`` is 0 for the left finger (at tool +x), 1 for the right.
 """
 

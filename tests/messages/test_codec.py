@@ -36,6 +36,7 @@ from messages import (
     decode_header,
     encode,
 )
+from messages.codec import pack_single, unpack_single
 
 FAST = settings(
     max_examples=100,
@@ -243,6 +244,19 @@ def test_array_round_trip(case: tuple[CodecProbe, dict], topic: str) -> None:
         assert isinstance(got, CodecProbe)
         assert got.header == msg.header
         _check_arrays_received(got, wire, values)
+
+    # The single-value form (bags): plain msgpack reads it whole, and it unpacks to the
+    # same frames byte for byte, its arrays views on the stored value.
+    stored = pack_single(frames[1:])
+    whole = msgpack.unpackb(stored, raw=False)
+    assert whole["fields"] == header["fields"] and whole["type"] == "CodecProbe"
+    for name, spec in schema.array_fields.items():
+        a = whole["arrays"][name]
+        assert a["order"] == "C" and a["shape"] == list(values[name].shape), name
+        assert a["data"] == _bits(values[name], spec.dtype), name
+    back = unpack_single(stored)
+    assert [bytes(f) for f in back] == [bytes(memoryview(f).cast("B")) for f in frames[1:]]
+    assert isinstance(decode([b"t", *back], expect=CodecProbe)[1], CodecProbe)
 
 
 SCALARS = st.builds(
@@ -643,7 +657,7 @@ def test_other_spellings_of_the_declared_dtype_are_accepted(spelling: str) -> No
 def test_decode_header_alone() -> None:
     wire = decode_header(_tof_frames()[1])
     assert (wire.type, wire.fp) == ("ToFImage", ToFImage.schema().fingerprint)
-    assert [row[0] for row in wire.arrays] == ["depth_m", "ir"]
+    assert [row[0] for row in wire.arrays] == ["depth_m", "ir", "tool_from_sensor"]
     with pytest.raises(FrameDecodeError):
         decode_header(b"\x93garbage")
 
@@ -731,7 +745,11 @@ def test_fast_and_slow_encode_paths_send_the_same_bytes(
                 "cx_px": 112.0,
                 "cy_px": 86.0,
             },
-            "arrays": [["depth_m", "<f4", [172, 224]], ["ir", "<u2", [172, 224]]],
+            "arrays": [
+                ["depth_m", "<f4", [172, 224]],
+                ["ir", "<u2", [172, 224]],
+                ["tool_from_sensor", "<f8", [4, 4]],
+            ],
         }
     )
     assert bytes(fast[2]) == depth.tobytes() and bytes(fast[3]) == ir.tobytes()
@@ -998,3 +1016,44 @@ def test_fuzz_mutated_header_values(data: st.DataObject) -> None:
         target = target[key]
     target[path[-1]] = data.draw(MSGPACK_VALUES)
     _decode_or_refuse([frames[0], msgpack.packb(header), *frames[2:]])
+
+
+def _stored(edit: Callable[[dict[str, Any]], None]) -> bytes:
+    value = msgpack.unpackb(pack_single(_tof_frames()[1:]), raw=False)
+    edit(value)
+    return msgpack.packb(value)
+
+
+BAD_STORED: dict[str, Callable[[], bytes]] = {
+    "not msgpack": lambda: b"\xc1\xc1",
+    "empty": lambda: b"",
+    "cut short": lambda: pack_single(_tof_frames()[1:])[:-5],
+    "a list, not a map": lambda: msgpack.packb([1, 2]),
+    "no arrays": lambda: _stored(lambda v: v.pop("arrays")),
+    "unknown key": lambda: _stored(lambda v: v.__setitem__("extra", 1)),
+    "data too short": lambda: _stored(
+        lambda v: v["arrays"]["ir"].__setitem__("data", v["arrays"]["ir"]["data"][:-2])
+    ),
+    "Fortran order": lambda: _stored(lambda v: v["arrays"]["ir"].__setitem__("order", "F")),
+    "bad dtype": lambda: _stored(lambda v: v["arrays"]["ir"].__setitem__("dtype", "<q9")),
+    "object dtype": lambda: _stored(lambda v: v["arrays"]["ir"].__setitem__("dtype", "O")),
+    "negative axis": lambda: _stored(lambda v: v["arrays"]["ir"].__setitem__("shape", [-6, -5])),
+    "data not bin": lambda: _stored(lambda v: v["arrays"]["ir"].__setitem__("data", "text")),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_STORED))
+def test_bad_stored_value_raises_frame_decode_error(case: str) -> None:
+    with pytest.raises(FrameDecodeError):
+        unpack_single(BAD_STORED[case]())
+
+
+def test_pack_single_refuses_frames_that_disagree_with_their_header() -> None:
+    frames = _tof_frames()
+    arrays = len(frames) - 2
+    with pytest.raises(FrameDecodeError, match="buffer of"):
+        pack_single([*frames[1:-1], frames[-1][:-1]])
+    with pytest.raises(FrameDecodeError, match=f"{arrays} arrays, got {arrays - 1}"):
+        pack_single(frames[1:-1])
+    with pytest.raises(FrameDecodeError, match="bad frame header"):
+        pack_single([b"\xc1", *frames[2:]])

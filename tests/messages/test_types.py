@@ -1,6 +1,6 @@
 """Every message type of messages.types round-trips through the codec with a realistic instance.
 
-Instances use the figures of FACTS.md: 224 x 172 ToF images (depth float32 metres with NaN
+Instances use the figures of docs/facts.md: 224 x 172 ToF images (depth float32 metres with NaN
 for invalid pixels, IR uint16), a pico-flexx-like field of view of about 62 x 45 degrees,
 about 1 kPa of inflation, the WSG 50's stroke and force.
 """
@@ -14,6 +14,7 @@ import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import get_args
 
 import msgpack
 import msgspec
@@ -25,6 +26,7 @@ import messages.types
 from messages import (
     ClassProbabilities,
     ContactPatch,
+    FrameDecodeError,
     GraspState,
     GripperCommand,
     GripperState,
@@ -43,6 +45,7 @@ from messages import (
     describe,
     encode,
 )
+from messages.types import PoseStatus
 
 WIDTH_PX, HEIGHT_PX = 224, 172
 RNG = np.random.default_rng(20201025)
@@ -115,7 +118,7 @@ def _shear() -> ShearEstimate:
         magnitude_px=magnitude,
         direction=shear_px / magnitude,
         direction_defined=True,
-        shear_mm=shear_px * 0.4,
+        shear_m=shear_px * 0.4e-3,
         torsion_rad=0.02,
     )
 
@@ -181,8 +184,8 @@ REALISTIC: dict[type[Message], Callable[[], Message]] = {
         tool_from_object=_tool_from_object(),
         object_class="mug",
         in_contact=True,
-        shear_left_mm=np.array([0.6, -0.3]),
-        shear_right_mm=np.array([-0.55, 0.28]),
+        shear_left_m=np.array([0.6e-3, -0.3e-3]),
+        shear_right_m=np.array([-0.55e-3, 0.28e-3]),
         noise_seed=7,
     ),
     Tick: lambda: Tick(
@@ -220,7 +223,7 @@ EDGES: dict[str, Callable[[], Message]] = {
         magnitude_px=0.0,
         direction=np.zeros(2),
         direction_defined=False,
-        shear_mm=np.zeros(2),
+        shear_m=np.zeros(2),
         has_reference=False,
     ),
     "no classes": lambda: ClassProbabilities(
@@ -362,3 +365,15 @@ def test_realistic_frames_are_the_expected_size() -> None:
     assert sizes[2] == WIDTH_PX * HEIGHT_PX * 4
     assert sizes[3] == WIDTH_PX * HEIGHT_PX * 2
     assert sizes[1] < 512
+
+
+def test_states_on_the_wire_are_checked_on_decode() -> None:
+    """GraspState.event and PoseEstimate.status are Literal types: a misspelt state is
+    refused at the receiving edge (and mypy refuses it where the message is built)."""
+    good = GraspState(header=Header(stamp_nanos=1), stable=True, event="stable")
+    _, back = decode(encode("grasp/grasp", good))
+    assert isinstance(back, GraspState) and back.event == "stable"
+    bad = GraspState(header=Header(stamp_nanos=1), stable=True, event="stabel")  # type: ignore[arg-type]
+    with pytest.raises(FrameDecodeError, match="event"):
+        decode(encode("grasp/grasp", bad))
+    assert set(get_args(PoseStatus)) >= {"ok", "recovered", "suspect", "no_patch", "failed"}

@@ -8,14 +8,15 @@ import msgpack
 import pytest
 
 from messages.base import Header
-from messages.codec import encode
+from messages.codec import encode, pack_single
 from messages.errors import NodeError
 from messages.types import Pressure, Tick
 from nodes.recorder import Recorder
 from nodes.replay import Replay
-from runtime.bag import BagReader, BagWriter, pack_frames
+from runtime.bag import BagReader, BagWriter
 from runtime.params import build_params
 from runtime.testing import FakeIO, make_node
+from tests.runtime.bad_bags import bag_with_undecodable
 
 MS = 1_000_000
 
@@ -247,11 +248,13 @@ def test_replay_bad_params(bag: Path) -> None:
         Replay.ports(params)
 
 
-def test_pack_frames_matches_recorder_payload(bag: Path) -> None:
-    """What replay publishes is exactly what was recorded."""
+def test_replay_publishes_the_recorded_frames_byte_for_byte(bag: Path) -> None:
+    """The bag holds one MessagePack value; unpacked, it is the wire frames as recorded."""
     with BagReader(bag) as r:
         m = next(iter(r.messages(["a/tick"])))
-        assert bytes(m.payload) == pack_frames(encode("a/tick", tick(0))[1:])
+        assert bytes(m.payload) == pack_single(encode("a/tick", tick(0))[1:])
+        wire = [bytes(memoryview(f).cast("B")) for f in encode("a/tick", tick(0))]
+        assert [bytes(f) for f in m.wire_frames()] == wire
 
 
 def test_replay_fast_bounds_messages_in_flight(bag: Path) -> None:
@@ -273,6 +276,29 @@ def test_restarted_recorder_keeps_the_interrupted_bag(tmp_path: Path) -> None:
     assert path.read_bytes() == complete[:-30]
     with BagReader(tmp_path / "rec.1.mcap") as r:
         assert [m.sequence for m in r.messages()] == [1]
-    node, io = make_node(Recorder, {"path": str(tmp_path / "rec.1.mcap")})  # complete: reused
-    node.teardown()
+    finished = (tmp_path / "rec.1.mcap").read_bytes()
+    with pytest.raises(ValueError, match=r"rec\.1\.mcap' is a finished bag; pass --overwrite"):
+        make_node(Recorder, {"path": str(tmp_path / "rec.1.mcap")})
+    assert (tmp_path / "rec.1.mcap").read_bytes() == finished
     assert not (tmp_path / "rec.1.1.mcap").exists() and not (tmp_path / "rec.2.mcap").exists()
+
+
+def test_replay_skips_and_counts_messages_it_cannot_decode(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    path = bag_with_undecodable(tmp_path / "bad.mcap", 8, {2: "cut", 5: "field"})
+    node, io = make_replay({"path": str(path), "fast": True})
+    io.advance(0.001)
+    assert published(io, "a/tick") == [0.0, 1.0, 3.0, 4.0, 6.0, 7.0]
+    assert node.skipped == 2
+    assert io.stop_reason is not None
+    assert "replayed 6 messages" in io.stop_reason and "2 skipped" in io.stop_reason
+    assert "bad.mcap: topic a/tick: message at offset" in caplog.text
+
+
+def test_replay_strict_stops_at_the_first_message_it_cannot_decode(tmp_path: Path) -> None:
+    path = bag_with_undecodable(tmp_path / "bad.mcap", 8, {5: "field"})
+    node, io = make_replay({"path": str(path), "fast": True, "strict": True})
+    with pytest.raises(NodeError, match=r"cannot decode \(strict\): .*bad\.mcap: topic a/tick"):
+        io.advance(0.001)
+    assert published(io, "a/tick") == [0.0, 1.0, 2.0, 3.0, 4.0]

@@ -117,7 +117,8 @@ def test_refuses_checkpoint_of_other_classes(tmp_path: Path) -> None:
 
 
 def test_missing_checkpoint_names_the_field(tmp_path: Path) -> None:
-    with pytest.raises(NodeError, match=r"classifier: params\.model: .*no such checkpoint"):
+    # refused when the parameters are built (the graph checker's time), before setup
+    with pytest.raises(ValueError, match=r"^model must name an existing file .*none\.pt'$"):
         make_node(ResNet18ClassifierNode, {"model": str(tmp_path / "none.pt")}, name="classifier")
 
 
@@ -286,8 +287,8 @@ def _truth(name: str, stamp_ms: int, noise_seed: int = 21) -> GroundTruth:
         tool_from_object=np.eye(4),
         object_class=name,
         in_contact=True,
-        shear_left_mm=np.zeros(2),
-        shear_right_mm=np.zeros(2),
+        shear_left_m=np.zeros(2),
+        shear_right_m=np.zeros(2),
         noise_seed=noise_seed,
     )
 

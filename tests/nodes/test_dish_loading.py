@@ -52,8 +52,8 @@ class Sink:
             tool_from_object=np.eye(4),
             object_class=place.class_label,
             in_contact=self.stable,
-            shear_left_mm=np.zeros(2),
-            shear_right_mm=np.zeros(2),
+            shear_left_m=np.zeros(2),
+            shear_right_m=np.zeros(2),
             noise_seed=0,
         )
         feed(self.node, "truth", truth)

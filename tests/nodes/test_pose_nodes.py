@@ -7,6 +7,7 @@ import pytest
 
 from geometry import objects
 from geometry.camera import PinholeCamera
+from geometry.gripper import tool_from_sensor
 from messages.base import Header
 from messages.types import ContactPatch, GraspState, GripperState, ToFImage
 from nodes.contact_patch import ContactPatchNode
@@ -17,7 +18,7 @@ from runtime.testing import feed, make_node
 CAM = PinholeCamera.from_fov(64, 48)
 
 
-def _tof(side: str, depth: np.ndarray, stamp: int) -> ToFImage:
+def _tof(side: str, depth: np.ndarray, stamp: int, width_m: float = 0.07) -> ToFImage:
     return ToFImage(
         header=Header(stamp_nanos=stamp),
         sensor=side,
@@ -27,6 +28,7 @@ def _tof(side: str, depth: np.ndarray, stamp: int) -> ToFImage:
         fy_px=CAM.fy_px,
         cx_px=CAM.cx_px,
         cy_px=CAM.cy_px,
+        tool_from_sensor=tool_from_sensor(side, width_m),
     )
 
 
@@ -35,7 +37,9 @@ def _gripper(width_m: float, speed: float = 0.0) -> GripperState:
 
 
 def test_contact_patch_node_reference_then_patch() -> None:
-    node, io = make_node(ContactPatchNode, {"min_component_px": 20, "reference_frames": 2})
+    node, io = make_node(
+        ContactPatchNode, {"contact": {"min_component_px": 20}, "reference_frames": 2}
+    )
     free = np.full(CAM.shape, 0.08, np.float32)
     feed(node, "gripper", _gripper(0.11))
     for k in range(2):
@@ -76,12 +80,12 @@ def _patch(stamp: int, n: int = 800, seed: int = 0) -> tuple[ContactPatch, np.nd
     ("cls", "extra"),
     [
         (LMPoseNode, {}),
-        (IpoptPoseNode, {"jit": "off", "max_points": 400}),
-        (IcpPoseNode, {"max_correspondence_m": 0.02}),
+        (IpoptPoseNode, {"ipopt": {"jit": "off"}, "estimator": {"max_points": 400}}),
+        (IcpPoseNode, {"icp": {"max_correspondence_m": 0.02}}),
     ],
 )
 def test_pose_nodes_estimate_and_take_the_newest_patch(cls, extra) -> None:  # noqa: ANN001
-    node, io = make_node(cls, {"object": "mug", "noise_m": 0.001, **extra})
+    node, io = make_node(cls, {"object": "mug", **extra})
     for stamp in (1, 2):
         feed(node, "patch", _patch(stamp, seed=stamp)[0])
     msg, truth = _patch(3, seed=3)
@@ -120,7 +124,7 @@ def test_pose_node_bad_patches_never_raise() -> None:
 
 
 def test_release_drops_tracking() -> None:
-    node, io = make_node(LMPoseNode, {"object": "mug", "noise_m": 0.001})
+    node, io = make_node(LMPoseNode, {"object": "mug"})
     feed(node, "patch", _patch(1)[0])
     io.advance(0.01)
     assert node.estimator.last_object_from_tool is not None
@@ -132,4 +136,23 @@ def test_params_checked() -> None:
     with pytest.raises(ValueError, match="object"):
         make_node(LMPoseNode, {"object": "teapot"})
     with pytest.raises(ValueError, match="hessian"):
-        make_node(IpoptPoseNode, {"hessian": "bfgs"})
+        make_node(IpoptPoseNode, {"ipopt": {"hessian": "bfgs"}})
+    with pytest.raises(ValueError, match="max_points"):
+        make_node(LMPoseNode, {"max_points": 100})  # nested now: estimator.max_points
+    with pytest.raises(ValueError, match="accept_ratio"):
+        make_node(LMPoseNode, {"estimator": {"accept_ratio": -1.0}})
+    with pytest.raises(ValueError, match="not rigid"):
+        make_node(LMPoseNode, {"seed_tool_from_object": [2.0] + [0.0] * 14 + [1.0]})
+
+
+def test_ipopt_node_fits_the_radius() -> None:
+    node, io = make_node(
+        IpoptPoseNode,
+        {"ipopt": {"jit": "off", "fit_dims": ["radius"]}, "estimator": {"max_points": 400}},
+    )
+    msg, _ = _patch(1)
+    feed(node, "patch", msg)
+    io.advance(0.01)
+    est = io.published["pose"][0]
+    assert est.status in ("ok", "recovered") and abs(est.fitted_radius_m - 0.04) < 1e-3
+    assert est.fitted_height_m == 0.0 and est.noise_m > 0.0

@@ -9,12 +9,13 @@ import pytest
 
 import nodes.grasp_monitor  # noqa: F401  (registers the implementations)
 import nodes.shear_tracker  # noqa: F401
-from bench.shear import SimGrasp, angle_error_deg, truth
+from bench.shear import angle_error_deg, scored_mask
 from messages.base import Header
 from messages.shear import ShearReset
 from messages.types import GraspState, GripperState, Pressure, ToFImage
 from runtime.registry import resolve
 from runtime.testing import feed, make_node
+from sim.material_flow import SimGrasp, truth
 
 
 def stamp(secs: float) -> Header:
@@ -28,7 +29,8 @@ def scene() -> SimGrasp:
 
 def image(scene: SimGrasp, sensor: str, secs: float, shift_mm=(0.0, 0.0)) -> ToFImage:
     """A simulated frame of the held mug moved by ``shift_mm`` (tool y, z), restamped."""
-    msg = scene.instant(shift_mm, 0.0, index=int(secs * 30)).images[sensor]
+    shift_m = (shift_mm[0] / 1000.0, shift_mm[1] / 1000.0)
+    msg = scene.instant(shift_m, 0.0, index=int(secs * 30)).images[sensor]
     msg.header = stamp(secs)
     return msg
 
@@ -98,14 +100,15 @@ def test_shear_tracker_reference_follows_the_grasp(scene, impl):
     pull = (-0.8, 0.8)
     feed(node, "left", image(scene, "left", 1.1, pull))
     moved = io.published["shear"][-1]
-    truth_px, truth_mm, _ = truth(
-        scene.geometry, scene.camera, scene.instant(), scene.instant(pull, 0.0, 33), "left"
-    )
+    rest = scene.instant()
+    moved_instant = scene.instant((pull[0] / 1000.0, pull[1] / 1000.0), 0.0, 33)
+    mask = scored_mask(rest.images["left"])
+    truth_px, truth_m, _ = truth(scene.geometry, scene.camera, rest, moved_instant, "left", mask)
     assert moved.direction_defined
     assert angle_error_deg(moved.direction, truth_px) < 3.0
     assert moved.magnitude_px == pytest.approx(math.hypot(*truth_px), rel=0.15)
-    # shear_mm is along the tool's y and z (the default shear_frame), like the truth.
-    assert angle_error_deg(moved.shear_mm, truth_mm) < 5.0
+    # shear_m is along the tool's y and z (the default shear_frame), like the truth.
+    assert angle_error_deg(moved.shear_m, truth_m) < 5.0
 
     feed(node, "grasp", grasp_state(2.0, False, "released"))
     feed(node, "left", image(scene, "left", 2.1, pull))
@@ -172,7 +175,7 @@ def test_both_bubbles_report_shear_in_the_tool_frame(scene):
             feed(node, sensor, image(scene, sensor, 1.5, shift))
             estimates[sensor] = io.published["shear"][-1]
         for est in estimates.values():
-            assert est.shear_mm[axis] > 0.5 and abs(est.shear_mm[1 - axis]) < 0.1
+            assert est.shear_m[axis] > 0.5e-3 and abs(est.shear_m[1 - axis]) < 0.1e-3
         if axis == 0:  # across the fingers: image rows, mirrored between the two cameras
             assert estimates["left"].shear_px[1] * estimates["right"].shear_px[1] < 0
         else:  # along the fingers: image columns, the same way in both
@@ -189,3 +192,40 @@ def test_shear_tracker_retakes_the_reference_when_the_image_size_changes(scene):
     feed(node, "left", small)
     result = io.published["shear"][-1]
     assert result.has_reference and not result.direction_defined
+
+
+def test_shear_tracker_refuses_frames_without_the_camera_mount(scene):
+    """shear_frame 'tool' needs the frame's tool_from_sensor; a frame without it (all
+    zeros: the source does not know its mount) is refused, not read with a default."""
+    node, io = make_node(resolve("shear_tracker.farneback"), {"overlay_every_n": 0})
+    feed(node, "grasp", grasp_state(1.0, True, "stable"))
+    msg = image(scene, "left", 1.0)
+    msg.tool_from_sensor = np.zeros((4, 4))
+    feed(node, "left", msg)
+    assert "shear" not in io.published
+    node, io = make_node(
+        resolve("shear_tracker.farneback"), {"overlay_every_n": 0, "shear_frame": "membrane"}
+    )
+    feed(node, "grasp", grasp_state(1.0, True, "stable"))
+    feed(node, "left", msg)
+    assert io.published["shear"][-1].has_reference
+
+
+def test_shear_in_the_tool_frame_follows_the_mount_the_frame_carries(scene):
+    """A scene whose cameras are mounted turned about the optical axis: the frames say
+    so, and the tool-frame shear stays along the tool axis the mug moved on."""
+    node, io = make_node(resolve("shear_tracker.farneback"), {"overlay_every_n": 0})
+    feed(node, "grasp", grasp_state(1.0, True, "stable"))
+    turn = np.eye(4)
+    turn[:2, :2] = [[0.0, -1.0], [1.0, 0.0]]  # the image turned 90 deg about the optical axis
+    for secs, shift in ((1.0, (0.0, 0.0)), (1.5, (1.0, 0.0))):
+        msg = image(scene, "left", secs, shift)
+        msg.ir = np.ascontiguousarray(np.rot90(msg.ir))
+        msg.depth_m = np.ascontiguousarray(np.rot90(msg.depth_m))
+        msg.fx_px, msg.fy_px = msg.fy_px, msg.fx_px
+        h, w = msg.ir.shape
+        msg.cx_px, msg.cy_px = (w - 1) / 2.0, (h - 1) / 2.0
+        msg.tool_from_sensor = msg.tool_from_sensor @ turn
+        feed(node, "left", msg)
+    est = io.published["shear"][-1]
+    assert est.shear_m[0] > 0.5e-3 and abs(est.shear_m[1]) < 0.15e-3

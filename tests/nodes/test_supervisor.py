@@ -20,7 +20,7 @@ def shear(sensor: str, magnitude_px: float, *, defined: bool = True) -> ShearEst
         magnitude_px=magnitude_px,
         direction=direction,
         direction_defined=defined,
-        shear_mm=direction * magnitude_px * 0.2,
+        shear_m=direction * magnitude_px * 0.2e-3,
     )
 
 

@@ -40,8 +40,8 @@ def truth(t_secs: float) -> GroundTruth:
         tool_from_object=pose_at(t_secs),
         object_class="mug",
         in_contact=True,
-        shear_left_mm=np.zeros(2),
-        shear_right_mm=np.zeros(2),
+        shear_left_m=np.zeros(2),
+        shear_right_m=np.zeros(2),
         noise_seed=0,
     )
 
@@ -100,7 +100,7 @@ def shear(sensor: str, magnitude_px: float) -> ShearEstimate:
         magnitude_px=magnitude_px,
         direction=np.array([1.0, 0.0]),
         direction_defined=magnitude_px > 0,
-        shear_mm=np.array([magnitude_px * 0.2, 0.0]),
+        shear_m=np.array([magnitude_px * 0.0002, 0.0]),
     )
 
 

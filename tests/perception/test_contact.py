@@ -49,7 +49,8 @@ def test_patch_points_in_tool_frame_and_bubble_labels() -> None:
         for _ in range(3):
             patcher.update_reference(side, _free())
     depth, disk = _pressed()
-    cloud = patcher.extract({"left": (depth, CAM), "right": (depth, CAM)}, width_m=0.07)
+    frames = {side: (depth, CAM, tool_from_sensor(side, 0.07)) for side in ("left", "right")}
+    cloud = patcher.extract(frames)
     n = int(cloud.masks["left"].sum())
     assert n > 200 and len(cloud.points_in_tool) == 2 * n
     assert cloud.points_in_tool.dtype == np.float32 and cloud.bubble.dtype == np.uint8
@@ -64,15 +65,18 @@ def test_patch_points_in_tool_frame_and_bubble_labels() -> None:
     assert cloud.points_in_tool[cloud.bubble == 1, 0].mean() < 0
 
 
+LEFT_AT_50_MM = tool_from_sensor("left", 0.05)
+
+
 def test_no_reference_all_nan_and_subsampling() -> None:
     patcher = ContactPatcher(ContactParams(max_points=100))
     depth, _ = _pressed()
-    cloud = patcher.extract({"left": (depth, CAM)}, width_m=0.05)
+    cloud = patcher.extract({"left": (depth, CAM, LEFT_AT_50_MM)})
     assert len(cloud.points_in_tool) == 0 and not cloud.masks["left"].any()
     patcher.update_reference("left", _free())
     nan_img = np.full(CAM.shape, np.nan, np.float32)
-    assert len(patcher.extract({"left": (nan_img, CAM)}, width_m=0.05).points_in_tool) == 0
-    cloud = patcher.extract({"left": (depth, CAM)}, width_m=0.05)
+    assert len(patcher.extract({"left": (nan_img, CAM, LEFT_AT_50_MM)}).points_in_tool) == 0
+    cloud = patcher.extract({"left": (depth, CAM, LEFT_AT_50_MM)})
     assert len(cloud.points_in_tool) == 100
     patcher.clear_reference("left")
     assert patcher.reference("left") is None

@@ -1,8 +1,8 @@
-"""Shear from the dot pattern against the simulator's ground truth (perception/shear.py).
+"""Shear from the dot pattern against the simulator's ground truth (perception/shear/).
 
 The frames come from ``sim`` (a mug held in ``scenes/mug_grasp.yaml`` and moved in the
 hand, with the ``shear`` and ``dot_pattern`` effects); the truth follows the material
-(``bench.shear.truth``). Analytic checks of the pieces are at the end.
+(``sim.material_flow.truth``). Shifts are given in mm here for readability. Analytic checks of the pieces are at the end.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.shear import SimGrasp, angle_error_deg, truth
+from bench.shear import angle_error_deg, scored_mask
 from geometry.camera import PinholeCamera
 from geometry.gripper import SIDES
 from perception.shear import (
@@ -28,8 +28,9 @@ from perception.shear import (
     rotation_about_centroid,
     stretch_ir,
     tangent_basis,
-    tool_basis_in_sensor,
+    tool_basis,
 )
+from sim.material_flow import SimGrasp, truth
 
 
 @cache
@@ -39,21 +40,29 @@ def grasp() -> SimGrasp:
 
 @cache
 def instant(shift_mm: tuple[float, float] = (0.0, 0.0), twist_deg: float = 0.0, index: int = 0):
-    return grasp().instant(shift_mm, math.radians(twist_deg), index)
+    shift_m = (shift_mm[0] / 1000.0, shift_mm[1] / 1000.0)
+    return grasp().instant(shift_m, math.radians(twist_deg), index)
 
 
 @cache
 def expected(shift_mm: tuple[float, float], twist_deg: float, index: int, sensor: str):
-    g = grasp()
-    return truth(g.geometry, g.camera, instant(), instant(shift_mm, twist_deg, index), sensor)
+    """``(truth_px, truth_mm, torsion_rad)`` of a moved frame against the rest frame."""
+    g, ref = grasp(), instant()
+    mask = scored_mask(ref.images[sensor])
+    px, metres, torsion = truth(
+        g.geometry, g.camera, ref, instant(shift_mm, twist_deg, index), sensor, mask
+    )
+    return px, metres * 1000.0, torsion
+
+
+def basis_of(sensor: str) -> np.ndarray:
+    return tool_basis(instant().images[sensor].tool_from_sensor)
 
 
 def tracker_for(sensor: str, params: ShearParams | None = None) -> ShearTracker:
     tracker = ShearTracker(params or ShearParams())
     ref = instant().images[sensor]
-    tracker.set_reference(
-        ref.ir, ref.depth_m, PinholeCamera.from_frame(ref), tool_basis_in_sensor(sensor)
-    )
+    tracker.set_reference(ref.ir, ref.depth_m, PinholeCamera.from_frame(ref), basis_of(sensor))
     return tracker
 
 
@@ -63,7 +72,7 @@ def frame(shift_mm=(0.0, 0.0), twist_deg=0.0, index=1, sensor="left"):
 
 
 def assert_finite(result) -> None:
-    for value in (result.shear_px, result.sum_px, result.direction, result.shear_mm):
+    for value in (result.shear_px, result.sum_px, result.direction, result.shear_m):
         assert np.isfinite(value).all()
     assert math.isfinite(result.magnitude_px) and math.isfinite(result.torsion_rad)
 
@@ -89,19 +98,19 @@ def test_translations_in_eight_directions(params, sensor):
     for k, shift in enumerate(EIGHT):
         result = tracker.update(*frame(shift, 0.0, 10 + k, sensor))
         truth_px, truth_mm, _ = expected(shift, 0.0, 10 + k, sensor)
-        assert result.direction_defined and result.mm_defined
+        assert result.direction_defined and result.metric_defined
         assert_finite(result)
         # The paper's sum over the working image's masked pixels, in full-resolution px.
         pixels = result.valid_fraction * (172 * 224) * params.scale**2
         np.testing.assert_allclose(result.sum_px, result.shear_px * pixels, rtol=0.02)
         px_errors.append(angle_error_deg(result.direction, truth_px))
-        mm_errors.append(angle_error_deg(result.shear_mm, truth_mm))
+        mm_errors.append(angle_error_deg(result.shear_m, truth_mm))
         # Reported in full-resolution pixels whatever the working scale.
         # Flow smooths the sharp edge of the moving patch: a few percent short.
         assert result.magnitude_px == pytest.approx(np.hypot(*truth_px), rel=0.15)
         # Further short in mm: the camera sees the membrane's far side foreshortened
         # (more mm per px, smaller dots), where the flow falls shortest.
-        assert np.hypot(*result.shear_mm) == pytest.approx(np.hypot(*truth_mm), rel=0.25)
+        assert np.hypot(*result.shear_m) * 1000.0 == pytest.approx(np.hypot(*truth_mm), rel=0.25)
     assert max(px_errors) < 3.0
     assert float(np.median(mm_errors)) < 3.0 and max(mm_errors) < 6.0
 
@@ -123,10 +132,10 @@ def test_twist_without_depth_is_measured_in_the_image(sensor):
     tracker = ShearTracker(ShearParams())
     tracker.set_reference(instant().images[sensor].ir)
     result = tracker.update(frame((0.0, 0.0), 4.0, 20, sensor)[0])
-    assert not result.mm_defined and np.all(result.shear_mm == 0.0)
+    assert not result.metric_defined and np.all(result.shear_m == 0.0)
     # In the image the rotation is about the optical axis: the left camera looks along
     # tool -x, so a twist about tool +x turns its image the other way.
-    facing = math.copysign(1.0, tool_basis_in_sensor(sensor)[2, 2])
+    facing = math.copysign(1.0, basis_of(sensor)[2, 2])
     assert facing * result.torsion_rad > math.radians(0.5)
 
 
@@ -137,7 +146,7 @@ def test_mixture_of_translation_and_twist(sensor):
     result = tracker.update(*frame(shift, 3.0, 30, sensor))
     truth_px, truth_mm, torsion = expected(shift, 3.0, 30, sensor)
     assert angle_error_deg(result.direction, truth_px) < 3.0
-    assert angle_error_deg(result.shear_mm, truth_mm) < 5.0
+    assert angle_error_deg(result.shear_m, truth_mm) < 5.0
     # With a concurrent translation the flow smooths the moving patch's sharp edge more,
     # and the fitted rotation comes out short (bench/shear.py measures by how much).
     assert result.torsion_rad == pytest.approx(torsion, rel=0.4)
@@ -150,7 +159,7 @@ def test_zero_shear_is_undefined_not_nan():
         assert result.has_reference and not result.direction_defined
         assert np.all(result.direction == 0.0)
         assert result.magnitude_px < 0.05
-        assert np.hypot(*result.shear_mm) < 0.05
+        assert np.hypot(*result.shear_m) < 0.05e-3
         assert_finite(result)
 
 
@@ -166,7 +175,7 @@ def test_nan_depth_pixels_are_masked():
     assert not result.mask[60, 80] and not result.mask[14, 100]
     truth_px, truth_mm, _ = expected((1.0, 0.0), 0.0, 40, "left")
     assert angle_error_deg(result.direction, truth_px) < 3.0
-    assert angle_error_deg(result.shear_mm, truth_mm) < 5.0
+    assert angle_error_deg(result.shear_m, truth_mm) < 5.0
 
 
 def test_nan_in_the_reference_and_all_invalid_frames_give_finite_zero():
@@ -329,10 +338,10 @@ def test_tangential_displacement_on_a_tilted_plane():
     keep = np.zeros(depth.shape, bool)
     keep[5:-5, 5:-5] = True
     indices = np.flatnonzero(keep)
-    s1, s2, d1, d2 = geometry.tangential_displacement_mm(flow, indices, depth)
+    s1, s2, d1, d2 = geometry.tangential_displacement_m(flow, indices, depth)
     assert s1.shape[0] == indices.shape[0]
-    np.testing.assert_allclose(d1, 1.0, atol=0.02)
-    np.testing.assert_allclose(d2, 0.5, atol=0.02)
+    np.testing.assert_allclose(d1, 1.0e-3, atol=0.02e-3)
+    np.testing.assert_allclose(d2, 0.5e-3, atol=0.02e-3)
 
 
 def test_tangent_basis_falls_back_on_degenerate_points():

@@ -11,6 +11,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from tests.synthetic_nodes import IMPLS
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -19,8 +21,14 @@ class GraphRun:
         self.tmp = tmp_path
 
     def write(self, nodes: dict, name: str = "graph.yaml") -> Path:
+        """Write a graph for a launcher subprocess, which registers only production
+        nodes: the synthetic nodes' names become their ``module:Class``."""
+        portable = {
+            node: {**spec, "impl": IMPLS.get(spec.get("impl", ""), spec.get("impl"))}
+            for node, spec in nodes.items()
+        }
         path = self.tmp / name
-        path.write_text(yaml.safe_dump({"nodes": nodes}))
+        path.write_text(yaml.safe_dump({"nodes": portable}))
         return path
 
     def start(self, graph: Path, *args: str) -> subprocess.Popen[str]:

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import random
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from messages import Header, Pressure, Tick, encode
 from runtime.node import Node
+from runtime.params import ExistingFile
 
 
 class PressureSource(Node):
@@ -60,3 +61,42 @@ class Fuzzer(Node):
         self.sent += 1
         if self.sent == self.params.count:
             self.io.request_stop("fuzzing done")
+
+
+@dataclass(frozen=True, kw_only=True)
+class InnerParams:
+    winsize: int = 15
+
+    def __post_init__(self) -> None:
+        if not 3 <= self.winsize <= 201:
+            raise ValueError(f"`winsize` must be in [3, 201], got {self.winsize!r}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class NestedParams:
+    """Nested parameters and a file that must exist, as the graph checker sees them.
+
+    Attributes:
+        inner: the nested knobs.
+        tol: a solver tolerance.
+        model: a file read at start.
+    """
+
+    inner: InnerParams = field(default_factory=InnerParams)
+    tol: float = 1e-6
+    model: ExistingFile = __file__
+
+    def __post_init__(self) -> None:
+        if not self.tol > 0:
+            raise ValueError(f"tol must be > 0, got {self.tol}")
+
+
+class NestedNode(Node):
+    """A relay whose parameters nest (``inner.winsize``) and name a file (``model``)."""
+
+    Params = NestedParams
+    inputs = {"tick": Tick}
+    outputs = {"tick": Tick}
+
+    def on_tick(self, msg: Tick) -> None:
+        self.io.publish("tick", msg)

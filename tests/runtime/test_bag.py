@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import os
 import signal
+import struct
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 from typing import Annotated
 
@@ -20,13 +20,8 @@ from messages.base import Array, Header, Message
 from messages.codec import encode
 from messages.errors import BagError
 from messages.types import Tick, ToFImage
-from runtime.bag import (
-    PACKING,
-    BagReader,
-    BagWriter,
-    pack_frames,
-    unpack_frames,
-)
+from runtime.bag import PACKING, BagReader, BagWriter
+from runtime.bag.packing import unpack_multipart
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -109,35 +104,50 @@ def test_arrays_are_stored_as_received(tmp_path: Path) -> None:
     assert [bytes(f) for f in stored] == [bytes(memoryview(f).cast("B")) for f in frames[1:]]
 
 
-def test_plain_mcap_reader_needs_no_project_code(tmp_path: Path) -> None:
-    """The ``mcap`` package, struct and msgpack alone read a project bag."""
+_THIRD_PARTY_READER = """
+import json, sys
+import msgpack
+import numpy as np
+from mcap.reader import make_reader
+out = []
+with open(sys.argv[1], "rb") as f:
+    for schema, channel, message in make_reader(f).iter_messages():
+        value = msgpack.unpackb(message.data)  # one value: the whole message
+        arrays = {
+            name: np.frombuffer(a["data"], dtype=a["dtype"]).reshape(a["shape"], order=a["order"])
+            for name, a in value["arrays"].items()
+        }
+        guide = json.loads(schema.data)
+        out.append({
+            "topic": channel.topic, "encoding": channel.message_encoding,
+            "schema": schema.name, "fingerprint": guide["fingerprint"],
+            "type": value["type"], "seq": value["fields"]["header"]["seq"],
+            "stamp_nanos": value["fields"]["header"]["stamp_nanos"],
+            "fx_px": value["fields"]["fx_px"],
+            "depth_unit": guide["arrays"]["depth_m"]["unit"],
+            "depth_m": [[None if np.isnan(x) else float(x) for x in row] for row in arrays["depth_m"]],
+            "ir": arrays["ir"].tolist(),
+        })
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.parametrize("compression", ["none", "lz4", "zstd"])
+def test_plain_mcap_reader_and_msgpack_need_no_project_code(
+    tmp_path: Path, compression: str
+) -> None:
+    """The ``mcap`` package and ``msgpack.unpackb`` alone recover every field and array."""
     path = tmp_path / "a.mcap"
-    with BagWriter(path, compression="lz4") as w:
-        for i in range(3):
-            w.write_message("left_camera/image", tof(i), log_time_nanos=i)
-    script = textwrap.dedent(
-        """
-        import json, struct, sys
-        import msgpack
-        from mcap.reader import make_reader
-        out = []
-        with open(sys.argv[1], "rb") as f:
-            reader = make_reader(f)
-            for schema, channel, message in reader.iter_messages():
-                n, = struct.unpack_from("<I", message.data, 0)
-                lengths = struct.unpack_from(f"<{n}Q", message.data, 4)
-                header = msgpack.unpackb(message.data[4 + 8 * n: 4 + 8 * n + lengths[0]])
-                desc = json.loads(schema.data)
-                out.append([channel.topic, channel.message_encoding, schema.name,
-                            desc["fingerprint"], header["type"], header["fields"]["header"]["seq"],
-                            [a[0] for a in header["arrays"]], list(lengths[1:])])
-        print(json.dumps(out))
-        """
-    )
-    # Run with an empty path so nothing of the project can be imported.
+    sent = [tof(i) for i in range(3)]
+    for i, msg in enumerate(sent):
+        msg.header.stamp_nanos = 1_763_900_000_123_456_789 + i  # past 2^53, as a wall clock
+    with BagWriter(path, compression=compression) as w:
+        for i, msg in enumerate(sent):
+            w.write_message("left_camera/image", msg, log_time_nanos=i)
+    # Isolated (-I) and run from an empty folder, so nothing of the project can be imported.
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     done = subprocess.run(
-        [sys.executable, "-I", "-c", script, str(path)],
+        [sys.executable, "-I", "-c", _THIRD_PARTY_READER, str(path)],
         capture_output=True,
         text=True,
         timeout=60,
@@ -149,11 +159,15 @@ def test_plain_mcap_reader_needs_no_project_code(tmp_path: Path) -> None:
 
     rows = json.loads(done.stdout)
     assert len(rows) == 3
-    fp = ToFImage.schema().fingerprint
-    for i, row in enumerate(rows):
-        assert row[:6] == ["left_camera/image", "msgpack", "ToFImage", fp, "ToFImage", i]
-        assert row[6] == ["depth_m", "ir"]
-        assert row[7] == [17 * 22 * 4, 17 * 22 * 2]
+    for i, (row, want) in enumerate(zip(rows, sent, strict=True)):
+        assert row["topic"] == "left_camera/image" and row["encoding"] == "msgpack"
+        assert row["schema"] == row["type"] == "ToFImage"
+        assert row["fingerprint"] == ToFImage.schema().fingerprint
+        assert row["seq"] == i and row["stamp_nanos"] == want.header.stamp_nanos
+        assert row["fx_px"] == 200.0 and row["depth_unit"] == "m"
+        depth = np.array([[np.nan if x is None else x for x in r] for r in row["depth_m"]])
+        np.testing.assert_array_equal(depth.astype(np.float32), want.depth_m)
+        np.testing.assert_array_equal(row["ir"], want.ir)
 
 
 def test_header_decodes_with_plain_msgpack(tmp_path: Path) -> None:
@@ -169,18 +183,13 @@ def test_header_decodes_with_plain_msgpack(tmp_path: Path) -> None:
     assert head["arrays"] == [["payload", "|u1", [0]]]
 
 
-@settings(max_examples=50, deadline=None)
-@given(st.lists(st.binary(max_size=64), min_size=1, max_size=6))
-def test_pack_unpack_frames(frames: list[bytes]) -> None:
-    assert [bytes(f) for f in unpack_frames(pack_frames(frames))] == frames
-
-
-def test_unpack_rejects_short_payload() -> None:
-    payload = pack_frames([b"abc", b"defg"])
+def test_multipart_v1_payload_must_match_its_frame_table() -> None:
+    payload = struct.pack("<I2Q", 2, 3, 4) + b"abcdefg"
+    assert [bytes(f) for f in unpack_multipart(payload)] == [b"abc", b"defg"]
     with pytest.raises(ValueError, match="frame table"):
-        unpack_frames(payload[:-1])
+        unpack_multipart(payload[:-1])
     with pytest.raises(ValueError):
-        unpack_frames(b"\x01")
+        unpack_multipart(b"\x01")
 
 
 class BagTestOldTick(Message):

@@ -17,6 +17,7 @@ def test_record_rows_and_bags(tmp_path: Path) -> None:
         "record_bag_zstd",
         "record_raw_mcap_zstd",
         "read",
+        "read_raw_mcap",
     ]
     for row in rows:
         assert row["frames"] == 6

@@ -17,7 +17,7 @@ import yaml
 
 import nodes.recorder  # noqa: F401  (registers the implementations the graphs name)
 import nodes.replay  # noqa: F401
-import nodes.synthetic  # noqa: F401
+import tests.synthetic_nodes  # noqa: F401  (registers the synthetic nodes)
 from messages import Header, Tick
 from runtime.bag import BagReader
 from runtime.bagtool import ReplayOptions, build_replay_graph, diff_bags
@@ -144,7 +144,7 @@ def test_sigkilled_recorder_leaves_a_readable_bag(tmp_path: Path) -> None:
     # launch() in a child of its own (it is the one killed node's parent), importing only
     # the node modules it needs.
     script = (
-        "import sys, nodes.synthetic, nodes.recorder\n"
+        "import sys, tests.synthetic_nodes, nodes.recorder\n"
         "from runtime.launcher import launch\n"
         "graph = {'nodes': {'src': {'impl': 'synthetic.source',"
         " 'params': {'rate_hz': 100, 'count': 100000}}}}\n"

@@ -10,7 +10,7 @@ import yaml
 
 import nodes.recorder  # noqa: F401  (registers the implementations the graphs name)
 import nodes.replay  # noqa: F401
-import nodes.synthetic  # noqa: F401
+import tests.synthetic_nodes  # noqa: F401  (registers the synthetic nodes)
 from messages.base import Header
 from messages.errors import GraphError
 from messages.types import Tick, ToFImage
@@ -24,6 +24,7 @@ from runtime.bagtool import (
     main,
 )
 from runtime.node import Node
+from tests.runtime.bad_bags import bag_with_undecodable
 
 GRAPH = yaml.safe_load(
     """
@@ -134,7 +135,7 @@ def test_replay_main_prints_the_graph_from_the_bag(
     code = replay_main(
         [
             str(bag),
-            "--replace",
+            "--swap",
             "relay=synthetic.relay",
             "--fast",
             "--start",
@@ -147,7 +148,7 @@ def test_replay_main_prints_the_graph_from_the_bag(
     assert set(graph["nodes"]) == {"relay", "merge", "sink", "replay"}
     assert graph["nodes"]["replay"]["params"]["fast"] is True
     assert graph["nodes"]["replay"]["params"]["start_secs"] == 0.5
-    assert replay_main([str(bag), "--replace", "ghost", "--print-graph"]) == 2
+    assert replay_main([str(bag), "--swap", "ghost", "--print-graph"]) == 2
     assert "no node 'ghost'" in capsys.readouterr().err
 
 
@@ -271,7 +272,7 @@ def test_swapped_impl_drops_old_params_and_set_applies(
     bag = make_bag(tmp_path / "a.mcap")
     graph = build_replay_graph(GRAPH, bag, {"relay": f"{__name__}:PlainRelay"})
     assert graph["nodes"]["relay"]["params"] == {}
-    code = replay_main([str(bag), "--replace", "relay", "--set", "relay.add=7", "--print-graph"])
+    code = replay_main([str(bag), "--swap", "relay", "--set", "relay.add=7", "--print-graph"])
     assert code == 0
     assert yaml.safe_load(capsys.readouterr().out)["nodes"]["relay"]["params"] == {"add": 7}
 
@@ -345,3 +346,47 @@ def test_a_loop_back_into_the_replaced_node_stays_open(
     graph = build_replay_graph(LOOP, bag, {"proc": "", "ctrl": ""})
     assert set(graph["nodes"]) == {"proc", "ctrl", "log", "replay"}
     assert replay_params(graph)["topics"] == exact_topics(["cam/tick"])
+
+
+def test_echo_skips_messages_it_cannot_decode(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = bag_with_undecodable(tmp_path / "bad.mcap", 5, {1: "cut", 3: "cut"})
+    assert main(["echo", str(path), "--topic", "a/tick"]) == 1
+    captured = capsys.readouterr()
+    values = [line for line in captured.out.splitlines() if line.startswith("value:")]
+    assert values == ["value: 0.0", "value: 2.0", "value: 4.0"]
+    assert captured.out.count("SKIPPED, cannot decode: ") == 2
+    assert "#1 Tick" in captured.out and "bad.mcap: topic a/tick: message at offset" in captured.out
+    assert "2 message(s) could not be decoded" in captured.err
+    assert main(["echo", str(path), "--topic", "a/tick", "--strict"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out.count("value:") == 1 and "bad.mcap: topic a/tick" in captured.err
+
+
+def test_diff_counts_undecodable_messages_and_goes_on(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    good = bag_with_undecodable(tmp_path / "good.mcap", 5, {})
+    bad = bag_with_undecodable(tmp_path / "bad.mcap", 5, {1: "cut"})
+    diffs = diff_bags(good, bad)
+    assert [(d.index, d.field) for d in diffs] == [(1, "(undecodable)")]
+    assert "bad.mcap: topic a/tick" in diffs[0].detail
+    assert main(["diff", str(good), str(bad)]) == 1
+    assert "1 difference(s) in 1 message(s)" in capsys.readouterr().out
+    assert main(["diff", str(good), str(bad), "--strict"]) == 2
+    assert "bad.mcap: topic a/tick" in capsys.readouterr().err
+    other = bag_with_undecodable(tmp_path / "other.mcap", 5, {})
+    assert diff_bags(good, other) == []
+
+
+def test_replay_strict_reaches_the_replay_node(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from runtime.bagtool import replay_main
+
+    bag = make_bag(tmp_path / "a.mcap")
+    assert replay_main([str(bag), "--replace", "sink", "--print-graph"]) == 0
+    assert replay_params(yaml.safe_load(capsys.readouterr().out))["strict"] is False
+    assert replay_main([str(bag), "--replace", "sink", "--strict", "--print-graph"]) == 0
+    assert replay_params(yaml.safe_load(capsys.readouterr().out))["strict"] is True

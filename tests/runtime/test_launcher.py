@@ -157,7 +157,7 @@ def test_ctrl_c_leaves_no_process_behind(graph_run: GraphRun) -> None:
     assert len(kids) == 2 and all(alive(k) for k in kids)
     proc.send_signal(signal.SIGINT)
     out, _ = proc.communicate(timeout=30)
-    assert proc.returncode == 0, out
+    assert proc.returncode == 130, out  # 128 + SIGINT, as a shell reports Ctrl-C
     assert "stopping: signal SIGINT" in out
     assert not any(alive(k) for k in kids)
 
@@ -225,5 +225,5 @@ def test_node_survives_garbage_frames_and_counts_them(graph_run: GraphRun, tmp_p
     values = [r["value"] for r in graph_run.rows(out) if r["value"] >= 0]
     assert values == [float(i) for i in range(60)]
     row = next(line for line in log.splitlines() if line.startswith("[launch] fuzz/tick"))
-    assert int(row.split()[-1]) >= 50  # most garbage frames were counted as bad
+    assert int(row.split()[-2]) >= 50  # most garbage frames were counted as bad
     assert "sink" in log and "bad frame" in log

@@ -51,10 +51,10 @@ def test_dots_move_by_the_imposed_displacement(shift_m: float) -> None:
     expected = np.median(uv_moved - uv, axis=0)
     assert np.hypot(*expected) > 2.0  # a visible motion, in pixels
     np.testing.assert_allclose([du, dv], expected, atol=0.6)
-    # Ground truth reports the same shift, tool (y, z) in mm.
+    # Ground truth reports the same shift, tool (y, z) in metres.
     gt = cur.ground_truth
     assert gt is not None
-    np.testing.assert_allclose(gt.shear_left_mm, [shift_m * 1000, 0.0], atol=0.05)
+    np.testing.assert_allclose(gt.shear_left_m, [shift_m, 0.0], atol=0.05e-3)
 
 
 def test_shear_saturates_at_the_stick_limit_and_zero_without_anchor() -> None:
@@ -63,10 +63,10 @@ def test_shear_saturates_at_the_stick_limit_and_zero_without_anchor() -> None:
     limit = make_scene().bubble.max_shear_m
     shift = far.frames["left"].arrays["material_shift_m"]
     assert np.nanmax(np.hypot(shift[..., 0], shift[..., 1])) == pytest.approx(limit, rel=1e-5)
-    assert np.linalg.norm(far.ground_truth.shear_left_mm) == pytest.approx(limit * 1000, rel=1e-3)
+    assert np.linalg.norm(far.ground_truth.shear_left_m) == pytest.approx(limit, rel=1e-3)
     none = _render(held_pose(y=0.03), None)
     assert not none.frames["left"].arrays["material_shift_m"].any()
-    assert not none.ground_truth.shear_left_mm.any()
+    assert not none.ground_truth.shear_left_m.any()
 
 
 def test_twist_gives_opposite_shear_across_the_patch() -> None:

@@ -1,7 +1,10 @@
-"""Synthetic nodes: a counter source, a relay, a fan-in merge and a sink.
+"""Synthetic nodes for the tests: a counter source, a relay, a fan-in merge and a sink.
 
-They exercise the runtime without any sensor: the small default graph before the
-simulator, the runtime's process tests, and the transport benchmark.
+They exercise the runtime without any sensor. They are not production nodes: they are
+registered (``synthetic.*``) when this module is imported, which ``tests/conftest.py``
+does for every test process. A launcher started in a subprocess registers only the
+production nodes, so graphs it runs name these as ``module:Class``
+(:data:`IMPLS`; ``tests/runtime/conftest.py`` writes them so).
 
 Ports (all :class:`messages.Tick`):
     synthetic.source   outputs: tick         (``count`` ticks at ``rate_hz``, then asks to stop)
@@ -22,7 +25,7 @@ import numpy as np
 
 from messages import Header, Tick
 from runtime.node import Node
-from runtime.registry import register
+from runtime.registry import class_path, register
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -179,3 +182,16 @@ class SyntheticSink(Node):
             with open(self.params.out_path, "w") as f:
                 for row in self.rows:
                     f.write(json.dumps(row) + "\n")
+
+
+IMPLS = {
+    name: class_path(cls)
+    for name, cls in (
+        ("synthetic.source", SyntheticSource),
+        ("synthetic.relay", SyntheticRelay),
+        ("synthetic.merge", SyntheticMerge),
+        ("synthetic.sink", SyntheticSink),
+    )
+}
+"""Each synthetic node's registered name and its ``module:Class``, which any process
+can import."""

@@ -1,0 +1,321 @@
+"""Pose estimation on hard input: shapes, sizes, noise, bad starts, degenerate clouds, and
+size mismatch with and without ``fit_dims``; every row counts its silent wrong answers.
+
+Objects (``object``): cylinders of radius 30, 40 (the mug's body) and 50 mm held by
+their side; a 60x60x160 mm box squeezed on two faces (``box_face``), over two long
+edges (``box_edge``: turned 45 degrees about its axis) and over two corners
+(``box_corner``: its body diagonal across the closing axis). Synthetic two-bubble
+clouds (``perception.pose.synthetic``) with noise along the camera rays.
+
+Starts (``start``): ``cold`` (no prior), ``bad_seed`` (the truth turned 90 degrees about
+a random object axis, or tilted 80 degrees for bodies of revolution, and moved 3 mm),
+``track`` (the second estimate on the same cloud: the tracking path).
+
+Success: within 2 degrees and 2 mm of the truth up to the object's symmetry, counting
+only the translations the patch observes (``common.pose_difference``).
+``silent_wrong``: answers outside those bounds whose status was ``ok`` or ``recovered``
+(the goal is 0); ``suspect_rate``: the share reported ``suspect``.
+
+Size mismatch (``kind: size``): the true cylinder's radius is the model's plus 1-8 mm;
+IPOPT without and with ``fit_dims: [radius]`` (bounds +-20%), seeded 10 degrees off.
+
+Degenerate clouds (``kind: degenerate``): 3000 identical points, collinear points, a
+noisy plane with a seed, an empty cloud; no answer can be right, so every ``ok`` or
+``recovered`` is silent wrong.
+
+Timing: process CPU time of the whole estimate on one thread (``cpu_ms_median``).
+
+    python -m bench.pose_hard [--quick] [--json]
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from bench.common import Row, main, median, one_core, percentile
+from geometry import fields, se3
+from geometry.objects import ObjectModel
+from perception.pose import common, synthetic
+from perception.pose.estimator import EstimatorParams, PoseEstimator
+from perception.pose.ipopt import IpoptParams, IpoptSolver, jit_available
+from perception.pose.lm import LMSolver
+
+AXIS_OK_DEG = 2.0
+OFFSET_OK_M = 0.002
+GOOD = ("ok", "recovered")
+
+
+def _cylinder(radius_m: float, height_m: float) -> ObjectModel:
+    return ObjectModel(
+        name=f"cylinder_r{round(radius_m * 1e3)}",
+        class_label="mug",
+        field=fields.CappedCylinder(radius_m, height_m),
+        symmetric_about_z=True,
+    )
+
+
+BOX = ObjectModel(name="box", class_label="box", field=fields.Box([0.06, 0.06, 0.16]))
+OBJECTS: dict[str, ObjectModel] = {
+    "cylinder_r30": _cylinder(0.030, 0.080),
+    "cylinder_r40": _cylinder(0.040, 0.095),
+    "cylinder_r50": _cylinder(0.050, 0.120),
+    "box_face": BOX,
+    "box_edge": BOX,
+    "box_corner": BOX,
+}
+
+
+def truth_pose(kind: str, rng: np.random.Generator) -> np.ndarray:
+    """A ``tool_from_object`` of the given kind of grasp."""
+    model = OBJECTS[kind]
+    if model.symmetric_about_z:
+        return synthetic.random_grasp_pose(model, rng)
+    tilt = se3.rotation_about(np.array([1.0, 0.0, 0.0]), np.radians(rng.uniform(-10, 10)))
+    jitter = np.radians(rng.uniform(-3, 3))
+    if kind == "box_face":
+        rot = tilt @ se3.rotation_about(np.array([0.0, 0.0, 1.0]), jitter)
+    elif kind == "box_edge":
+        rot = tilt @ se3.rotation_about(np.array([0.0, 0.0, 1.0]), np.pi / 4 + jitter)
+    else:  # box_corner: the body diagonal (1, 1, 1) of a cube-like end onto tool x
+        diag = np.array([1.0, 1.0, 1.0]) / np.sqrt(3.0)
+        axis = np.cross(diag, [1.0, 0.0, 0.0])
+        rot = se3.rotation_about(axis, np.arccos(diag[0]) + jitter)
+    return se3.make_pose(rot, [0.0, 0.0, rng.uniform(-0.01, 0.01)])
+
+
+def bad_seed(model: ObjectModel, truth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The truth turned 90 degrees about an object axis (80-degree tilt for bodies of
+    revolution) and moved 3 mm."""
+    if model.symmetric_about_z:
+        return synthetic.tilted_seed(truth, 80.0, rng, offset_m=0.003)
+    axis = np.eye(3)[rng.integers(3)]
+    seed = truth @ se3.make_pose(se3.rotation_about(axis, np.pi / 2))
+    shift = rng.normal(size=3)
+    seed[:3, 3] += 0.003 * shift / np.linalg.norm(shift)
+    return seed
+
+
+def right(fld: fields.Field, result: common.FitResult, truth: np.ndarray) -> bool:
+    if result.status in ("no_patch", "failed"):
+        return False
+    angle, offset = common.pose_difference(
+        fld, se3.invert(truth), result.object_from_tool, result.observable
+    )
+    return angle < AXIS_OK_DEG and offset < OFFSET_OK_M
+
+
+def _solver(name: str, fld: fields.Field, fit_dims: tuple[str, ...] = ()) -> Any:
+    if name == "lm":
+        return LMSolver(fld)
+    jit = "on" if jit_available("gcc") else "off"
+    return IpoptSolver(fld, IpoptParams(jit=jit, fit_dims=fit_dims))
+
+
+def _summary(results: list[tuple[common.FitResult, bool, float]], extra: dict[str, Any]) -> Row:
+    statuses = [r.status for r, _, _ in results]
+    cpu = [c for _, _, c in results]
+    return {
+        **extra,
+        "cases": len(results),
+        "success_rate": float(np.mean([ok for _, ok, _ in results])),
+        "silent_wrong": sum(1 for r, ok, _ in results if r.status in GOOD and not ok),
+        "suspect_rate": float(np.mean([s == "suspect" for s in statuses])),
+        "ok_rate": float(np.mean([s in GOOD for s in statuses])),
+        "cpu_ms_median": 1e3 * median(cpu),
+        "cpu_ms_p95": 1e3 * percentile(cpu, 95),
+    }
+
+
+def estimator_rows(
+    kinds: list[str],
+    solvers: list[str],
+    noises: list[float],
+    starts: list[str],
+    n_cases: int,
+    n_points: int,
+) -> list[Row]:
+    rows: list[Row] = []
+    for kind in kinds:
+        model = OBJECTS[kind]
+        for noise in noises:
+            clouds = []
+            for k in range(n_cases):
+                rng = np.random.default_rng(1000 * k + round(noise * 1e5))
+                truth = truth_pose(kind, rng)
+                pts, bub = synthetic.grasp_cloud(
+                    model, truth, n_points=n_points, noise_m=noise, rng=rng
+                )
+                clouds.append((truth, pts, bub, bad_seed(model, truth, rng)))
+            for name in solvers:
+                solver = _solver(name, model.field)
+                if isinstance(solver, IpoptSolver):
+                    solver.prepare(n_points)
+                    solver.prepare(EstimatorParams().screen_points)
+                est = PoseEstimator(
+                    solver, EstimatorParams(), symmetric_about_z=model.symmetric_about_z
+                )
+                for start in starts:
+                    results = []
+                    for truth, pts, bub, seed in clouds:
+                        est.reset()
+                        prior = seed if start == "bad_seed" else None
+                        if start == "track":
+                            est.estimate(pts, bub)
+                        c0 = time.process_time()
+                        res = est.estimate(pts, bub, seed_tool_from_object=prior)
+                        cpu = time.process_time() - c0
+                        results.append((res, right(model.field, res, truth), cpu))
+                    rows.append(
+                        _summary(
+                            results,
+                            {
+                                "kind": "hard",
+                                "object": kind,
+                                "solver": name,
+                                "fit_dims": "",
+                                "noise_mm": 1e3 * noise,
+                                "points": n_points,
+                                "start": start,
+                            },
+                        )
+                    )
+    return rows
+
+
+def size_rows(offsets_mm: list[float], n_cases: int, n_points: int) -> list[Row]:
+    """The model's radius is 40 mm; the true one is 40 + offset."""
+    model = OBJECTS["cylinder_r40"]
+    rows: list[Row] = []
+    for fit in ((), ("radius",)):
+        solver = _solver("ipopt", model.field, fit)
+        est = PoseEstimator(solver, EstimatorParams(track=False))
+        for off in offsets_mm:
+            true = _cylinder(0.040 + off * 1e-3, 0.095)
+            results, axis, offaxis, radius_err = [], [], [], []
+            for k in range(n_cases):
+                rng = np.random.default_rng(500 + k)
+                truth = synthetic.random_grasp_pose(true, rng)
+                pts, bub = synthetic.grasp_cloud(
+                    true, truth, n_points=n_points, noise_m=0.001, rng=rng
+                )
+                seed = synthetic.tilted_seed(truth, 10.0, rng, offset_m=0.002)
+                c0 = time.process_time()
+                res = est.estimate(pts, bub, seed_tool_from_object=seed)
+                cpu = time.process_time() - c0
+                results.append((res, right(true.field, res, truth), cpu))
+                axis.append(common.axis_error_deg(res.tool_from_object, truth, flip_symmetric=True))
+                offaxis.append(common.offaxis_error_m(res.tool_from_object, truth))
+                if fit:
+                    radius_err.append(abs(res.dims_m["radius_m"] - true.field.dims_m["radius_m"]))
+            row = _summary(
+                results,
+                {
+                    "kind": "size",
+                    "object": "cylinder_r40",
+                    "solver": "ipopt",
+                    "fit_dims": ",".join(fit),
+                    "noise_mm": 1.0,
+                    "points": n_points,
+                    "start": "seed_10deg",
+                    "size_offset_mm": off,
+                },
+            )
+            row["axis_err_deg_median"] = median(axis)
+            row["offaxis_err_mm_median"] = 1e3 * median(offaxis)
+            row["radius_err_mm_median"] = 1e3 * median(radius_err) if fit else float("nan")
+            rows.append(row)
+    return rows
+
+
+def degenerate_clouds() -> dict[str, tuple[np.ndarray, np.ndarray | None]]:
+    """Clouds without the shape information to fix a pose, and the seed each gets."""
+    rng = np.random.default_rng(3)
+    plane = np.stack(
+        [np.full(800, 0.03), rng.uniform(-0.02, 0.02, 800), rng.uniform(-0.03, 0.03, 800)], 1
+    )
+    plane[:, 0] += rng.normal(scale=0.0005, size=800)
+    return {
+        "identical": (np.tile([[0.04, 0.0, 0.01]], (3000, 1)), None),
+        "collinear": (np.outer(np.linspace(-0.03, 0.03, 500), [0.0, 0.6, 0.8]), None),
+        "planar_seeded": (plane, np.eye(4)),
+        "empty": (np.zeros((0, 3)), None),
+        "all_nan": (np.full((500, 3), np.nan), None),
+    }
+
+
+def degenerate_rows(solvers: list[str]) -> list[Row]:
+    rows: list[Row] = []
+    for name in solvers:
+        est = PoseEstimator(_solver(name, BOX.field), EstimatorParams(), symmetric_about_z=False)
+        for label, (pts, seed) in degenerate_clouds().items():
+            est.reset()
+            c0 = time.process_time()
+            res = est.estimate(pts, seed_tool_from_object=seed)
+            cpu = time.process_time() - c0
+            rows.append(
+                {
+                    **_summary(
+                        [(res, False, cpu)],
+                        {
+                            "kind": "degenerate",
+                            "object": f"box/{label}",
+                            "solver": name,
+                            "fit_dims": "",
+                            "points": len(pts),
+                            "start": "seeded" if seed is not None else "cold",
+                        },
+                    ),
+                    "status": res.status,
+                    "message": res.message[:60],
+                }
+            )
+    return rows
+
+
+def run(quick: bool) -> list[Row]:
+    one_core()
+    if quick:
+        rows = estimator_rows(["cylinder_r40", "box_edge"], ["lm"], [0.001], ["cold"], 2, 1000)
+        rows += size_rows([5.0], 1, 1000)
+        return rows + degenerate_rows(["lm"])
+    kinds = list(OBJECTS)
+    rows = estimator_rows(kinds, ["lm", "ipopt"], [0.001], ["cold", "bad_seed", "track"], 8, 3000)
+    rows += estimator_rows(
+        ["cylinder_r40", "box_edge"],
+        ["lm", "ipopt"],
+        [0.0005, 0.002, 0.003],
+        ["cold", "bad_seed"],
+        10,
+        3000,
+    )
+    # Cold-start and tracking time at 10k points, by solver.
+    rows += estimator_rows(["cylinder_r40"], ["lm", "ipopt"], [0.001], ["cold", "track"], 10, 10000)
+    rows += size_rows([1.0, 2.0, 4.0, 8.0], 10, 3000)
+    return rows + degenerate_rows(["lm", "ipopt"])
+
+
+COLUMNS = [
+    "kind",
+    "object",
+    "solver",
+    "fit_dims",
+    "noise_mm",
+    "points",
+    "start",
+    "size_offset_mm",
+    "cases",
+    "success_rate",
+    "silent_wrong",
+    "suspect_rate",
+    "axis_err_deg_median",
+    "radius_err_mm_median",
+    "cpu_ms_median",
+    "cpu_ms_p95",
+    "status",
+]
+
+if __name__ == "__main__":
+    main("pose_hard", run, columns=COLUMNS)

@@ -1,0 +1,245 @@
+"""What a bag says about each channel: the message type, and how to read it without this project.
+
+Each channel's MCAP schema (encoding ``softbubble.description+json``) is a JSON object:
+
+- ``type``, ``fingerprint``: the message type and its schema fingerprint at record time;
+- ``packing``: how a message is stored (see :mod:`runtime.bag.packing`);
+- ``description``: :func:`messages.base.describe` of the type at record time (every field
+  and its Python type), so an old bag decodes after a field changed;
+- ``layout``, ``fields``, ``arrays``, ``conventions`` (bags written since the
+  single-value packing): what a reader in another language needs, field by field: the
+  MessagePack type with its width, the unit, what special values mean, and for arrays
+  dtype, byte order, memory order and shape. Units come from the field name's suffix
+  (``_m``, ``_pa``, ``_nanos``...); :data:`NOTES` adds what a name cannot say.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from messages.base import Message
+from runtime.bag.packing import PACKING
+
+SCHEMA_ENCODING = "softbubble.description+json"
+
+# Name suffix -> unit (longest suffix first wins).
+UNITS = {
+    "_m_per_s": "m/s",
+    "_nanos": "ns",
+    "_secs": "s",
+    "_hz": "Hz",
+    "_rad": "rad",
+    "_pa": "Pa",
+    "_px": "px",
+    "_mm": "mm",
+    "_m": "m",
+    "_n": "N",
+    "_k": "K",
+}
+
+JS_INT = (
+    "up to 64 bits: values above 2^53 (every wall-clock stamp_nanos) lose precision as a "
+    "JavaScript number; decode with BigInt (@msgpack/msgpack: useBigInt64: true)"
+)
+
+# What a field's name and type cannot say. Keys are field names (any type), or
+# "Type.field" for one type only; ``tests/runtime/test_bag_schema.py`` checks that each
+# still names a declared field.
+NOTES: dict[str, str] = {
+    "stamp_nanos": "nanoseconds since the Unix epoch (simulation: scene time); " + JS_INT,
+    "seq": "per-output sequence number, from 0; a gap means messages were dropped",
+    "frame_id": "the coordinate frame of the data: tool, left_sensor, right_sensor or object",
+    "sensor": "'left' or 'right' (which bubble)",
+    "depth_m": "NaN = invalid pixel (no time-of-flight return); row 0 is the top of the image",
+    "ir": "time-of-flight amplitude in raw sensor counts (no unit); row 0 is the top",
+    "mask": "255 = selected pixel, 0 = not selected",
+    "OverlayImage.image": "8-bit colour, channels in B, G, R order (OpenCV); row 0 is the top",
+    "points_in_tool": "rows of (x, y, z) in the tool frame, metres",
+    "bubble": "per point of points_in_tool: 0 = left bubble, 1 = right bubble",
+    "shear_px": "mean membrane displacement (dx, dy) in full-resolution image pixels",
+    "direction": "shear_px / magnitude_px, or (0, 0) when direction_defined is false",
+    "observable": "which of (tx, ty, tz, rx, ry, rz) in the object frame the patch constrains",
+    "probabilities": "one per entry of classes, in that order; they sum to 1",
+}
+
+POSE_NOTE = (
+    "4x4 homogeneous transform a_from_b (row-major): maps a point in frame b to frame a, "
+    "p_in_a = a_from_b @ p_in_b; rotation block orthonormal, translation in metres"
+)
+
+CONVENTIONS = {
+    "units": "SI, the unit in the field name (width_m, pressure_pa, stamp_nanos, solve_secs)",
+    "frames": (
+        "tool (gripper tool frame), left_sensor and right_sensor (each ToF camera, z along "
+        "the optical axis), object (object geometry frame); right-handed"
+    ),
+    "poses": POSE_NOTE,
+    "quaternions": "(w, x, y, z), unit norm, where they appear",
+    "images": "(rows, columns[, channels]), row 0 at the top, column 0 at the left",
+    "integers": JS_INT,
+    "floats": "MessagePack float 64 (IEEE 754 double)",
+}
+
+LAYOUT = (
+    "each MCAP message is ONE MessagePack map: {'type': str, 'fp': str, 'fields': map of "
+    "the scalar fields (nested structs as maps), 'arrays': map name -> {'dtype': numpy "
+    "dtype string, 'shape': [int], 'order': 'C', 'data': bin}}"
+)
+
+
+def unit_of(name: str) -> str | None:
+    """The unit a field's name ends in (``width_m`` -> ``m``), or ``None``."""
+    for suffix, unit in UNITS.items():
+        if name.endswith(suffix):
+            return unit
+    return None
+
+
+def _meaning(type_name: str, name: str) -> dict[str, str]:
+    """The ``unit`` and ``note`` of a field, where its name or :data:`NOTES` give them."""
+    out = {}
+    unit = unit_of(name)
+    if unit:
+        out["unit"] = unit
+    note = NOTES.get(f"{type_name}.{name}") or NOTES.get(name)
+    if note is None and "_from_" in name:
+        note = POSE_NOTE
+    if note:
+        out["note"] = note
+    return out
+
+
+def _scalar_type(desc: Any) -> str:
+    """A described scalar type as a reader in another language sees it."""
+    if isinstance(desc, dict) and "generic" in desc:
+        args = [_scalar_type(a) for a in desc.get("args", [])]
+        return f"{desc['generic']}[{', '.join(args)}]"
+    return {"int": "int64", "float": "float64", "bool": "bool", "str": "string"}.get(
+        str(desc), str(desc)
+    )
+
+
+def _fields(type_name: str, prefix: str, described: list[Any], out: dict[str, Any]) -> None:
+    for name, desc in described:
+        path = f"{prefix}{name}"
+        if isinstance(desc, dict) and "struct" in desc:
+            _fields(desc["struct"], f"{path}.", desc.get("fields", []), out)
+            continue
+        if isinstance(desc, dict) and "array" in desc:
+            continue
+        out[path] = {"type": _scalar_type(desc), **_meaning(type_name, name)}
+
+
+def _arrays(type_name: str, described: list[Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for name, desc in described:
+        if not (isinstance(desc, dict) and "array" in desc):
+            continue
+        dtype = np.dtype(desc["array"]["dtype"]).newbyteorder("<")
+        entry: dict[str, Any] = {
+            "dtype": dtype.str,
+            "type": dtype.name,
+            "byte_order": "little" if dtype.itemsize > 1 else "n/a (1 byte)",
+            "order": "C (row-major)",
+            "shape": desc["array"]["shape"],  # null = any length on that axis
+            **_meaning(type_name, name),
+        }
+        out[name] = entry
+    return out
+
+
+def reader_guide(description: dict[str, Any]) -> dict[str, Any]:
+    """The ``layout``, ``fields``, ``arrays`` and ``conventions`` of a channel's schema."""
+    type_name = str(description.get("type", ""))
+    described = description.get("fields", [])
+    fields: dict[str, Any] = {}
+    _fields(type_name, "", described, fields)
+    return {
+        "layout": LAYOUT,
+        "fields": fields,
+        "arrays": _arrays(type_name, described),
+        "conventions": CONVENTIONS,
+    }
+
+
+@dataclass(frozen=True)
+class TopicSchema:
+    """What a bag knows of the type on one channel, independent of today's classes."""
+
+    type_name: str
+    fingerprint: str
+    description: dict[str, Any] | None
+    packing: str = PACKING
+
+    def to_json(self) -> bytes:
+        body: dict[str, Any] = {
+            "type": self.type_name,
+            "fingerprint": self.fingerprint,
+            "description": self.description,
+            "packing": self.packing,
+        }
+        if self.description is not None and self.packing == PACKING:
+            body.update(reader_guide(self.description))
+        return json.dumps(body, sort_keys=True, indent=1).encode()
+
+    @staticmethod
+    def from_json(data: bytes | str, name: str = "", packing: str = "") -> TopicSchema:
+        """Read a stored schema (either packing); missing or broken parts become unknown."""
+        try:
+            obj = json.loads(data) if data else {}
+        except ValueError:
+            obj = {}
+        if not isinstance(obj, dict):
+            obj = {}
+        description = obj.get("description")
+        return TopicSchema(
+            type_name=str(obj.get("type", name)),
+            fingerprint=str(obj.get("fingerprint", "")),
+            description=description if isinstance(description, dict) else None,
+            packing=packing or str(obj.get("packing") or PACKING),
+        )
+
+    def array_names(self) -> set[str] | None:
+        """Names of the array fields per the stored description (``None`` if unknown)."""
+        if not self.description:
+            return None
+        fields = self.description.get("fields", [])
+        return {
+            str(item[0])
+            for item in (fields if isinstance(fields, list) else [])
+            if isinstance(item, list)
+            and len(item) == 2
+            and isinstance(item[1], dict)
+            and "array" in item[1]
+        }
+
+    def current_class(self) -> type[Message] | None:
+        """Today's class of this type if its fingerprint still matches, else ``None``."""
+        cls = Message.registry.get(self.type_name)
+        if cls is None or cls.schema().fingerprint != self.fingerprint:
+            return None
+        return cls
+
+
+def schema_for(type_name: str, fingerprint: str) -> TopicSchema:
+    """The schema to store for frames of ``type_name``/``fingerprint`` seen on the wire."""
+    cls = Message.registry.get(type_name)
+    description = None
+    if cls is not None and cls.schema().fingerprint == fingerprint:
+        description = cls.schema().description
+    return TopicSchema(type_name, fingerprint, description)
+
+
+@dataclass(frozen=True)
+class ChannelInfo:
+    """One channel of a bag: its topic, schema and where it was declared."""
+
+    channel_id: int
+    topic: str
+    schema: TopicSchema
+    message_encoding: str = "msgpack"
+    offset: int = -1  # file offset of the record that declared it (-1: inside a chunk)

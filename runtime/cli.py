@@ -1,0 +1,157 @@
+"""The options that running a graph and replaying a bag share, declared once.
+
+One vocabulary for both: ``--swap NODE=IMPL`` changes an implementation, ``--set
+NODE.PARAM=VALUE`` a parameter (``PARAM`` may be dotted: ``shear.farneback.winsize``),
+``--record OUT.mcap`` with ``--record-topics REGEX`` records, ``--replay-topics REGEX``
+(replay only) chooses what the bag plays. Old spellings (``--replace``, ``--topics``)
+still work for a while and say what replaced them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from runtime.node import Node
+# The registry, node and params modules import messages (numpy, msgspec): only the
+# commands that list nodes import them, so ``launch.py --help`` stays light.
+
+LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
+
+
+class _Deprecated(argparse.Action):
+    """Stores into the new option's destination and warns once on stderr."""
+
+    def __init__(self, *args: Any, new: str, append: bool, **kwargs: Any) -> None:
+        self.new = new
+        self.append = append
+        super().__init__(*args, **kwargs)
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: str | Sequence[Any] | None,
+        option_string: str | None = None,
+    ) -> None:
+        print(f"warning: {option_string} is deprecated; use {self.new}", file=sys.stderr)
+        if self.append:
+            setattr(namespace, self.dest, [*getattr(namespace, self.dest), values])
+        else:
+            setattr(namespace, self.dest, values)
+
+
+def add_deprecated(
+    parser: argparse.ArgumentParser, old: str, new: str, dest: str, *, append: bool = False
+) -> None:
+    """Accept ``old`` as a hidden alias of ``new`` (stored in ``dest``), with a warning."""
+    parser.add_argument(
+        old, dest=dest, action=_Deprecated, new=new, append=append, help=argparse.SUPPRESS
+    )
+
+
+def add_run_options(parser: argparse.ArgumentParser, *, swap_help: str, swap_metavar: str) -> None:
+    """``--set``, ``--swap``, ``--record``, ``--record-topics``, ``--overwrite``, ``--lockstep``,
+    ``--duration`` and ``--log-level``, as ``launch.py GRAPH`` and ``launch.py replay`` take them.
+    """
+    parser.add_argument(
+        "--set",
+        dest="sets",
+        action="append",
+        default=[],
+        metavar="NODE.PARAM=VALUE",
+        help="set a parameter (repeatable; PARAM may be dotted: shear.farneback.winsize=45)",
+    )
+    parser.add_argument(
+        "--swap", dest="swaps", action="append", default=[], metavar=swap_metavar, help=swap_help
+    )
+    parser.add_argument("--record", type=Path, default=None, metavar="OUT.mcap")
+    parser.add_argument(
+        "--record-topics",
+        default=None,
+        metavar="REGEX",
+        help="with --record: the topics to keep (re.search; default all)",
+    )
+    parser.add_argument(
+        "--overwrite", action="store_true", help="with --record: replace a finished bag"
+    )
+    parser.add_argument(
+        "--lockstep",
+        action="store_true",
+        help="deterministic: a replay waits for the graph to be idle where order matters",
+    )
+    parser.add_argument("--duration", type=float, default=None, metavar="SECS")
+    parser.add_argument("--log-level", default="INFO", choices=LOG_LEVELS)
+
+
+# -- launch.py nodes ------------------------------------------------------------------------------
+
+
+def _ports(cls: type[Node]) -> tuple[str, str]:
+    ins = ", ".join(
+        f"[{p}]:{t.__name__}" if p in cls.optional_inputs else f"{p}:{t.__name__}"
+        for p, t in cls.inputs.items()
+    )
+    outs = ", ".join(f"{p}:{t.__name__}" for p, t in cls.outputs.items())
+    if cls.raw_input:
+        ins = "any topic, any type"
+    return ins or "-", outs or "-"
+
+
+def _clip(text: str, width: int = 40) -> str:
+    return text if len(text) <= width else text[: width - 3] + "..."
+
+
+def node_table(names: Sequence[str]) -> str:
+    """One line per implementation: its inputs (optional ones in brackets) and outputs."""
+    from runtime.registry import resolve
+
+    lines = []
+    for name in names:
+        ins, outs = _ports(resolve(name))
+        lines.append(f"{name:32} in: {ins}  out: {outs}")
+    lines.append("")
+    lines.append("[port]: an optional input. `launch.py nodes IMPL` shows one's parameters.")
+    return "\n".join(lines)
+
+
+def node_details(impl: str) -> str:
+    """An implementation's ports and every parameter: type, default, unit, limits, meaning.
+
+    Limits are those the parameter class's own check states (found by building it with
+    far-out values); a class whose check needs another parameter first (a required path)
+    shows none. Nested parameters are listed by their dotted path, as ``--set`` takes them.
+
+    Raises:
+        KeyError: an unknown implementation (the message lists the valid ones).
+    """
+    from runtime.params import describe
+    from runtime.registry import class_path, resolve
+
+    cls = resolve(impl)
+    ins, outs = _ports(cls)
+    doc = (cls.__doc__ or "").strip().splitlines()
+    lines = [f"{impl}  ({class_path(cls)})"]
+    if doc:
+        lines.append(f"  {doc[0]}")
+    lines += [f"  inputs:  {ins}", f"  outputs: {outs}", ""]
+    params = describe(cls.Params)
+    if not params:
+        lines.append("  no parameters")
+        return "\n".join(lines)
+    rows = [["param", "type", "default", "unit"]]
+    rows += [[p.path, p.type, _clip(repr(p.default)), p.unit or "-"] for p in params]
+    limits = ["limits"] + ["; ".join(p.limits) or "-" for p in params]
+    widths = [max(len(r[i]) for r in rows) for i in range(4)]
+    for row, limit in zip(rows, limits, strict=True):
+        cells = "  ".join(f"{cell:{w}}" for cell, w in zip(row, widths, strict=True))
+        lines.append(f"  {cells}  {limit}")
+    documented = [p for p in params if p.doc]
+    if documented:
+        lines.append("")
+        lines += [f"  {p.path}: {p.doc}" for p in documented]
+    return "\n".join(lines)

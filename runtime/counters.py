@@ -1,0 +1,128 @@
+"""What a node counts per input, and the launcher's end-of-run table made of it.
+
+:class:`InputCounters` live in each node process (``runtime.process``), which reports
+them with every heartbeat. The table, per topic: messages published, the rate, and what
+its subscribers lost (``dropped``), skipped on purpose (``superseded``), could not
+decode (``bad``) and received with a NaN or infinity where the type says a number is
+finite (``nonfinite``). Per node: restarts, CPU seconds, the last exit code.
+
+``dropped`` is what the receivers counted from sequence gaps, but never more than what
+the publisher sent and the receiver did not take off its socket: a corrupted
+``header.seq`` cannot make a topic lose more messages than it carried, and a frame that
+arrived but did not decode is ``bad``, not also dropped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from runtime.protocol import INPUT_COUNTERS
+
+_COLUMNS = ("dropped", "superseded", "bad_frames", "nonfinite")
+
+
+@dataclass
+class InputCounters:
+    """One input's counts; the names match ``protocol.INPUT_COUNTERS``."""
+
+    received: int = 0  # every message taken off the socket, superseded ones included
+    dropped: int = 0
+    superseded: int = 0
+    bad_frames: int = 0
+    nonfinite: int = 0
+    last_seq: int | None = None
+    unseq: int = 0  # frames since ``last_seq`` that may hold a seq of their own: bad ones
+    suspect: tuple[int, int] | None = None  # (seq, unseq) of a message off the sequence
+
+    def note_seq(self, seq: int, skipped: int = 0) -> None:
+        """Count the messages lost before one with ``header.seq == seq``.
+
+        ``skipped`` superseded messages and the bad frames since the last message may
+        each fill one number of a gap. A seq off the sequence (a gap, or back to 0 after
+        the publisher restarted) is held as a suspect until the next message: if that one
+        follows the old sequence, the suspect was a corrupted seq and costs nothing;
+        otherwise its gap is counted and the sequence goes on from it.
+        """
+        unseq = self.unseq + skipped
+        self.unseq = 0
+        if self.suspect is not None:
+            wild, wild_unseq = self.suspect
+            self.suspect = None
+            last = self.last_seq if self.last_seq is not None else wild
+            if last < seq <= last + 2 + wild_unseq + unseq:
+                self.last_seq = seq
+                return
+            if wild > last:
+                self.dropped += max(0, wild - last - 1 - wild_unseq)
+            self.last_seq = wild
+        if self.last_seq is None or self.last_seq < seq <= self.last_seq + 1 + unseq:
+            self.last_seq = seq
+        else:
+            self.suspect = (seq, unseq)
+
+
+def add_stats(base: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
+    """Sum two stats snapshots (of two incarnations of one node)."""
+    if not base:
+        return dict(more)
+    if not more:
+        return dict(base)
+    published = dict(base.get("published", {}))
+    for topic, count in more.get("published", {}).items():
+        published[topic] = published.get(topic, 0) + count
+    inputs = {port: dict(v) for port, v in base.get("inputs", {}).items()}
+    for port, v in more.get("inputs", {}).items():
+        if port in inputs:
+            for key in INPUT_COUNTERS:
+                inputs[port][key] = inputs[port].get(key, 0) + v.get(key, 0)
+        else:
+            inputs[port] = dict(v)
+    return {"published": published, "inputs": inputs}
+
+
+def topic_totals(stats: dict[str, dict[str, Any]]) -> dict[str, dict[str, int]]:
+    """Per topic: messages published and the summed counters of its subscribers."""
+    topics: dict[str, dict[str, int]] = {}
+
+    def row(topic: str) -> dict[str, int]:
+        return topics.setdefault(topic, dict.fromkeys(("messages", *_COLUMNS), 0))
+
+    for node_stats in stats.values():
+        for topic, count in node_stats.get("published", {}).items():
+            row(topic)["messages"] += count
+    published = {topic: r["messages"] for topic, r in topics.items()}
+    for node_stats in stats.values():
+        for inp in node_stats.get("inputs", {}).values():
+            r = row(inp["topic"])
+            dropped = inp["dropped"]
+            if inp["topic"] in published:
+                dropped = min(dropped, max(0, published[inp["topic"]] - inp["received"]))
+            r["dropped"] += dropped
+            for key in _COLUMNS[1:]:
+                r[key] += inp.get(key, 0)
+    return topics
+
+
+def table(
+    stats: dict[str, dict[str, Any]], nodes: dict[str, dict[str, Any]], elapsed_secs: float
+) -> str:
+    """The end-of-run table: one row per topic, then one per node."""
+    topics = topic_totals(stats)
+    elapsed = max(elapsed_secs, 1e-9)
+    lines = [
+        f"{'topic':40} {'messages':>9} {'rate_hz':>9} {'dropped':>8} {'superseded':>10} "
+        f"{'bad':>5} {'nonfinite':>9}"
+    ]
+    for topic in sorted(topics):
+        r = topics[topic]
+        lines.append(
+            f"{topic:40} {r['messages']:9d} {r['messages'] / elapsed:9.1f} {r['dropped']:8d} "
+            f"{r['superseded']:10d} {r['bad_frames']:5d} {r['nonfinite']:9d}"
+        )
+    lines.append("")
+    lines.append(f"{'node':28} {'restarts':>8} {'cpu_secs':>9} {'exit':>5}")
+    for name in sorted(nodes):
+        n = nodes[name]
+        lines.append(f"{name:28} {n['restarts']:8d} {n['cpu_secs']:9.2f} {str(n['exit']):>5}")
+    return "\n".join(lines)

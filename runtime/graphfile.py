@@ -1,0 +1,128 @@
+"""Graph files as plain data: safe YAML reading and the command line's overrides.
+
+``--set NODE.PARAM=VALUE`` (``PARAM`` may be a dotted path into nested parameters:
+``shear.farneback.winsize=45``), ``--swap NODE=IMPL`` and ``--only NODE,NODE`` change a
+copy of the document; :func:`runtime.graph.check` then checks the result.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from messages.errors import GraphError
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):  # type: ignore[misc]
+    """``safe_load`` that refuses duplicate mapping keys instead of keeping the last."""
+
+
+def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> Any:
+    seen: set[Any] = set()
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=deep)
+        if key in seen:
+            raise yaml.constructor.ConstructorError(
+                None, None, f"duplicate key {key!r}", key_node.start_mark
+            )
+        seen.add(key)
+    return loader.construct_mapping(node, deep)
+
+
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+
+
+def parse_yaml(text: str, source: str) -> Any:
+    """YAML text to Python data, safely; a syntax error or duplicate key raises GraphError."""
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    except yaml.YAMLError as err:
+        raise GraphError(f"{source}: YAML error: {err}") from err
+
+
+def load_document(path: str | Path) -> dict[str, Any]:
+    """Read a graph file into a plain dict (not yet checked)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as err:
+        why = err.strerror if isinstance(err, OSError) else "not UTF-8 text"
+        raise GraphError(f"{path}: cannot read graph file: {why}") from err
+    doc = parse_yaml(text, str(path))
+    if not isinstance(doc, dict):
+        raise GraphError(f"{path}: a graph file must be a mapping with a 'nodes' key")
+    return doc
+
+
+def _set(nodes: dict[str, Any], item: str, source: str) -> None:
+    target, sep, value = item.partition("=")
+    name, dot, param = target.partition(".")
+    keys = param.split(".")
+    if not sep or not dot or not all(keys) or name not in nodes:
+        raise GraphError(
+            f"{source}: --set {item!r}: expected NODE.PARAM=VALUE (PARAM may be a dotted "
+            f"path: shear.farneback.winsize=45) with a node of the graph ({', '.join(nodes)})"
+        )
+    if not isinstance(nodes[name], dict):
+        raise GraphError(f"{source}: --set {item!r}: node {name!r} is not a mapping")
+    params = nodes[name].get("params")
+    if params is None:
+        params = nodes[name]["params"] = {}
+    where = f"{name}.params"
+    for key in keys[:-1]:
+        if not isinstance(params, dict):
+            raise GraphError(f"{source}: --set {item!r}: {where} is not a mapping")
+        where += f".{key}"
+        params = params.setdefault(key, {})
+    if not isinstance(params, dict):
+        raise GraphError(f"{source}: --set {item!r}: {where} is not a mapping")
+    params[keys[-1]] = parse_yaml(value, f"--set {item}")
+
+
+def apply_overrides(
+    doc: dict[str, Any],
+    *,
+    sets: Sequence[str] = (),
+    swaps: Sequence[str] = (),
+    only: Sequence[str] = (),
+    source: str = "<graph>",
+) -> dict[str, Any]:
+    """Return a copy of ``doc`` with ``--set node.param=value``, ``--swap node=impl`` and
+    ``--only a,b`` applied. Values of ``--set`` are parsed as YAML (``3``, ``true``, ``[1, 2]``);
+    its parameter may be a dotted path into nested parameters (``shear.farneback.winsize``).
+    """
+    doc = copy.deepcopy(doc)
+    nodes = doc.get("nodes")
+    if not isinstance(nodes, dict):
+        nodes = {}
+    for item in swaps:
+        name, sep, impl = item.partition("=")
+        if not sep or not impl or name not in nodes or not isinstance(nodes[name], dict):
+            raise GraphError(
+                f"{source}: --swap {item!r}: expected NODE=IMPL with a node of the graph "
+                f"({', '.join(nodes)})"
+            )
+        nodes[name]["impl"] = impl
+    for item in sets:
+        _set(nodes, item, source)
+    if only:
+        keep = set(only)
+        unknown = keep - set(nodes)
+        if unknown:
+            raise GraphError(f"{source}: --only names unknown node(s) {sorted(unknown)}")
+        for name in list(nodes):
+            if name not in keep:
+                del nodes[name]
+        for spec in nodes.values():
+            inputs = spec.get("inputs") if isinstance(spec, dict) else None
+            if not isinstance(inputs, dict):
+                continue  # the checker reports it
+            for port, ref in list(inputs.items()):
+                topic = ref.get("from") if isinstance(ref, dict) else ref
+                if isinstance(topic, str) and topic.partition("/")[0] not in keep:
+                    del inputs[port]
+    return doc

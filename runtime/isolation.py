@@ -1,0 +1,40 @@
+"""Keeping a run to this user and this machine: its private folder, loopback hosts.
+
+Each run's ``ipc://`` endpoints live in a folder only its user can enter,
+``$TMPDIR/sbg-PID-*``. The launcher removes it on every exit it sees; when the launcher
+is SIGKILLed, its nodes (which die with it) remove it on their way out
+(``runtime.child``), and the next launcher sweeps folders of this user whose PID is gone.
+
+Frames and control messages travel unencrypted, so the graph check
+(``runtime.graph``) lets a node bind TCP only on a loopback address until the runtime
+offers encrypted multi-host graphs.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+from runtime.graph import RUNDIR_PREFIX
+
+
+def make_rundir() -> Path:
+    """A fresh private run folder (after sweeping the stale ones of this user)."""
+    sweep_stale_rundirs()
+    return Path(tempfile.mkdtemp(prefix=f"{RUNDIR_PREFIX}{os.getpid()}-"))
+
+
+def sweep_stale_rundirs() -> None:
+    """Remove ``sbg-PID-*`` folders of this user whose launcher PID no longer exists."""
+    for path in Path(tempfile.gettempdir()).glob(f"{RUNDIR_PREFIX}*-*"):
+        pid = path.name[len(RUNDIR_PREFIX) :].partition("-")[0]
+        try:
+            if not pid.isdigit() or path.stat().st_uid != os.getuid():
+                continue
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            shutil.rmtree(path, ignore_errors=True)
+        except OSError:
+            continue

@@ -1,0 +1,26 @@
+"""Smoke test of ``bench/startup.py``: every row measured, the stops exit with 130.
+
+No timing goal is asserted (the machine running the tests is loaded); the run itself
+raises if a command fails or a SIGINT does not end the launcher with 130.
+"""
+
+from __future__ import annotations
+
+import math
+
+from bench.startup import run
+
+
+def test_quick_rows_cover_start_and_stop() -> None:
+    rows = run(quick=True)
+    assert [r["what"] for r in rows] == [
+        "--help",
+        "bag info",
+        "--check graph.yaml --only world,gripper",
+        "graph.yaml --only world,gripper ready",
+        "ctrl-c while running",
+        "ctrl-c while starting",
+    ]
+    for row in rows:
+        assert row["runs"] == 1
+        assert math.isfinite(row["median_s"]) and row["median_s"] > 0

@@ -1,0 +1,141 @@
+"""Ctrl-C, SIGTERM and SIGKILL at every phase of a run: how it ends and what it leaves.
+
+The goal is an end within 2 s of the signal (``python -m bench.startup`` measures it on a
+quiet machine); these tests allow 6 s on a loaded one.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+import pytest
+
+from tests.faults.conftest import FAULTS, sink, ticker
+from tests.runtime.conftest import alive
+
+EXIT_SECS = 6.0
+CODES = {signal.SIGINT: 130, signal.SIGTERM: 143}
+SIGNALS = pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["INT", "TERM"])
+
+
+def assert_clean_end(r, signum: int, code: int, took: float) -> None:
+    assert code == CODES[signum], r.log
+    assert took < EXIT_SECS, f"{took:.1f} s to exit\n{r.log}"
+    assert "Traceback" not in r.log and "KeyboardInterrupt" not in r.log, r.log
+    assert r.leftovers() == ([], []), r.log
+
+
+@SIGNALS
+def test_signal_during_the_launchers_own_start_up(run, signum: int) -> None:
+    r = run({"a": ticker(), "b": sink("a/tick")})
+    r.wait_for_handlers()  # launch.py runs: it imports, checks the graph, or spawns
+    assert r.proc.poll() is None
+    code, took = r.signal_and_time(signum)
+    assert_clean_end(r, signum, code, took)
+
+
+@SIGNALS
+def test_signal_while_nodes_are_still_importing(run, signum: int) -> None:
+    r = run({"a": ticker(init_secs=30.0), "b": sink("a/tick")})
+    r.wait_for("starting 2 node(s)")
+    r.wait_for_kids(2)
+    time.sleep(0.5)
+    code, took = r.signal_and_time(signum)
+    assert_clean_end(r, signum, code, took)
+    assert "all nodes ready" not in r.log
+
+
+@SIGNALS
+def test_signal_while_running(run, signum: int) -> None:
+    r = run({"a": ticker(), "b": sink("a/tick")})
+    r.wait_for("all nodes ready")
+    code, took = r.signal_and_time(signum)
+    assert_clean_end(r, signum, code, took)
+    assert "a/tick" in r.log  # the end-of-run table
+
+
+def test_sigterm_with_a_stopped_node(run) -> None:
+    r = run({"a": ticker(), "b": sink("a/tick")})
+    r.wait_for("all nodes ready")
+    os.kill(r.note_kids()[0], signal.SIGSTOP)
+    code, took = r.signal_and_time(signal.SIGTERM)
+    assert_clean_end(r, signal.SIGTERM, code, took)
+
+
+@pytest.mark.parametrize("phase", ["launcher start-up", "nodes importing", "running"])
+def test_killed_launcher_leaves_nothing(run, phase: str) -> None:
+    r = run(
+        {"a": ticker(init_secs=30.0 if phase == "nodes importing" else 0.0), "b": sink("a/tick")}
+    )
+    if phase == "launcher start-up":
+        r.wait_for_kids(1)  # the run folder exists; the nodes are being spawned
+    elif phase == "nodes importing":
+        r.wait_for_kids(2)
+        time.sleep(0.3)
+    else:
+        r.wait_for("all nodes ready")
+    code, _ = r.signal_and_time(signal.SIGKILL)
+    assert code == -signal.SIGKILL
+    assert r.leftovers() == ([], []), r.log
+
+
+def test_required_node_killed_while_running_fails_the_run(run) -> None:
+    r = run({"a": ticker(), "b": sink("a/tick")})
+    r.wait_for("all nodes ready")
+    killed = time.monotonic()
+    os.kill(r.note_kids()[0], signal.SIGKILL)
+    code = r.finish(timeout=30)
+    assert code == 1, r.log
+    assert time.monotonic() - killed < EXIT_SECS
+    assert "required node 'a' failed (signal 9)" in r.log
+    assert r.leftovers() == ([], []), r.log
+
+
+def test_node_killed_while_importing_fails_the_start(run) -> None:
+    r = run({"a": ticker(init_secs=30.0), "b": sink("a/tick")})
+    kids = r.wait_for_kids(2)
+    time.sleep(0.3)
+    killed = time.monotonic()
+    os.kill(kids[0], signal.SIGKILL)
+    code = r.finish(timeout=30)
+    assert code == 1, r.log
+    assert time.monotonic() - killed < EXIT_SECS, r.log
+    assert "died during start-up" in r.log
+    assert r.leftovers() == ([], []), r.log
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGKILL], ids=["TERM", "KILL"])
+def test_what_a_node_started_goes_with_it(run, tmp_path, signum: int) -> None:
+    pid_file = tmp_path / "helper.pid"
+    spawner = {"impl": f"{FAULTS}:Spawner", "params": {"pid_file": str(pid_file)}}
+    r = run({"a": spawner, "b": sink("a/tick")})
+    r.wait_for("all nodes ready")
+    helper = int(pid_file.read_text())
+    assert alive(helper)
+    r.kids.add(helper)
+    r.signal_and_time(signum)
+    assert r.leftovers() == ([], []), r.log
+
+
+def test_a_stale_run_folder_is_swept_by_the_next_launcher(tmp_path, monkeypatch) -> None:
+    """Killed between creating its folder and starting its first node (a few ms), a
+    launcher leaves the folder; the next one removes it (its PID is gone)."""
+    import subprocess
+    import sys
+
+    from runtime import isolation
+
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    monkeypatch.setattr(isolation.tempfile, "tempdir", None)
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
+    )
+    stale = tmp_path / f"sbg-{dead.stdout.strip()}-x1"
+    stale.mkdir()
+    (stale / "control").touch()
+    live = tmp_path / f"sbg-{os.getpid()}-x2"  # a launcher that still runs
+    live.mkdir()
+    fresh = isolation.make_rundir()
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([live.name, fresh.name])

@@ -1,0 +1,112 @@
+"""Supervision of real node processes: restarts, frozen nodes, honest end-of-run counts."""
+
+from __future__ import annotations
+
+import io
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+import nodes  # noqa: F401 - the registered implementations
+from runtime import launcher as launcher_module
+from runtime.graph import check
+from runtime.launcher import Launcher
+from tests.faults.conftest import FAULTS, sink, ticker
+
+
+def launcher_for(nodes_doc: dict, **kwargs) -> tuple[Launcher, io.StringIO]:
+    out = io.StringIO()
+    return Launcher(check({"nodes": nodes_doc}), out=out, **kwargs), out
+
+
+def when_running(launcher: Launcher, node: str, action, timeout: float = 60) -> threading.Thread:
+    """Call ``action(pid)`` on a thread once ``node`` is running."""
+
+    def wait() -> None:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            proc = launcher.procs[node]
+            if proc.state == "running" and proc.popen is not None:
+                action(proc.popen.pid)
+                return
+            time.sleep(0.02)
+
+    thread = threading.Thread(target=wait, daemon=True)
+    thread.start()
+    return thread
+
+
+def test_restarted_node_gets_the_start_up_allowance(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The heartbeat rule is shortened to 1 s; the restarted node takes 3 s to build.
+    monkeypatch.setattr(launcher_module, "HEARTBEAT_TIMEOUT_SECS", 1.0)
+    a = ticker(crash_after=5, crash_marker=str(tmp_path / "crashed"), restarted_init_secs=3.0)
+    a["restart"] = {"policy": "on-failure", "max_restarts": 1, "backoff_secs": 0.1}
+    launcher, out = launcher_for({"a": a, "b": sink("a/tick")}, duration_secs=8.0)
+    code = launcher.run()
+    log = out.getvalue()
+    assert code == 0, log
+    assert "node 'a' failed (exit code 3); restart 1/1" in log
+    assert "sent no heartbeat" not in log
+    assert "node 'a' is back" in log
+
+
+def test_frozen_node_is_killed_by_the_heartbeat_rule_and_restarted(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(launcher_module, "HEARTBEAT_TIMEOUT_SECS", 1.0)
+    a = ticker()
+    a["restart"] = {"policy": "on-failure", "max_restarts": 1, "backoff_secs": 0.1}
+    launcher, out = launcher_for({"a": a, "b": sink("a/tick")}, duration_secs=6.0)
+    when_running(launcher, "a", lambda pid: os.kill(pid, signal.SIGSTOP))
+    code = launcher.run()
+    log = out.getvalue()
+    assert code == 0, log
+    assert "node 'a' sent no heartbeat for 1 s; killed" in log
+    assert "node 'a' is back" in log
+
+
+def table_row(log: str, topic: str) -> dict[str, int]:
+    header = next(line for line in log.splitlines() if line.startswith("[launch] topic"))
+    names = header.split()[2:]
+    row = next(line for line in log.splitlines() if line.startswith(f"[launch] {topic} "))
+    return dict(zip(names, (float(v) for v in row.split()[2:]), strict=True))  # type: ignore[misc]
+
+
+def test_corrupted_seqs_and_bad_frames_are_not_counted_as_dropped() -> None:
+    launcher, out = launcher_for(
+        {
+            "src": {"impl": f"{FAULTS}:SeqCorrupter", "params": {"count": 120}},
+            "sink": sink("src/tick"),
+        }
+    )
+    code = launcher.run()
+    log = out.getvalue()
+    assert code == 0, log
+    row = table_row(log, "src/tick")
+    assert row["messages"] == 126  # 120 ticks and 6 undecodable frames
+    assert row["bad"] == 6
+    assert row["dropped"] == 0
+
+
+def test_non_finite_inputs_are_counted_and_warned_about_once() -> None:
+    launcher, out = launcher_for(
+        {
+            "p": {"impl": f"{FAULTS}:BadPressure", "params": {"count": 40}},
+            "s": {"impl": f"{FAULTS}:PressureSink", "inputs": {"pressure": "p/pressure"}},
+        }
+    )
+    code = launcher.run()
+    log = out.getvalue()
+    assert code == 0, log
+    row = table_row(log, "p/pressure")
+    assert row["messages"] == 40
+    assert row["nonfinite"] == 20
+    warnings = [line for line in log.splitlines() if "non-finite" in line and "[s]" in line]
+    assert len(warnings) == 1, log
+    assert "pressure_pa" in warnings[0] and "p/pressure" in warnings[0]

@@ -1,0 +1,69 @@
+"""contact_patch places points by the camera pose each frame carries, or refuses the frame."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from geometry.camera import PinholeCamera
+from geometry.gripper import GripperGeometry, tool_from_sensor
+from messages.base import Header
+from messages.types import GripperState, ToFImage
+from nodes.contact_patch import ContactPatchNode
+from runtime.testing import feed, make_node
+
+CAM = PinholeCamera.from_fov(64, 48)
+
+
+def _tof(side: str, depth: np.ndarray, stamp: int, pose: np.ndarray) -> ToFImage:
+    return ToFImage(
+        header=Header(stamp_nanos=stamp),
+        sensor=side,
+        depth_m=depth.astype(np.float32),
+        ir=np.zeros(depth.shape, np.uint16),
+        fx_px=CAM.fx_px,
+        fy_px=CAM.fy_px,
+        cx_px=CAM.cx_px,
+        cy_px=CAM.cy_px,
+        tool_from_sensor=pose,
+    )
+
+
+def _patch_points(poses: dict[str, np.ndarray]) -> tuple[dict, object]:
+    node, io = make_node(
+        ContactPatchNode, {"contact": {"min_component_px": 20}, "reference_frames": 1}
+    )
+    free = np.full(CAM.shape, 0.08, np.float32)
+    pressed = free.copy()
+    pressed[10:30, 10:30] = 0.07
+    feed(node, "gripper", GripperState(header=Header(), width_m=0.11, speed_m_per_s=0.0, force_n=0))
+    for side in ("left", "right"):
+        feed(node, side, _tof(side, free, 0, poses[side]))
+    for side in ("left", "right"):
+        feed(node, side, _tof(side, pressed, 1, poses[side]))
+    return io.published, node
+
+
+def test_points_follow_the_mount_each_frame_carries() -> None:
+    """A scene with another camera mount: its frames say so and the patch follows them
+    (no module-wide default geometry is assumed)."""
+    width = 0.07
+    default = {s: tool_from_sensor(s, width) for s in ("left", "right")}
+    other_geometry = GripperGeometry(camera_back_m=0.03, camera_pitch_deg=20.0)
+    other = {s: other_geometry.tool_from_sensor(s, width) for s in ("left", "right")}
+    assert not np.allclose(default["left"], other["left"])
+    for poses in (default, other):
+        published, _ = _patch_points(poses)
+        patch = published["patch"][-1]
+        left = patch.points_in_tool[patch.bubble == 0]
+        assert len(left) == 400
+        pts_sensor = CAM.depth_to_points(np.full(CAM.shape, 0.07, np.float32))[10:30, 10:30]
+        pts_sensor = pts_sensor.reshape(-1, 3)
+        pose = poses["left"]
+        want = pts_sensor @ pose[:3, :3].T + pose[:3, 3]
+        np.testing.assert_allclose(np.sort(left, axis=0), np.sort(want, axis=0), atol=1e-5)
+
+
+def test_frames_without_a_mount_are_refused() -> None:
+    unknown = np.zeros((4, 4))
+    published, node = _patch_points({"left": unknown, "right": unknown})
+    assert "patch" not in published

@@ -1,0 +1,281 @@
+"""The viewer node, the bag commands and the mosaic, against a real short run of graph.yaml.
+
+One recording for the module: ``launch.py graph.yaml --record BAG --view LIVE.rrd`` (the
+default graph, a simulated mug handover that ends by itself in a few seconds), so the live
+viewer node and the bag commands see the same messages.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from mcap.reader import make_reader
+from rerun.chunk import RrdReader
+
+import launch
+import nodes  # noqa: F401 - the index of node implementations
+from geometry.camera import PinholeCamera
+from geometry.objects import NAMES, make
+from messages.base import Header
+from messages.errors import GraphError
+from messages.types import ContactPatch, GraspState, ToFImage
+from runtime.bag import BagReader, BagWriter
+from runtime.graph import check, load_document
+from viz.cli import add_viewer
+from viz.foxglove_export import convert, to_json
+from viz.mosaic import BAR_PX, MosaicState, outline_px
+from viz.shapes import object_mesh
+
+ROOT = Path(__file__).resolve().parents[2]
+
+# Message type -> an entity the Rerun logger must fill for it.
+ENTITY_OF = {
+    "ToFImage": "/tool/left_sensor/depth",
+    "MaskImage": "/tool/left_sensor/mask/contact_patch",
+    "ContactPatch": "/tool/patch",
+    "PoseEstimate": "/pose/residual_rms_m",
+    "GroundTruth": "/tool/object_true",
+    "Pressure": "/pressure/left",
+    "GripperState": "/gripper/force_n",
+    "GraspState": "/grasp/stable",
+    "ShearEstimate": "/tool/left_sensor/shear",
+    "OverlayImage": "/overlay/left",
+    "TaskEvent": "/events/task",
+}
+NOT_DRAWN = {"WorldState", "GripperCommand"}
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    tmp = tmp_path_factory.mktemp("viz")
+    bag, live = tmp / "run.mcap", tmp / "live.rrd"
+    cmd = [sys.executable, "launch.py", "graph.yaml", "--record", str(bag), "--view", str(live)]
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.run(
+        [*cmd, "--duration", "20"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=180
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return bag, live
+
+
+def rrd_rows(path: Path) -> Counter[str]:
+    rows: Counter[str] = Counter()
+    for chunk in RrdReader(path).stream():
+        if not chunk.is_static:
+            rows[chunk.entity_path] += chunk.num_rows
+    return rows
+
+
+def bag_counts(path: Path) -> Counter[str]:
+    with BagReader(path) as reader:
+        return Counter(
+            {topic: sum(1 for _ in reader.messages([topic])) for topic in reader.topics()}
+        )
+
+
+def bag_types(path: Path) -> dict[str, str]:
+    with BagReader(path) as reader:
+        return {t: s.type_name for t, s in reader.topics().items()}
+
+
+def test_live_viewer_logs_every_stream(run: tuple[Path, Path]) -> None:
+    bag, live = run
+    rows = rrd_rows(live)
+    types = set(bag_types(bag).values())
+    assert types - NOT_DRAWN <= set(ENTITY_OF), f"a type with no entity to check: {types}"
+    for kind in sorted(types - NOT_DRAWN):
+        assert rows[ENTITY_OF[kind]] > 0, f"{kind}: nothing logged at {ENTITY_OF[kind]}"
+
+
+def test_bag_view_logs_each_message_once(run: tuple[Path, Path], tmp_path: Path) -> None:
+    bag, _ = run
+    out = tmp_path / "bag.rrd"
+    assert launch.main(["bag", "view", str(bag), "--out", str(out)]) == 0
+    rows = rrd_rows(out)
+    counts = bag_counts(bag)
+    assert rows["/tool/left_sensor/depth"] == counts["left_camera/image"]
+    assert rows["/tool/right_sensor/ir"] == counts["right_camera/image"]
+    assert rows["/tool/patch"] == counts["contact_patch/patch"]
+    assert rows["/pressure/left"] == counts["left_pressure/pressure"]
+    assert rows["/events/task"] == counts["supervisor/event"]
+    static = [c.entity_path for c in RrdReader(out).stream() if c.is_static]
+    assert "/tool/object_true/mesh" in static
+
+
+def _protobuf_class(schema: object) -> type:
+    files = descriptor_pb2.FileDescriptorSet.FromString(schema.data)  # type: ignore[attr-defined]
+    pool = descriptor_pool.DescriptorPool()
+    for proto in files.file:
+        pool.Add(proto)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))  # type: ignore[attr-defined]
+
+
+def test_foxglove_export_round_trips_image_and_cloud(tmp_path: Path) -> None:
+    rng = np.random.default_rng(3)
+    depth = rng.uniform(0.02, 0.08, (6, 8)).astype(np.float32)
+    depth[2, 3] = np.nan
+    ir = rng.integers(0, 4000, (6, 8), dtype=np.uint16)
+    image = ToFImage(
+        header=Header(stamp_nanos=1_500_000_001, frame_id="left_sensor"),
+        sensor="left",
+        depth_m=depth,
+        ir=ir,
+        fx_px=7.0,
+        fy_px=7.0,
+        cx_px=3.5,
+        cy_px=2.5,
+    )
+    points = rng.normal(0, 0.01, (50, 3)).astype(np.float32)
+    bubble = (np.arange(50) % 2).astype(np.uint8)
+    patch = ContactPatch(
+        header=Header(stamp_nanos=1_500_000_002, frame_id="tool"),
+        points_in_tool=points,
+        bubble=bubble,
+    )
+    bag, out = tmp_path / "in.mcap", tmp_path / "fox.mcap"
+    with BagWriter(bag) as writer:
+        writer.write_message("left_camera/image", image, 1_500_000_001)
+        writer.write_message("contact_patch/patch", patch, 1_500_000_002)
+    assert launch.main(["bag", "export", str(bag), "--foxglove", str(out)]) == 0
+    decoded: dict[str, tuple[str, Any]] = {}
+    with open(out, "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            if schema.encoding == "protobuf":
+                value = _protobuf_class(schema).FromString(message.data)
+            else:
+                value = json.loads(message.data)
+            decoded[channel.topic] = (schema.name, value)
+    names = {topic: name for topic, (name, _) in decoded.items()}
+    assert names == {
+        "/left_camera/image/depth": "foxglove.RawImage",
+        "/left_camera/image/ir": "foxglove.RawImage",
+        "/left_camera/image/calibration": "foxglove.CameraCalibration",
+        "/contact_patch/patch": "foxglove.PointCloud",
+        "/contact_patch/patch/json": "ContactPatch",
+    }
+    got = decoded["/left_camera/image/depth"][1]
+    assert (got.encoding, got.height, got.width, got.frame_id) == ("32FC1", 6, 8, "left_sensor")
+    assert (got.timestamp.seconds, got.timestamp.nanos) == (1, 500_000_001)
+    np.testing.assert_array_equal(np.frombuffer(got.data, np.float32).reshape(6, 8), depth)
+    got_ir = decoded["/left_camera/image/ir"][1]
+    np.testing.assert_array_equal(np.frombuffer(got_ir.data, "<u2").reshape(6, 8), ir)
+    assert list(decoded["/left_camera/image/calibration"][1].K)[:3] == [7.0, 0.0, 3.5]
+    cloud = decoded["/contact_patch/patch"][1]
+    assert [f.name for f in cloud.fields] == ["x", "y", "z", "bubble"]
+    assert cloud.frame_id == "tool"
+    packed = np.frombuffer(cloud.data, np.uint8).reshape(-1, cloud.point_stride)
+    np.testing.assert_array_equal(packed[:, :12].copy().view(np.float32), points)
+    np.testing.assert_array_equal(packed[:, 12], bubble)
+
+
+def test_video_has_one_frame_per_camera_instant(run: tuple[Path, Path], tmp_path: Path) -> None:
+    bag, _ = run
+    out, stills = tmp_path / "run.mp4", tmp_path / "stills"
+    code = launch.main(
+        ["bag", "video", str(bag), "--out", str(out), "--scale", "1", "--stills", str(stills)]
+    )
+    assert code == 0
+    with BagReader(bag) as reader:
+        first = next(reader.messages(["left_camera/image"])).decode()
+        height, width = first.depth_m.shape
+        stamps = {
+            m.decode().header.stamp_nanos
+            for m in reader.messages(["left_camera/image", "right_camera/image"])
+        }
+    video = cv2.VideoCapture(str(out))
+    frames = 0
+    while True:
+        ok, frame = video.read()
+        if not ok:
+            break
+        assert frame.shape == (BAR_PX + 3 * height, 2 * width, 3)
+        frames += 1
+    video.release()
+    assert frames == len(stamps)
+    with BagReader(bag) as reader:
+        events = sum(1 for _ in reader.messages(["supervisor/event"]))
+    pngs = sorted(stills.glob("*.png"))
+    assert 2 <= len(pngs) <= 2 + events + 2  # first, last, one per task or grasp event
+    for png in pngs:
+        assert cv2.imread(str(png)).shape == (BAR_PX + 3 * height, 2 * width, 3)
+
+
+def test_bag_commands_name_a_bad_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "not_a_bag.mcap"
+    bad.write_bytes(b"hello")
+    assert launch.main(["bag", "video", str(bad), "--out", str(tmp_path / "x.mp4")]) == 2
+    assert str(bad) in capsys.readouterr().err
+
+
+def test_view_option_adds_a_viewer_on_every_topic() -> None:
+    doc = load_document(ROOT / "graph.yaml")
+    topics = set(check(doc).providers())
+    viewed = add_viewer(doc, "out.rrd")
+    node = viewed["nodes"]["viewer"]
+    assert node["impl"] == "viewer.rerun" and node["params"] == {"target": "out.rrd"}
+    assert {i["from"] for i in node["inputs"].values()} == topics
+    assert add_viewer(doc, "foxglove")["nodes"]["viewer"]["impl"] == "viewer.foxglove"
+    check(viewed)
+    with pytest.raises(GraphError, match=r"node .viewer.\.params\.target: must be"):
+        check(add_viewer(doc, "out.txt"))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_object_meshes_span_the_field_bounds(name: str) -> None:
+    mesh = object_mesh(name)
+    assert mesh is not None and mesh.triangles.max() < len(mesh.vertices)
+    lo, hi = make(name).bounds_m()
+    np.testing.assert_allclose(mesh.vertices.min(0), lo, atol=2e-3)
+    np.testing.assert_allclose(mesh.vertices.max(0), hi, atol=2e-3)
+    assert object_mesh("no_such_object") is None
+
+
+def test_outline_of_points_behind_the_camera_is_none() -> None:
+    camera = PinholeCamera.from_fov()
+    behind = np.array([[0.0, 0.0, -0.1], [0.01, 0.0, -0.1], [0.0, 0.01, -0.1]])
+    assert outline_px(camera, behind) is None
+    ahead = behind * np.array([1, 1, -1])
+    hull = outline_px(camera, ahead)
+    assert hull is not None and len(hull) == 3
+
+
+def test_mosaic_draws_without_messages_and_with_nan_depth() -> None:
+    state = MosaicState()
+    assert state.render(scale=1).shape == (BAR_PX + 3 * 172, 2 * 224, 3)
+    depth = np.full((4, 6), np.nan, np.float32)
+    image = ToFImage(
+        header=Header(stamp_nanos=5),
+        sensor="left",
+        depth_m=depth,
+        ir=np.zeros((4, 6), np.uint16),
+        fx_px=5.0,
+        fy_px=5.0,
+        cx_px=2.5,
+        cy_px=1.5,
+    )
+    state.update("left_camera/image", image)
+    frame = state.render(scale=1)
+    assert frame.shape == (BAR_PX + 12, 12, 3) and np.isfinite(frame).all()
+
+
+def test_foxglove_conversion_of_plain_messages() -> None:
+    grasp = GraspState(header=Header(stamp_nanos=7), stable=True, event="stable")
+    [(topic, kind, value)] = convert("grasp_monitor/grasp", grasp)
+    assert (topic, kind) == ("grasp_monitor/grasp", "json")
+    assert value["stable"] is True and value["header"]["stamp_nanos"] == 7
+    empty = ContactPatch(
+        header=Header(), points_in_tool=np.zeros((0, 3), np.float32), bubble=np.zeros(0, np.uint8)
+    )
+    kinds = [k for _, k, _ in convert("contact_patch/patch", empty)]
+    assert kinds == ["PointCloud", "json"]
+    assert "points_in_tool" in to_json(empty)

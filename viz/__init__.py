@@ -1,0 +1,9 @@
+"""Turning messages into pictures: Rerun logging, Foxglove export and video mosaics.
+
+``viz.shapes`` builds triangle meshes of the known objects and places the cameras;
+``viz.rerun_log`` logs messages as Rerun archetypes; ``viz.foxglove_export`` converts
+them to Foxglove's well-known schemas; ``viz.mosaic`` draws the OpenCV mosaic of a video
+frame; ``viz.cli`` holds the ``launch.py bag view|export|video`` commands and the
+``--view`` option of a graph. Only ``viz.cli`` reads bags and graphs; the rest takes
+decoded messages, so the viewer node and the bag commands share it.
+"""

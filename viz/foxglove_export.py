@@ -1,0 +1,203 @@
+"""Messages in Foxglove's well-known schemas, for its MCAP files and its live server.
+
+Foxglove decodes neither MessagePack nor our schema descriptions, so each message is
+converted: depth and IR images to ``foxglove.RawImage`` (``32FC1`` metres, ``mono16``)
+with a ``foxglove.CameraCalibration`` next to them, masks and overlays to ``RawImage``
+(``mono8``, ``bgr8``), the contact patch to ``foxglove.PointCloud`` (x, y, z float32 and
+the bubble index, tool frame), poses to ``foxglove.FrameTransform`` (``tool`` ->
+``object_estimate`` / ``object_true``, and ``tool`` -> each camera at the measured opening),
+and every message, those included, to JSON on its own topic (arrays of more than
+:data:`JSON_ARRAY_LIMIT` values are left out of the JSON: they are in the images).
+
+:class:`FoxgloveSink` logs into a ``foxglove.Context``: an MCAP writer opened on that
+context (``foxglove.open_mcap``) or a WebSocket server (``foxglove.start_server``).
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import foxglove
+import msgspec
+import numpy as np
+from foxglove import channels as fc
+from foxglove import messages as fm
+
+from geometry.gripper import tool_from_sensor
+from geometry.se3 import quat_from_matrix
+from messages.base import Message
+from messages.types import (
+    ContactPatch,
+    GripperState,
+    GroundTruth,
+    MaskImage,
+    OverlayImage,
+    PoseEstimate,
+    ToFImage,
+)
+
+JSON_ARRAY_LIMIT = 64
+_CHANNELS = {
+    "RawImage": fc.RawImageChannel,
+    "CameraCalibration": fc.CameraCalibrationChannel,
+    "PointCloud": fc.PointCloudChannel,
+    "FrameTransform": fc.FrameTransformChannel,
+}
+
+
+def _stamp(nanos: int) -> fm.Timestamp:
+    return fm.Timestamp(nanos // 1_000_000_000, nanos % 1_000_000_000)
+
+
+def raw_image(image: np.ndarray, encoding: str, frame_id: str, nanos: int) -> fm.RawImage:
+    """A ``RawImage`` of a C-contiguous array (rows of ``width * itemsize * channels``)."""
+    data = np.ascontiguousarray(image)
+    return fm.RawImage(
+        timestamp=_stamp(nanos),
+        frame_id=frame_id,
+        width=int(data.shape[1]),
+        height=int(data.shape[0]),
+        encoding=encoding,
+        step=int(data.strides[0]),
+        data=data.tobytes(),
+    )
+
+
+def frame_transform(parent: str, child: str, pose: np.ndarray, nanos: int) -> fm.FrameTransform:
+    """``parent_from_child`` (4x4) as a ``FrameTransform``."""
+    w, x, y, z = quat_from_matrix(pose[:3, :3])
+    t = pose[:3, 3]
+    return fm.FrameTransform(
+        timestamp=_stamp(nanos),
+        parent_frame_id=parent,
+        child_frame_id=child,
+        translation=fm.Vector3(x=float(t[0]), y=float(t[1]), z=float(t[2])),
+        rotation=fm.Quaternion(x=float(x), y=float(y), z=float(z), w=float(w)),
+    )
+
+
+def point_cloud(msg: ContactPatch) -> fm.PointCloud:
+    """The contact patch as x, y, z (float32) and ``bubble`` (uint8) in 16-byte points."""
+    n = len(msg.points_in_tool)
+    packed = np.zeros(n, dtype=[("xyz", "<f4", 3), ("bubble", "u1"), ("pad", "u1", 3)])
+    packed["xyz"] = msg.points_in_tool
+    packed["bubble"] = msg.bubble
+    kind = fm.PackedElementFieldNumericType
+    fields = [
+        fm.PackedElementField(name="x", offset=0, type=kind.Float32),
+        fm.PackedElementField(name="y", offset=4, type=kind.Float32),
+        fm.PackedElementField(name="z", offset=8, type=kind.Float32),
+        fm.PackedElementField(name="bubble", offset=12, type=kind.Uint8),
+    ]
+    return fm.PointCloud(
+        timestamp=_stamp(msg.header.stamp_nanos),
+        frame_id=msg.header.frame_id or "tool",
+        point_stride=packed.itemsize,
+        fields=fields,
+        data=packed.tobytes(),
+    )
+
+
+def to_json(msg: Message) -> dict[str, Any]:
+    """A message's fields as JSON values (small arrays as lists, large ones left out)."""
+    out: dict[str, Any] = {}
+    for name in msg.__struct_fields__:
+        value = getattr(msg, name)
+        if isinstance(value, np.ndarray):
+            if value.size <= JSON_ARRAY_LIMIT:
+                out[name] = value.tolist()
+        else:
+            out[name] = msgspec.to_builtins(value)
+    return out
+
+
+def convert(topic: str, msg: Message) -> list[tuple[str, str, Any]]:
+    """``(foxglove topic, schema kind, message)`` for one of ours; kind ``"json"`` is a dict."""
+    nanos = int(msg.header.stamp_nanos)  # type: ignore[attr-defined]
+    frame = getattr(msg.header, "frame_id", "")  # type: ignore[attr-defined]
+    out: list[tuple[str, str, Any]] = []
+    if isinstance(msg, ToFImage):
+        frame = frame or f"{msg.sensor}_sensor"
+        if msg.depth_m.size:
+            out.append(
+                (f"{topic}/depth", "RawImage", raw_image(msg.depth_m, "32FC1", frame, nanos))
+            )
+        if msg.ir.size:
+            out.append((f"{topic}/ir", "RawImage", raw_image(msg.ir, "mono16", frame, nanos)))
+        ref = msg.depth_m if msg.depth_m.size else msg.ir
+        k = [msg.fx_px, 0.0, msg.cx_px, 0.0, msg.fy_px, msg.cy_px, 0.0, 0.0, 1.0]
+        calibration = fm.CameraCalibration(
+            timestamp=_stamp(nanos),
+            frame_id=frame,
+            width=int(ref.shape[1]),
+            height=int(ref.shape[0]),
+            distortion_model="plumb_bob",
+            D=[0.0] * 5,
+            K=k,
+            R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            P=[msg.fx_px, 0.0, msg.cx_px, 0.0, 0.0, msg.fy_px, msg.cy_px, 0.0, 0.0, 0.0, 1.0, 0.0],
+        )
+        out.append((f"{topic}/calibration", "CameraCalibration", calibration))
+    elif isinstance(msg, MaskImage):
+        out.append((topic, "RawImage", raw_image(msg.mask, "mono8", frame, nanos)))
+    elif isinstance(msg, OverlayImage):
+        out.append((topic, "RawImage", raw_image(msg.image, "bgr8", frame, nanos)))
+    elif isinstance(msg, ContactPatch):
+        out.append((topic, "PointCloud", point_cloud(msg)))
+    elif isinstance(msg, PoseEstimate) and msg.status in ("ok", "recovered"):
+        pose = frame_transform("tool", "object_estimate", msg.tool_from_object, nanos)
+        out.append((f"{topic}/transform", "FrameTransform", pose))
+    elif isinstance(msg, GroundTruth):
+        pose = frame_transform("tool", "object_true", msg.tool_from_object, nanos)
+        out.append((f"{topic}/transform", "FrameTransform", pose))
+    elif isinstance(msg, GripperState):
+        for side in ("left", "right"):
+            camera = tool_from_sensor(side, msg.width_m)
+            out.append(
+                (
+                    f"/tf/{side}_sensor",
+                    "FrameTransform",
+                    frame_transform("tool", f"{side}_sensor", camera, nanos),
+                )
+            )
+    if not isinstance(msg, ToFImage | MaskImage | OverlayImage):
+        out.append((f"{topic}/json" if out else topic, "json", to_json(msg)))
+    return out
+
+
+class FoxgloveSink:
+    """Logs our messages into a ``foxglove.Context`` (one channel per converted topic)."""
+
+    def __init__(self, context: foxglove.Context) -> None:
+        self.context = context
+        self.channels: dict[str, Any] = {}
+        self.written = 0
+
+    def _channel(self, topic: str, kind: str, type_name: str) -> Any:
+        channel = self.channels.get(topic)
+        if channel is None:
+            if kind == "json":
+                schema = {"title": type_name, "type": "object"}
+                channel = foxglove.Channel(
+                    topic,
+                    schema=foxglove.Schema(
+                        name=type_name, encoding="jsonschema", data=json.dumps(schema).encode()
+                    ),
+                    message_encoding="json",
+                    context=self.context,
+                )
+            else:
+                channel = _CHANNELS[kind](topic, context=self.context)
+            self.channels[topic] = channel
+        return channel
+
+    def log(self, topic: str, msg: Message, log_time_nanos: int) -> None:
+        """Convert and log one message received on ``topic`` at ``log_time_nanos``."""
+        for fox_topic, kind, value in convert(topic, msg):
+            channel = self._channel("/" + fox_topic.lstrip("/"), kind, type(msg).__name__)
+            if kind == "json":
+                channel.log(json.dumps(value).encode(), log_time=log_time_nanos)
+            else:
+                channel.log(value, log_time=log_time_nanos)
+            self.written += 1

@@ -1,0 +1,247 @@
+"""Messages as Rerun archetypes, in the gripper's frames.
+
+Entity tree (one recording; the timeline ``stamp`` is each message's header stamp):
+
+* ``tool``: the gripper tool frame, the 3D space.
+* ``tool/{side}_sensor``: the bubble camera: ``Transform3D`` (``tool_from_sensor`` at the
+  gripper's measured opening) and ``Pinhole`` (its intrinsics, RDF: x right, y down, z
+  forward); under it, 2D in its image: ``depth`` (``DepthImage``, metres, ``meter=1``),
+  ``ir`` (``Image``), ``shear`` (``Arrows2D``: the mean shear from the mask's centroid),
+  ``mask/{node}`` (``SegmentationImage``), ``overlay`` (the shear tracker's drawing).
+* ``tool/patch``: the contact-patch cloud (``Points3D``, tool frame, coloured per bubble).
+* ``tool/object_estimate`` and ``tool/object_true``: ``Transform3D`` (``tool_from_object``)
+  and the object's ``Mesh3D`` (logged once, static, when the object is known).
+* ``pressure/{side}``, ``gripper/width_m``, ``gripper/force_n``, ``shear/{side}/magnitude_px``,
+  ``pose/residual_rms_m``, ``pose/solve_secs``, ``classifier/{class}``: ``Scalars``.
+* ``events/grasp``, ``events/task``, ``events/pose``, ``events/classifier``: ``TextLog``.
+
+Message types the logger does not draw (the simulator's ``WorldState``, commands) are
+counted in :attr:`RerunLogger.skipped`.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+
+from geometry.gripper import tool_from_sensor
+from messages.base import Message
+from messages.types import (
+    ClassProbabilities,
+    ContactPatch,
+    GraspState,
+    GripperState,
+    GroundTruth,
+    MaskImage,
+    OverlayImage,
+    PoseEstimate,
+    Pressure,
+    ShearEstimate,
+    TaskEvent,
+    ToFImage,
+)
+from viz.shapes import object_mesh
+
+TIMELINE = "stamp"
+BUBBLE_COLORS = np.array([[66, 135, 245], [245, 130, 48]], dtype=np.uint8)  # left, right
+ESTIMATE_COLOR = (80, 200, 120, 160)
+TRUTH_COLOR = (200, 200, 200, 90)
+WIDTH_STEP_M = 1e-4  # re-log the camera poses when the opening moves more than this
+
+
+def mask_centroid(mask: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray:
+    """Where a shear arrow starts: the mask's centroid, or the image centre (u, v)."""
+    if mask is not None and mask.shape == shape[:2] and np.any(mask):
+        rows, cols = np.nonzero(mask)
+        return np.array([cols.mean(), rows.mean()])
+    return np.array([(shape[1] - 1) / 2.0, (shape[0] - 1) / 2.0])
+
+
+def spawn_viewer(rec: rr.RecordingStream) -> None:
+    """Start a Rerun viewer and stream ``rec`` to it.
+
+    The viewer is the ``rerun`` executable installed next to this Python (``rerun-sdk``
+    puts it there), so it is found without an activated virtual environment.
+    """
+    beside = Path(sys.executable).with_name("rerun")
+    rr.spawn(executable_path=str(beside) if beside.is_file() else None, recording=rec)
+
+
+def _owned(array: np.ndarray) -> np.ndarray:
+    """A C-contiguous array owning its memory: Rerun's Arrow import needs aligned buffers,
+    and a decoded frame's arrays are views at any offset of the received bytes."""
+    return np.require(array, requirements=["C", "A", "O"])
+
+
+def _sensor(name: str, frame_id: str) -> str:
+    side = name or frame_id.removesuffix("_sensor")
+    return side if side in ("left", "right") else "left"
+
+
+class RerunLogger:
+    """Logs decoded messages into one :class:`rerun.RecordingStream`.
+
+    Args:
+        rec: the recording (a file sink, a spawned viewer, or a memory recording).
+        object_name: the object to draw under the estimated pose until a ground truth or
+            a classification names one ("" for none).
+        arrow_gain: shear arrows are drawn this many times their length in pixels.
+    """
+
+    def __init__(self, rec: rr.RecordingStream, *, object_name: str = "", arrow_gain: float = 5.0):
+        self.rec = rec
+        self.object_name = object_name
+        self.arrow_gain = arrow_gain
+        self.width_m: float | None = None
+        self.masks: dict[str, np.ndarray] = {}
+        self.shapes: dict[str, tuple[int, int]] = {}
+        self.intrinsics: dict[str, tuple[float, ...]] = {}
+        self.pose_status = "ok"
+        self.meshes_logged: set[tuple[str, str]] = set()
+        self.logged: Counter[str] = Counter()
+        self.skipped: Counter[str] = Counter()
+
+    def log(self, topic: str, msg: Message) -> None:
+        """Log one message received on ``topic`` (its type picks the archetypes)."""
+        handler = getattr(self, f"_log_{type(msg).__name__}", None)
+        if handler is None:
+            self.skipped[type(msg).__name__] += 1
+            return
+        stamp = int(getattr(getattr(msg, "header", None), "stamp_nanos", 0))
+        self.rec.set_time(TIMELINE, timestamp=np.datetime64(stamp, "ns"))
+        handler(topic, msg)
+        self.logged[type(msg).__name__] += 1
+
+    # -- images --------------------------------------------------------------------------------
+
+    def _log_ToFImage(self, topic: str, msg: ToFImage) -> None:
+        side = _sensor(msg.sensor, msg.header.frame_id)
+        base = f"tool/{side}_sensor"
+        image = msg.depth_m if msg.depth_m.size else msg.ir
+        height, width = image.shape
+        self.shapes[side] = (height, width)
+        intrinsics = (msg.fx_px, msg.fy_px, msg.cx_px, msg.cy_px, width, height)
+        if self.intrinsics.get(side) != intrinsics:
+            self.intrinsics[side] = intrinsics
+            self.rec.log(
+                base,
+                rr.Pinhole(
+                    focal_length=[msg.fx_px, msg.fy_px],
+                    principal_point=[msg.cx_px, msg.cy_px],
+                    width=width,
+                    height=height,
+                    camera_xyz=rr.ViewCoordinates.RDF,
+                    image_plane_distance=0.03,
+                ),
+            )
+        if msg.depth_m.size:
+            self.rec.log(f"{base}/depth", rr.DepthImage(_owned(msg.depth_m), meter=1.0))
+        if msg.ir.size:
+            self.rec.log(f"{base}/ir", rr.Image(_owned(msg.ir), color_model="L"))
+
+    def _log_MaskImage(self, topic: str, msg: MaskImage) -> None:
+        side = _sensor(msg.sensor, msg.header.frame_id)
+        node = topic.split("/")[0] or "mask"
+        self.masks[side] = msg.mask
+        self.rec.log(
+            f"tool/{side}_sensor/mask/{node}", rr.SegmentationImage((msg.mask > 0).astype(np.uint8))
+        )
+
+    def _log_OverlayImage(self, topic: str, msg: OverlayImage) -> None:
+        side = _sensor(msg.sensor, msg.header.frame_id)
+        self.rec.log(f"overlay/{side}", rr.Image(_owned(msg.image), color_model="BGR"))
+
+    def _log_ShearEstimate(self, topic: str, msg: ShearEstimate) -> None:
+        side = _sensor(msg.sensor, msg.header.frame_id)
+        shape = self.shapes.get(side)
+        if shape is not None:
+            origin = mask_centroid(self.masks.get(side), shape)
+            vector = np.asarray(msg.shear_px, dtype=np.float64) * self.arrow_gain
+            self.rec.log(
+                f"tool/{side}_sensor/shear",
+                rr.Arrows2D(origins=[origin], vectors=[vector], colors=[(255, 40, 40)]),
+            )
+        self.rec.log(f"shear/{side}/magnitude_px", rr.Scalars([msg.magnitude_px]))
+
+    # -- 3D ------------------------------------------------------------------------------------
+
+    def _log_GripperState(self, topic: str, msg: GripperState) -> None:
+        self.rec.log("gripper/width_m", rr.Scalars([msg.width_m]))
+        self.rec.log("gripper/force_n", rr.Scalars([msg.force_n]))
+        if self.width_m is None or abs(msg.width_m - self.width_m) > WIDTH_STEP_M:
+            self.width_m = msg.width_m
+            for side in ("left", "right"):
+                pose = tool_from_sensor(side, msg.width_m)
+                self.rec.log(
+                    f"tool/{side}_sensor",
+                    rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]),
+                )
+
+    def _log_ContactPatch(self, topic: str, msg: ContactPatch) -> None:
+        colors = BUBBLE_COLORS[np.minimum(msg.bubble, 1)]
+        self.rec.log(
+            "tool/patch", rr.Points3D(_owned(msg.points_in_tool), colors=colors, radii=0.0008)
+        )
+
+    def _object(self, entity: str, name: str, pose: np.ndarray, color: tuple[int, ...]) -> None:
+        self.rec.log(entity, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]))
+        mesh = object_mesh(name) if name else None
+        if mesh is not None and (entity, name) not in self.meshes_logged:
+            self.meshes_logged.add((entity, name))
+            self.rec.log(
+                f"{entity}/mesh",
+                rr.Mesh3D(
+                    vertex_positions=mesh.vertices,
+                    triangle_indices=mesh.triangles,
+                    albedo_factor=color,
+                ),
+                static=True,
+            )
+
+    def _log_PoseEstimate(self, topic: str, msg: PoseEstimate) -> None:
+        if msg.status in ("ok", "recovered"):
+            self._object(
+                "tool/object_estimate", self.object_name, msg.tool_from_object, ESTIMATE_COLOR
+            )
+        self.rec.log("pose/residual_rms_m", rr.Scalars([msg.residual_rms_m]))
+        self.rec.log("pose/solve_secs", rr.Scalars([msg.solve_secs]))
+        if msg.status != self.pose_status:
+            ok = msg.status in ("ok", "recovered")
+            level = rr.TextLogLevel.INFO if ok else rr.TextLogLevel.WARN
+            self.rec.log("events/pose", rr.TextLog(f"pose {msg.status}", level=level))
+            self.pose_status = msg.status
+
+    def _log_GroundTruth(self, topic: str, msg: GroundTruth) -> None:
+        if not self.object_name:
+            self.object_name = msg.object_class
+        self._object("tool/object_true", msg.object_class, msg.tool_from_object, TRUTH_COLOR)
+
+    # -- time series and events ----------------------------------------------------------------
+
+    def _log_Pressure(self, topic: str, msg: Pressure) -> None:
+        side = _sensor(msg.sensor, msg.header.frame_id)
+        self.rec.log(f"pressure/{side}", rr.Scalars([msg.pressure_pa]))
+
+    def _log_GraspState(self, topic: str, msg: GraspState) -> None:
+        self.rec.log("grasp/stable", rr.Scalars([float(msg.stable)]))
+        if msg.event:
+            self.rec.log("events/grasp", rr.TextLog(f"grasp {msg.event}"))
+
+    def _log_TaskEvent(self, topic: str, msg: TaskEvent) -> None:
+        text = f"{msg.task}: {msg.event}" + (f" ({msg.detail})" if msg.detail else "")
+        self.rec.log("events/task", rr.TextLog(text))
+
+    def _log_ClassProbabilities(self, topic: str, msg: ClassProbabilities) -> None:
+        for name, p in zip(msg.classes, msg.probabilities.tolist(), strict=True):
+            self.rec.log(f"classifier/{name}", rr.Scalars([p]))
+        best = int(np.argmax(msg.probabilities)) if msg.probabilities.size else -1
+        if best >= 0:
+            label = msg.best or msg.classes[best]
+            self.rec.log(
+                "events/classifier",
+                rr.TextLog(f"{label} p={float(msg.probabilities[best]):.3f}"),
+            )
