@@ -52,6 +52,7 @@ class FitResult:
         noise_m: the depth noise the acceptance test used (estimated from the data
             unless configured); 0 when not computed.
         dims_m: fitted dimensions (``radius_m``, ``height_m``), empty unless fitted.
+        residual_mean_m: the mean of the field values at the estimate (its bias).
     """
 
     object_from_tool: np.ndarray
@@ -67,6 +68,7 @@ class FitResult:
     message: str = ""
     noise_m: float = 0.0
     dims_m: dict[str, float] = field(default_factory=dict)
+    residual_mean_m: float = 0.0
 
     @property
     def tool_from_object(self) -> np.ndarray:

@@ -245,7 +245,7 @@ class PoseEstimator:
                 and first.residual_rms_m <= accept
                 and first.residual_rms_m <= prm.track_rise_ratio * self.last_rms_m
                 and sum(first.observable) >= prm.min_observable
-                and abs(self._bias_m(first, pts)) <= self._bias_limit_m(noise, len(pts))
+                and abs(first.residual_mean_m) <= self._bias_limit_m(noise, len(pts))
             ):
                 return self._finish(first, "ok", "", first.iterations, 1, noise, start)
 
@@ -374,7 +374,7 @@ class PoseEstimator:
                     f"(mean square {1e6 * gap:.4f} mm^2 worse, under "
                     f"{prm.ambiguity_ratio} x noise^2)"
                 )
-        bias = self._bias_m(result, pts)
+        bias = result.residual_mean_m
         if abs(bias) > self._bias_limit_m(noise, len(pts)):
             reasons.append(
                 f"the residuals are biased (mean {1e3 * bias:+.3f} mm, noise "
@@ -391,11 +391,6 @@ class PoseEstimator:
 
     def _bias_limit_m(self, noise: float, n: int) -> float:
         return (self.params.bias_ratio + 2.0 / np.sqrt(max(n, 1))) * noise
-
-    def _bias_m(self, result: FitResult, pts: np.ndarray) -> float:
-        """The mean residual of a fit (with its fitted dimensions), metres."""
-        fitted = self.solver.field.resized(**result.dims_m)
-        return float(np.mean(residuals(fitted, result.object_from_tool, pts)))
 
     def _centre_unobservable(self, result: FitResult, pts: np.ndarray) -> FitResult:
         """Move the pose along its unobservable translations so the patch's centroid
@@ -416,6 +411,7 @@ class PoseEstimator:
             object_from_tool=pose,
             cost=cost,
             residual_rms_m=float(np.sqrt(cost / max(len(pts), 1))),
+            residual_mean_m=float(np.mean(r)),
         )
 
     def _finish(
@@ -459,6 +455,7 @@ class PoseEstimator:
         return FitResult(
             object_from_tool=seed,
             residual_rms_m=float(np.sqrt(cost / max(len(r), 1))),
+            residual_mean_m=float(np.mean(r)) if len(r) else 0.0,
             cost=cost,
             iterations=0,
             status="failed",

@@ -116,6 +116,7 @@ class IcpSolver:
         return FitResult(
             object_from_tool=pose,
             residual_rms_m=float(np.sqrt(cost / max(len(pts), 1))),
+            residual_mean_m=float(np.mean(r)),
             cost=cost,
             iterations=iterations,
             status="ok" if converged else "not_converged",

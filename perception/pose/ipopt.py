@@ -383,6 +383,7 @@ class IpoptSolver:
         return FitResult(
             object_from_tool=pose,
             residual_rms_m=float(np.sqrt(cost / max(n, 1))),
+            residual_mean_m=float(np.mean(r)),
             cost=cost,
             iterations=iterations,
             status=status,

@@ -119,6 +119,7 @@ class LMSolver:
         return FitResult(
             object_from_tool=pose,
             residual_rms_m=float(np.sqrt(cost / max(n, 1))),
+            residual_mean_m=float(np.mean(r)),
             cost=cost,
             iterations=iterations,
             status="ok" if converged else "not_converged",
