@@ -147,7 +147,7 @@ def bag_main(argv: list[str]) -> int:
 
 def replay_main(argv: list[str]) -> int:
     import nodes  # noqa: F401 - the index of node implementations
-    from runtime.bagtool import replay_main as replay
+    from runtime.replaytool import replay_main as replay
 
     return replay(argv)
 

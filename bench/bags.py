@@ -58,7 +58,7 @@ import yaml
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from bench.common import Row, launcher_log, main, median
+from bench.common import Row, launcher_log, main, median, progress
 from messages import Header, ToFImage, encode
 from runtime.bag import BagReader, BagWriter
 from runtime.node import Node
@@ -354,6 +354,10 @@ def run_replay(bag: Path, workdir: Path, lockstep: bool, work_secs: float, fan_i
     return _row(mode, result["count"], result["bytes"], secs, work_ms=work_secs * 1e3)
 
 
+def _replay_label(point: tuple[float, bool]) -> str:
+    return f"replay, {point[0] * 1e3:.0f} ms work, {'fan-in' if point[1] else 'chain'}"
+
+
 def run(quick: bool) -> list[Row]:
     import bench.nodes  # noqa: F401  (registers bench.image_source and bench.image_sink)
     import nodes
@@ -367,12 +371,8 @@ def run(quick: bool) -> list[Row]:
         rows.append(run_live_record(sizes, workdir))
         rows.append(run_pipeline_record(workdir))
         bag = workdir / "cameras.mcap"
-        for work_secs, fan_in in (
-            (0.0, False),
-            (0.0, True),
-            (sizes.work_secs, False),
-            (sizes.work_secs, True),
-        ):
+        replays = [(0.0, False), (0.0, True), (sizes.work_secs, False), (sizes.work_secs, True)]
+        for work_secs, fan_in in progress(replays, "bench.bags", label=_replay_label):
             fast: list[Row] = []
             lock: list[Row] = []
             for _ in range(sizes.repeats):

@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from bench import pose_hard
-from bench.common import Row, main, median, one_core, percentile
+from bench.common import Row, main, median, one_core, percentile, progress
 from geometry import objects, se3
 from geometry.camera import PinholeCamera
 from geometry.fields import Field
@@ -183,7 +183,7 @@ def accuracy_rows(
 ) -> list[Row]:
     _, body = _model()
     rows: list[Row] = []
-    for n in points:
+    for n in progress(points, "bench.pose", label=lambda n: f"accuracy, {n} points, {solvers}"):
         for tol in tols.get(n, ["tight"]):
             makers = _solvers(body, tol, use_jit)
             for name in solvers:
@@ -246,7 +246,7 @@ def basin_rows(
     makers = _solvers(body, "tight", use_jit)
     synth = [c for c in cases if c["source"] == "synthetic"]
     rows: list[Row] = []
-    for name in solvers:
+    for name in progress(solvers, "bench.pose", label=lambda s: f"basin, {s}, {n} points"):
         solver = makers[name]()
         if isinstance(solver, IpoptSolver):
             solver.prepare(n)

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.common import Row, main, median, one_core, percentile
+from bench.common import Row, main, median, one_core, percentile, progress
 from geometry import fields, se3
 from geometry.objects import ObjectModel
 from perception.pose import common, synthetic
@@ -138,7 +138,7 @@ def estimator_rows(
     n_points: int,
 ) -> list[Row]:
     rows: list[Row] = []
-    for kind in kinds:
+    for kind in progress(kinds, "bench.pose_hard", label=lambda k: f"estimator, {k}"):
         model = OBJECTS[kind]
         for noise in noises:
             clouds = []
@@ -189,7 +189,7 @@ def size_rows(offsets_mm: list[float], n_cases: int, n_points: int) -> list[Row]
     """The model's radius is 40 mm; the true one is 40 + offset."""
     model = OBJECTS["cylinder_r40"]
     rows: list[Row] = []
-    for fit in ((), ("radius",)):
+    for fit in progress(((), ("radius",)), "bench.pose_hard", label=lambda f: f"size, fit {f}"):
         solver = _solver("ipopt", model.field, fit)
         est = PoseEstimator(solver, EstimatorParams(track=False))
         for off in offsets_mm:

@@ -44,9 +44,9 @@ from messages.base import Message
 from messages.codec import decode
 from messages.errors import BagError, FrameDecodeError, NodeError
 from runtime.bag import BagMessage, BagReader, topic_filter
-from runtime.bagtool import ReplayOptions
 from runtime.node import Node
 from runtime.registry import register
+from runtime.replaytool import ReplayOptions
 
 _LOGGED_SKIPS = 5  # undecodable messages logged one by one; the rest are counted
 

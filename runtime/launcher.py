@@ -31,7 +31,7 @@ import time
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Literal
 
 import yaml
 import zmq
@@ -54,6 +54,8 @@ TERM_GRACE_SECS = 2.0
 SIGNAL_STOP_GRACE_SECS = 1.0
 SIGNAL_TERM_GRACE_SECS = 0.5
 LOG_TAIL_LINES = 20
+# A node process's life, as the launcher sees it (mypy checks every assignment).
+ProcState = Literal["new", "hello", "ready", "running", "exited", "waiting_restart", "failed"]
 
 
 @dataclass
@@ -63,7 +65,7 @@ class _Proc:
     rid: bytes | None = None  # the ROUTER id of the node's main control socket
     spawned_at: float = 0.0
     endpoint: str | None = None
-    state: str = "new"  # new | hello | ready | running | exited | waiting_restart | failed
+    state: ProcState = "new"
     restarts: int = 0
     restart_at: float = 0.0
     last_heartbeat: float = 0.0

@@ -20,10 +20,11 @@ import nodes.replay  # noqa: F401
 import tests.synthetic_nodes  # noqa: F401  (registers the synthetic nodes)
 from messages import Header, Tick
 from runtime.bag import BagReader
-from runtime.bagtool import ReplayOptions, build_replay_graph, diff_bags
+from runtime.bagtool import diff_bags
 from runtime.graph import check
 from runtime.launcher import launch
 from runtime.node import Node
+from runtime.replaytool import ReplayOptions, build_replay_graph
 
 GRAPH = yaml.safe_load(
     """

@@ -15,15 +15,9 @@ from messages.base import Header
 from messages.errors import GraphError
 from messages.types import Tick, ToFImage
 from runtime.bag import BagWriter
-from runtime.bagtool import (
-    ReplayOptions,
-    build_replay_graph,
-    compare_values,
-    diff_bags,
-    exact_topics,
-    main,
-)
+from runtime.bagtool import compare_values, diff_bags, main
 from runtime.node import Node
+from runtime.replaytool import ReplayOptions, build_replay_graph, exact_topics
 from tests.runtime.bad_bags import bag_with_undecodable
 
 GRAPH = yaml.safe_load(
@@ -129,7 +123,7 @@ def test_replay_graph_errors(tmp_path: Path) -> None:
 def test_replay_main_prints_the_graph_from_the_bag(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from runtime.bagtool import replay_main
+    from runtime.replaytool import replay_main
 
     bag = make_bag(tmp_path / "a.mcap")
     code = replay_main(
@@ -267,7 +261,7 @@ class PlainRelay(Node):
 def test_swapped_impl_drops_old_params_and_set_applies(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from runtime.bagtool import replay_main
+    from runtime.replaytool import replay_main
 
     bag = make_bag(tmp_path / "a.mcap")
     graph = build_replay_graph(GRAPH, bag, {"relay": f"{__name__}:PlainRelay"})
@@ -383,7 +377,7 @@ def test_diff_counts_undecodable_messages_and_goes_on(
 def test_replay_strict_reaches_the_replay_node(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from runtime.bagtool import replay_main
+    from runtime.replaytool import replay_main
 
     bag = make_bag(tmp_path / "a.mcap")
     assert replay_main([str(bag), "--replace", "sink", "--print-graph"]) == 0

@@ -9,8 +9,8 @@ import pytest
 import yaml
 
 import launch
-from runtime.bagtool import replay_main
 from runtime.cli import node_details, node_table
+from runtime.replaytool import replay_main
 from tests.runtime.test_bagtool import make_bag
 
 NESTED = "tests.runtime.nodes_for_tests:NestedNode"
