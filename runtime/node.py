@@ -102,7 +102,7 @@ class Node:
         """Build the node's state; called once before the first message or timer."""
 
     def teardown(self) -> None:
-        """Release resources; called once on a clean stop."""
+        """Release resources; called once on a clean stop, only if :meth:`setup` ran."""
 
     @classmethod
     def ports(cls, params: Any) -> tuple[dict[str, type[Message]], dict[str, type[Message]]]:

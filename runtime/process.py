@@ -282,6 +282,7 @@ class Runner:
         self.raw = cls.raw_input
         self.inputs_decl = inputs_decl
         self.busy_since = 0.0
+        self.set_up = False  # teardown runs only for a node whose setup ran
         self.sources: list[_Source] = []
         self.stopping = threading.Event()
         self._hb_thread = threading.Thread(target=self._heartbeat, daemon=True)
@@ -318,6 +319,7 @@ class Runner:
         self._await_subscribers()
         self.busy_since = time.monotonic()
         self.node.setup()
+        self.set_up = True
         self.busy_since = 0.0
         io.tell("ready")
         if self._wait_control("start") is None:
@@ -328,7 +330,8 @@ class Runner:
     def _finish(self, code: int) -> int:
         self.stopping.set()
         try:
-            self.node.teardown()
+            if self.set_up:
+                self.node.teardown()
         finally:
             self.io.tell("final", stats=self.io.stats())
             for source in self.sources:

@@ -5,10 +5,3 @@ blind stacking), ``supervisor.sort`` and ``supervisor.dish_loading`` (task 1: di
 loading with recycling separation), ``supervisor.antagonism`` (task 2: pose tracking
 under antagonism). ``base`` holds what they share (the data clock and the verdict).
 """
-
-from __future__ import annotations
-
-from nodes.supervisor.handover import HandoverSupervisor
-from nodes.supervisor.sort import SortSupervisor
-
-__all__ = ["HandoverSupervisor", "SortSupervisor"]

@@ -72,4 +72,6 @@ def test_check_imports_only_the_graphs_node_modules() -> None:
         "nodes.contact_patch",
         "nodes.pose_estimator",
         "nodes.supervisor",
+        "nodes.supervisor.base",
+        "nodes.supervisor.handover",
     }

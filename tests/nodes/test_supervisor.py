@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from messages import ClassProbabilities, GraspState, Header, ShearEstimate
-from nodes.supervisor import HandoverSupervisor, SortSupervisor
+from nodes.supervisor.handover import HandoverSupervisor
+from nodes.supervisor.sort import SortSupervisor
 from runtime.params import build_params
 from runtime.testing import feed, make_node
 
