@@ -88,7 +88,7 @@ def run_main(argv: list[str]) -> int:
             doc, sets=args.sets, swaps=args.swaps, only=only, source=source
         )
         if args.view is not None:
-            from viz.cli import add_viewer
+            from runtime.taps import add_viewer
 
             doc = add_viewer(doc, args.view, source=source)
         checked = graphs.check(doc, source=source)
@@ -137,7 +137,7 @@ def nodes_main(argv: list[str]) -> int:
 
 def bag_main(argv: list[str]) -> int:
     if argv[:1] in (["view"], ["export"], ["video"]):
-        from viz.cli import main as viz_main
+        from runtime.viztool import main as viz_main
 
         return viz_main(argv[0], argv[1:])
     from runtime.bagtool import main as bag_tool

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import shutil
 import signal
 import subprocess
@@ -33,7 +32,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, Literal
 
-import yaml
 import zmq
 
 from messages.errors import GraphError
@@ -43,6 +41,7 @@ from runtime.graph import Graph, NodeSpec, check, ipc_path
 from runtime.isolation import make_rundir
 from runtime.protocol import ControlServer
 from runtime.registry import class_path
+from runtime.taps import add_recorder
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 STARTUP_TIMEOUT_SECS = 300.0
@@ -532,44 +531,6 @@ def _signal(proc: _Proc, signum: int) -> None:
             os.killpg(proc.popen.pid, signum)
         except (ProcessLookupError, PermissionError):
             pass
-
-
-def add_recorder(
-    doc: dict[str, Any],
-    path: Path,
-    topics: str | None,
-    command_line: str,
-    source: str = "",
-    *,
-    overwrite: bool = False,
-) -> dict[str, Any]:
-    """Return ``doc`` with a ``recorder`` node subscribed to every topic matching ``topics``
-    (``overwrite``: it may replace a finished bag at ``path``)."""
-    graph = check(doc)
-    pattern = re.compile(topics or ".*")
-    chosen = sorted(t for t in graph.providers() if pattern.search(t))
-    if not chosen:
-        raise GraphError(f"--record-topics {topics!r} matches no topic of the graph")
-    doc = yaml.safe_load(yaml.safe_dump(doc))
-    name = "recorder"
-    while name in doc["nodes"]:
-        name += "_"
-    doc["nodes"][name] = {
-        "impl": "recorder",
-        "params": {
-            "path": str(path),
-            "graph_yaml": yaml.safe_dump(graph.document, sort_keys=False),
-            "graph_source": source,
-            "command_line": command_line,
-            "overwrite": overwrite,
-        },
-        "inputs": {
-            f"t{i}": {"from": t, "policy": "queue", "queue_size": 10000}
-            for i, t in enumerate(chosen)
-        },
-        "required": True,
-    }
-    return doc
 
 
 def launch(

@@ -3,7 +3,6 @@
 ``viz.shapes`` builds triangle meshes of the known objects and places the cameras;
 ``viz.rerun_log`` logs messages as Rerun archetypes; ``viz.foxglove_export`` converts
 them to Foxglove's well-known schemas; ``viz.mosaic`` draws the OpenCV mosaic of a video
-frame; ``viz.cli`` holds the ``launch.py bag view|export|video`` commands and the
-``--view`` option of a graph. Only ``viz.cli`` reads bags and graphs; the rest takes
-decoded messages, so the viewer node and the bag commands share it.
+frame. ``viz`` imports only ``messages`` and ``geometry``: it takes decoded messages, so
+the viewer node and the bag commands (``runtime.viztool``, which reads the bags) share it.
 """

@@ -14,7 +14,8 @@ from runtime.testing import feed, make_node
 CAM = PinholeCamera.from_fov(64, 48)
 
 
-def _tof(side: str, depth: np.ndarray, stamp: int, pose: np.ndarray) -> ToFImage:
+def tof_image(side: str, depth: np.ndarray, stamp: int, pose: np.ndarray) -> ToFImage:
+    """A ToFImage of ``depth`` from camera ``CAM`` mounted at ``pose`` (tool_from_sensor)."""
     return ToFImage(
         header=Header(stamp_nanos=stamp),
         sensor=side,
@@ -37,9 +38,9 @@ def _patch_points(poses: dict[str, np.ndarray]) -> tuple[dict, object]:
     pressed[10:30, 10:30] = 0.07
     feed(node, "gripper", GripperState(header=Header(), width_m=0.11, speed_m_per_s=0.0, force_n=0))
     for side in ("left", "right"):
-        feed(node, side, _tof(side, free, 0, poses[side]))
+        feed(node, side, tof_image(side, free, 0, poses[side]))
     for side in ("left", "right"):
-        feed(node, side, _tof(side, pressed, 1, poses[side]))
+        feed(node, side, tof_image(side, pressed, 1, poses[side]))
     return io.published, node
 
 

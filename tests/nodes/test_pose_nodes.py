@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from geometry import objects
-from geometry.camera import PinholeCamera
 from geometry.gripper import tool_from_sensor
 from messages.base import Header
 from messages.types import ContactPatch, GraspState, GripperState, ToFImage
@@ -14,22 +13,11 @@ from nodes.contact_patch import ContactPatchNode
 from nodes.pose_estimator import IcpPoseNode, IpoptPoseNode, LMPoseNode
 from perception.pose import common, synthetic
 from runtime.testing import feed, make_node
-
-CAM = PinholeCamera.from_fov(64, 48)
+from tests.nodes.test_contact_patch_node import CAM, tof_image
 
 
 def _tof(side: str, depth: np.ndarray, stamp: int, width_m: float = 0.07) -> ToFImage:
-    return ToFImage(
-        header=Header(stamp_nanos=stamp),
-        sensor=side,
-        depth_m=depth.astype(np.float32),
-        ir=np.zeros(depth.shape, np.uint16),
-        fx_px=CAM.fx_px,
-        fy_px=CAM.fy_px,
-        cx_px=CAM.cx_px,
-        cy_px=CAM.cy_px,
-        tool_from_sensor=tool_from_sensor(side, width_m),
-    )
+    return tof_image(side, depth, stamp, tool_from_sensor(side, width_m))
 
 
 def _gripper(width_m: float, speed: float = 0.0) -> GripperState:

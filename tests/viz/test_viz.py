@@ -31,7 +31,7 @@ from messages.errors import GraphError
 from messages.types import ContactPatch, GraspState, ToFImage
 from runtime.bag import BagReader, BagWriter
 from runtime.graph import check, load_document
-from viz.cli import add_viewer
+from runtime.taps import add_viewer
 from viz.foxglove_export import convert, to_json
 from viz.mosaic import BAR_PX, MosaicState, outline_px
 from viz.shapes import object_mesh

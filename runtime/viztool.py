@@ -1,12 +1,11 @@
-"""``launch.py bag view|export|video`` and the ``--view`` option of a graph run.
+"""``launch.py bag view|export|video``; the ``--view`` option is ``runtime.taps``.
 
     python launch.py bag view run.mcap [--out run.rrd]        # Rerun viewer, or a file
     python launch.py bag export run.mcap --foxglove out.mcap  # Foxglove's schemas
     python launch.py bag video run.mcap --out run.mp4 [--stills DIR]
-    python launch.py graph.yaml --view [out.rrd | foxglove]   # adds a ``viewer`` node
 
-This is the command-line layer of ``viz``: it reads bags (through ``runtime.bag``'s reader,
-as ``bag echo`` does) and graph documents, and hands decoded messages to ``viz.rerun_log``,
+The command-line layer of ``viz``: it reads bags (through ``runtime.bag``'s reader, as
+``bag echo`` does) and hands decoded messages to ``viz.rerun_log``,
 ``viz.foxglove_export`` and ``viz.mosaic``.
 """
 
@@ -21,16 +20,12 @@ from pathlib import Path
 from typing import Any
 
 import cv2
-import yaml
 
 from messages.base import Message
-from messages.errors import BagError, GraphError
+from messages.errors import BagError
 from messages.types import GraspState, TaskEvent, ToFImage
 from runtime.bag import BagReader
-from runtime.graph import check
 from viz.mosaic import MosaicState
-
-VIEWER_NODE = "viewer"
 
 
 @dataclass
@@ -164,34 +159,6 @@ def video_bag(
             writer.release()
     skipped.report(path)
     return frames, size
-
-
-def add_viewer(doc: dict[str, Any], target: str, *, source: str = "") -> dict[str, Any]:
-    """Return ``doc`` with a ``viewer.rerun`` (or ``viewer.foxglove``) node on every topic.
-
-    ``target``: ``spawn`` (a Rerun viewer window), a path ending in ``.rrd`` (saved
-    headless), or ``foxglove`` (Foxglove's live WebSocket server).
-    """
-    graph = check(doc, source=source)
-    topics = sorted(graph.providers())
-    if not topics:
-        raise GraphError(f"{source}: --view: the graph publishes no topic")
-    doc = yaml.safe_load(yaml.safe_dump(doc))
-    name = VIEWER_NODE
-    while name in doc["nodes"]:
-        name += "_"
-    impl = "viewer.foxglove" if target == "foxglove" else "viewer.rerun"
-    params: dict[str, Any] = {} if target == "foxglove" else {"target": target}
-    doc["nodes"][name] = {
-        "impl": impl,
-        "params": params,
-        "inputs": {
-            f"t{i}": {"from": t, "policy": "queue", "queue_size": 1000}
-            for i, t in enumerate(topics)
-        },
-        "required": False,
-    }
-    return doc
 
 
 def main(command: str, argv: Sequence[str]) -> int:
