@@ -136,8 +136,9 @@ def test_stacking_releases_within_a_few_millimetres_of_contact(tmp_path: Path) -
             "grasp_monitor/grasp|classifier/probabilities|world/ground_truth",
             ("--set", "supervisor.objects=2"),
         ),
+        ("graphs/antagonism.yaml", "grasp_monitor/grasp|pose/pose|world/ground_truth", ()),
     ],
-    ids=["stacking", "dish_loading"],
+    ids=["stacking", "dish_loading", "antagonism"],
 )
 def test_a_task_records_and_replays_deterministically_in_lockstep(
     tmp_path: Path, graph: str, inputs: str, args: tuple[str, ...]
