@@ -10,6 +10,10 @@ which also carries the run's control secret). In order:
    check the launcher is still the parent (it may have died before the request);
 3. read the spec, import ``runtime.process`` and run the node.
 
+A node runs numpy's BLAS on one thread unless ``OPENBLAS_NUM_THREADS`` says otherwise: a
+graph is a dozen processes on a few cores, so a BLAS thread pool per process only
+oversubscribes them, and starting it costs each node about 60 ms of CPU at import.
+
 Each node leads its own process group, and ends the rest of it on its way out (the
 launcher also signals the whole group, and kills what is left of it once the node is
 reaped), so a compiler the node started goes with it. A node that outlives its launcher
@@ -90,6 +94,7 @@ def main() -> int:
         if not text and os.getppid() != parent:
             return 0  # the launcher died before it wrote the spec
         spec = json.loads(text)
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
         from runtime.process import main as run_node
 
         return run_node(spec)
