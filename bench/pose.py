@@ -288,7 +288,9 @@ def run(quick: bool) -> list[Row]:
         rows = accuracy_rows(cases, [1000], {}, ["lm", "ipopt", "icp"], use_jit=False)
         rows += basin_rows(cases, [0.0, 45.0, 90.0], 1000, ["lm"], use_jit=False)
     else:
-        cases, note = make_cases(20, 30000, with_sim=True)
+        # Sized so that ``python -m bench.report`` (every sweep) ends in 20 minutes on two
+        # cores: 10 poses x (synthetic + simulated) clouds per point of the sweep.
+        cases, note = make_cases(10, 30000, with_sim=True)
         points = [1000, 3000, 10000, 30000]
         tols = {10000: ["tight", "loose"]}
         rows = accuracy_rows(cases, points, tols, ["lm", "ipopt"], use_jit)
@@ -298,9 +300,9 @@ def run(quick: bool) -> list[Row]:
         # The exact Hessian, for the cost the Gauss-Newton one saves.
         rows += accuracy_rows(cases, [10000], {}, ["ipopt_exact"], use_jit, starts=("warm",))
         tilts = [0.0, 15.0, 30.0, 45.0, 60.0, 75.0, 90.0]
-        basin_cases = make_cases(100, 3000, with_sim=False)[0]
+        basin_cases = make_cases(40, 3000, with_sim=False)[0]
         rows += basin_rows(basin_cases, tilts, 3000, ["lm", "ipopt"], use_jit)
-        rows += basin_rows(basin_cases[:30], tilts, 3000, ["icp"], use_jit)
+        rows += basin_rows(basin_cases[:20], tilts, 3000, ["icp"], use_jit)
     for row in rows:
         row["note"] = f"{note}; ipopt jit: {'on' if use_jit and not quick else 'off'}"
     # Shapes, sizes, noise, bad starts, size mismatch and degenerate clouds.
