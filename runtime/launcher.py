@@ -43,7 +43,6 @@ from runtime.protocol import ControlServer
 from runtime.registry import class_path
 from runtime.taps import add_recorder
 
-PROJECT_ROOT = Path(__file__).resolve().parent.parent
 STARTUP_TIMEOUT_SECS = 300.0
 HEARTBEAT_TIMEOUT_SECS = 5.0
 DRAIN_SECS = 3.0
@@ -90,6 +89,8 @@ class Launcher:
         duration_secs: float | None = None,
         log_level: str = "INFO",
         out: IO[str] | None = None,
+        rundir: Path | None = None,
+        prestarted: list[subprocess.Popen[bytes]] | None = None,
     ) -> None:
         self.graph = graph
         self.lockstep = lockstep
@@ -115,17 +116,19 @@ class Launcher:
         self._print_lock = threading.Lock()
         self._signals: list[int] = []
         self.secret = protocol.new_secret()
-        self.rundir: Path | None = None
+        self.rundir = rundir
+        self.prestarted = list(prestarted or [])  # started by ``launch`` during the check
         self.ctx: zmq.Context[Any] | None = None
 
     def _open(self) -> None:
         """The run folder (for ``ipc://`` endpoints) and the control socket."""
-        self.rundir = make_rundir()
+        self.rundir = self.rundir or make_rundir()
         self.ctx = zmq.Context()
         self.control_endpoint = f"ipc://{self.rundir}/control"
         self.control = ControlServer(self.ctx, self.control_endpoint, self.secret, self.say)
 
     def _close(self) -> None:
+        child.release(self.prestarted)  # more started than this run used
         if self.ctx is not None:
             self.control.close()
             self.ctx.term()
@@ -180,24 +183,8 @@ class Launcher:
             "barrier_topics": sorted(self.barrier_topics & set(spec.topics.values())),
             "log_level": self.log_level,
         }
-        env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join(
-            filter(None, [str(PROJECT_ROOT), env.get("PYTHONPATH")])
-        )
-        env["PYTHONUNBUFFERED"] = "1"
-        env[child.PARENT_ENV] = str(os.getpid())
-        env[child.RUNDIR_ENV] = str(self.rundir)
-        # Its own process group: a Ctrl-C at the terminal reaches the launcher only,
-        # which stops the nodes in order.
-        popen = subprocess.Popen(
-            [sys.executable, "-m", "runtime.child"],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            cwd=os.getcwd(),
-            env=env,
-            process_group=0,
-        )
+        assert self.rundir is not None
+        popen = self.prestarted.pop(0) if self.prestarted else child.start(self.rundir)
         assert popen.stdin is not None and popen.stdout is not None
         popen.stdin.write(json.dumps(child_spec).encode())
         popen.stdin.close()
@@ -556,11 +543,29 @@ def launch(
                 source,
                 overwrite=overwrite,
             )
-        checked = check(graph, source=source)
-        launcher = Launcher(
-            checked, lockstep=lockstep, duration_secs=duration_secs, log_level=log_level
-        )
     except GraphError as err:
         print(f"graph check failed:\n{err}", file=sys.stderr)
         return 2
+    # The node processes start now and import what every node needs while the graph is
+    # checked (the check imports the graph's node modules here, on one core).
+    nodes = graph.get("nodes")
+    rundir = make_rundir()
+    prestarted = [child.start(rundir) for _ in range(len(nodes) if isinstance(nodes, dict) else 0)]
+    try:
+        checked = check(graph, source=source)
+    except BaseException as err:  # a failed check, or Ctrl-C during it
+        child.release(prestarted)
+        shutil.rmtree(rundir, ignore_errors=True)
+        if not isinstance(err, GraphError):
+            raise
+        print(f"graph check failed:\n{err}", file=sys.stderr)
+        return 2
+    launcher = Launcher(
+        checked,
+        lockstep=lockstep,
+        duration_secs=duration_secs,
+        log_level=log_level,
+        rundir=rundir,
+        prestarted=prestarted,
+    )
     return launcher.run()
