@@ -1,13 +1,13 @@
 """Start a checked graph as OS processes, supervise them, stop them, report.
 
-One process per node (``python -m runtime.process``), a control ROUTER socket for
+One process per node (``python -m runtime.child``), a control ROUTER socket for
 the handshake, heartbeats, lockstep counters and stop requests (see
 ``runtime.protocol``). Supervision: a node that exits with an error, or whose
 heartbeat stops, or that stays busy in one handler longer than its
 ``hang_timeout_secs``, is handled by its restart policy (``never``, or
 ``on-failure`` with exponential back-off and a cap); when a node marked
-``required`` fails for good, the graph stops with a non-zero exit and that node's
-last log lines. A node that is starting (first start or restart) has
+``required`` fails for good, the graph stops with a non-zero exit (the node's own
+lines, printed as they came with its name, are not repeated). A node that is starting (first start or restart) has
 ``STARTUP_TIMEOUT_SECS`` to say ready; the heartbeat rule applies once it runs.
 Stopping (Ctrl-C, SIGTERM, ``--duration``, a node's request): every node is asked to
 stop, then terminated after a grace period, then killed; after a signal the whole
@@ -27,7 +27,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections import defaultdict, deque
+from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, Literal
@@ -51,7 +51,6 @@ TERM_GRACE_SECS = 2.0
 # After Ctrl-C or SIGTERM: "stop", then SIGTERM, then SIGKILL, all within 2 s.
 SIGNAL_STOP_GRACE_SECS = 1.0
 SIGNAL_TERM_GRACE_SECS = 0.5
-LOG_TAIL_LINES = 20
 # A node process's life, as the launcher sees it (mypy checks every assignment).
 ProcState = Literal["new", "hello", "ready", "running", "exited", "waiting_restart", "failed"]
 
@@ -70,7 +69,6 @@ class _Proc:
     busy_secs: float = 0.0
     cpu_secs: float = 0.0
     exit_codes: list[int] = field(default_factory=list)
-    tail: deque[str] = field(default_factory=lambda: deque(maxlen=LOG_TAIL_LINES))
     stats: dict[str, Any] = field(default_factory=dict)
     stats_at: float = 0.0
     stats_base: dict[str, Any] = field(default_factory=dict)
@@ -144,7 +142,6 @@ class Launcher:
     def _pump(self, proc: _Proc, stream: IO[bytes]) -> None:
         for raw in iter(stream.readline, b""):
             line = raw.decode(errors="replace").rstrip("\n")
-            proc.tail.append(line)
             self.say(line, proc.spec.name)
         stream.close()
 
@@ -239,10 +236,8 @@ class Launcher:
             return
         proc.state = "failed"
         if proc.spec.required:
-            tail = "\n".join(f"    {line}" for line in proc.tail) or "    (no output)"
-            self.say(
-                f"required node {name!r} failed ({reason}); stopping the graph. Its last lines:\n{tail}"
-            )
+            # Its output was printed as it came, marked with its name: not repeated here.
+            self.say(f"required node {name!r} failed ({reason}); stopping the graph")
             self.exit_code = 1
             self._request_stop(f"required node {name!r} failed")
         else:
@@ -353,10 +348,7 @@ class Launcher:
                     for n, p in self.procs.items()
                     if p.state in ("failed", "waiting_restart", "exited")
                 ]
-                self.say(f"node(s) {bad} died during start-up")
-                for name in bad:
-                    tail = "\n".join(f"    {line}" for line in self.procs[name].tail)
-                    self.say(f"last lines of {name!r}:\n{tail}")
+                self.say(f"node(s) {bad} died during start-up (their output is above)")
                 self.exit_code = 1
                 return False
             if not connected and all(p.state in ("hello", "ready") for p in self.procs.values()):
