@@ -14,7 +14,7 @@ Three implementations run side by side, in the same run, alternating per repeat:
 ``raw``      two bare processes with pyzmq PUB/SUB sending the same pixel buffers as
              ``[topic, 16-byte stamp/seq + frame id, depth, ir]`` with pyzmq's
              ``send_multipart``/``recv_multipart``, ``copy=False``: the target's baseline.
-``raw_parts`` ``raw`` with the runtime's own part loops (``runtime.process.send_parts``,
+``raw_parts`` ``raw`` with the runtime's own part loops (``runtime.zmqio.send_parts``,
              ``recv_parts``) instead of pyzmq's multipart helpers: what the runtime's
              way of driving pyzmq is worth on its own, so a ratio against ``raw`` is
              not read as the runtime using a cheaper socket.
@@ -57,7 +57,7 @@ from bench.nodes import LATENCY, SinkRecord, WindowPlan, bench_images
 from messages import Header, ToFImage, decode, encode
 from runtime.graph import check
 from runtime.launcher import Launcher
-from runtime.process import recv_parts, send_parts
+from runtime.zmqio import recv_parts, send_parts
 
 ROWS, COLS = 172, 224
 TRANSPORTS = ("ipc", "tcp")

@@ -19,31 +19,28 @@ secret and checked (``runtime.protocol``); a bad one is counted and logged.
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import signal
-import subprocess
 import sys
 import threading
 import time
-from collections import defaultdict, deque
-from dataclasses import dataclass, field
+from collections import defaultdict
 from pathlib import Path
-from typing import IO, Any, Literal
+from typing import IO, Any
 
 import zmq
 
 from messages.errors import GraphError
-from runtime import child, protocol
+from runtime import protocol
 from runtime.counters import add_stats, table
-from runtime.graph import Graph, NodeSpec, check, ipc_path
+from runtime.graph import Graph, check, ipc_path
 from runtime.isolation import make_rundir
+from runtime.procs import Proc, reap, signal_group, spawn
 from runtime.protocol import ControlServer
 from runtime.registry import class_path
 from runtime.taps import add_recorder
 
-PROJECT_ROOT = Path(__file__).resolve().parent.parent
 STARTUP_TIMEOUT_SECS = 300.0
 HEARTBEAT_TIMEOUT_SECS = 5.0
 DRAIN_SECS = 3.0
@@ -52,31 +49,6 @@ TERM_GRACE_SECS = 2.0
 # After Ctrl-C or SIGTERM: "stop", then SIGTERM, then SIGKILL, all within 2 s.
 SIGNAL_STOP_GRACE_SECS = 1.0
 SIGNAL_TERM_GRACE_SECS = 0.5
-LOG_TAIL_LINES = 20
-# A node process's life, as the launcher sees it (mypy checks every assignment).
-ProcState = Literal["new", "hello", "ready", "running", "exited", "waiting_restart", "failed"]
-
-
-@dataclass
-class _Proc:
-    spec: NodeSpec
-    popen: subprocess.Popen[bytes] | None = None
-    rid: bytes | None = None  # the ROUTER id of the node's main control socket
-    spawned_at: float = 0.0
-    endpoint: str | None = None
-    state: ProcState = "new"
-    restarts: int = 0
-    restart_at: float = 0.0
-    last_heartbeat: float = 0.0
-    busy_secs: float = 0.0
-    cpu_secs: float = 0.0
-    exit_codes: list[int] = field(default_factory=list)
-    tail: deque[str] = field(default_factory=lambda: deque(maxlen=LOG_TAIL_LINES))
-    stats: dict[str, Any] = field(default_factory=dict)
-    stats_at: float = 0.0
-    stats_base: dict[str, Any] = field(default_factory=dict)
-    counts_published: dict[str, int] = field(default_factory=dict)
-    counts_received: dict[str, int] = field(default_factory=dict)
 
 
 class Launcher:
@@ -96,7 +68,7 @@ class Launcher:
         self.duration_secs = duration_secs
         self.log_level = log_level
         self.out = out or sys.stdout
-        self.procs = {name: _Proc(spec) for name, spec in graph.nodes.items()}
+        self.procs = {name: Proc(spec) for name, spec in graph.nodes.items()}
         self.providers = {topic: node for topic, (node, _) in graph.providers().items()}
         # Subscriptions each publisher waits for: one per input, but in lockstep a node
         # reads each publisher through one socket, subscribed once per topic.
@@ -138,15 +110,8 @@ class Launcher:
             for line in text.splitlines() or [""]:
                 print(f"[{node}] {line}", file=self.out, flush=True)
 
-    def _pump(self, proc: _Proc, stream: IO[bytes]) -> None:
-        for raw in iter(stream.readline, b""):
-            line = raw.decode(errors="replace").rstrip("\n")
-            proc.tail.append(line)
-            self.say(line, proc.spec.name)
-        stream.close()
-
     # -- processes ---------------------------------------------------------------
-    def _bind_endpoint(self, proc: _Proc) -> str:
+    def _bind_endpoint(self, proc: Proc) -> str:
         if proc.endpoint:  # a restart binds where the subscribers already connect
             return proc.endpoint
         if proc.spec.host:
@@ -154,7 +119,7 @@ class Launcher:
         assert self.rundir is not None, "the run folder is made before any node starts"
         return f"ipc://{ipc_path(self.rundir, proc.spec.name)}"
 
-    def _spawn(self, proc: _Proc) -> None:
+    def _spawn(self, proc: Proc) -> None:
         spec = proc.spec
         child_spec = {
             "name": spec.name,
@@ -180,65 +145,26 @@ class Launcher:
             "barrier_topics": sorted(self.barrier_topics & set(spec.topics.values())),
             "log_level": self.log_level,
         }
-        env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join(
-            filter(None, [str(PROJECT_ROOT), env.get("PYTHONPATH")])
-        )
-        env["PYTHONUNBUFFERED"] = "1"
-        env[child.PARENT_ENV] = str(os.getpid())
-        env[child.RUNDIR_ENV] = str(self.rundir)
-        # Its own process group: a Ctrl-C at the terminal reaches the launcher only,
-        # which stops the nodes in order.
-        popen = subprocess.Popen(
-            [sys.executable, "-m", "runtime.child"],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            cwd=os.getcwd(),
-            env=env,
-            process_group=0,
-        )
-        assert popen.stdin is not None and popen.stdout is not None
-        popen.stdin.write(json.dumps(child_spec).encode())
-        popen.stdin.close()
-        threading.Thread(target=self._pump, args=(proc, popen.stdout), daemon=True).start()
-        proc.popen = popen
-        proc.rid = None
-        proc.state = "new"
-        proc.spawned_at = proc.last_heartbeat = time.monotonic()
-        proc.busy_secs = 0.0
-        proc.stats_base = add_stats(proc.stats_base, proc.stats)
-        proc.stats = {}
+        assert self.rundir is not None
+        spawn(proc, child_spec, self.rundir, self.say)
 
     def _reap(self) -> None:
         for proc in self.procs.values():
             if proc.popen is None or proc.state in ("exited", "failed", "waiting_restart"):
                 continue
-            try:
-                pid, status, usage = os.wait4(proc.popen.pid, os.WNOHANG)
-            except ChildProcessError:
-                pid, status, usage = proc.popen.pid, 0, None
-            if pid == 0:
+            code = reap(proc)
+            if code is None:
                 continue
-            if usage is not None:
-                proc.cpu_secs += usage.ru_utime + usage.ru_stime
-            code = os.waitstatus_to_exitcode(status)
-            proc.popen.returncode = code
-            try:  # what the node started and left behind (the group outlives its leader)
-                os.killpg(pid, signal.SIGKILL)
-            except (ProcessLookupError, PermissionError):
-                pass
-            proc.exit_codes.append(code)
             self._on_exit(proc, code)
 
-    def _on_exit(self, proc: _Proc, code: int) -> None:
+    def _on_exit(self, proc: Proc, code: int) -> None:
         if code == 0 or self.stop_reason is not None:
             proc.state = "exited"
             return
         reason = f"signal {-code}" if code < 0 else f"exit code {code}"
         self._failed(proc, reason)
 
-    def _failed(self, proc: _Proc, reason: str) -> None:
+    def _failed(self, proc: Proc, reason: str) -> None:
         name = proc.spec.name
         policy = proc.spec.restart
         if policy.policy == "on-failure" and proc.restarts < policy.max_restarts:
@@ -261,15 +187,15 @@ class Launcher:
         else:
             self.say(f"node {name!r} failed ({reason}); not required, the graph goes on")
 
-    def _kill_hung(self, proc: _Proc, why: str) -> None:
-        _signal(proc, signal.SIGKILL)
+    def _kill_hung(self, proc: Proc, why: str) -> None:
+        signal_group(proc, signal.SIGKILL)
         self.say(f"node {proc.spec.name!r} {why}; killed")
 
     # -- control messages --------------------------------------------------------
     def _send(self, name: str, kind: str, **body: Any) -> None:
         self.control.send(self.procs[name].rid, kind, **body)
 
-    def _on_message(self, proc: _Proc, rid: bytes, msg: dict[str, Any]) -> None:
+    def _on_message(self, proc: Proc, rid: bytes, msg: dict[str, Any]) -> None:
         name = proc.spec.name
         kind = msg["kind"]
         proc.last_heartbeat = time.monotonic()
@@ -348,7 +274,7 @@ class Launcher:
         self._request_stop(f"signal {signal.Signals(signum).name}")
         if len(self._signals) >= 3:  # an impatient user: no more grace
             for proc in self.procs.values():
-                _signal(proc, signal.SIGKILL)
+                signal_group(proc, signal.SIGKILL)
 
     def _startup(self) -> bool:
         for proc in self.procs.values():
@@ -455,7 +381,7 @@ class Launcher:
         ]
         for proc in live:
             if proc.rid is None:  # still importing: it cannot hear "stop" yet
-                _signal(proc, signal.SIGTERM)
+                signal_group(proc, signal.SIGTERM)
             else:
                 self._send(proc.spec.name, "stop")
         hurry = bool(self._signals)
@@ -472,7 +398,7 @@ class Launcher:
             if signum is not None:
                 self.say(f"{len(live)} node(s) still running: sending {signum.name}")
                 for proc in live:
-                    _signal(proc, signum)
+                    signal_group(proc, signum)
             end = time.monotonic() + grace
             while time.monotonic() < end and any(p.popen.returncode is None for p in live):  # type: ignore[union-attr]
                 self._serve(50)
@@ -522,15 +448,6 @@ class Launcher:
                 f"\ncontrol: refused {self.control.refused} message(s) (malformed or not signed)"
             )
         return text
-
-
-def _signal(proc: _Proc, signum: int) -> None:
-    """Signal a node's process group: the node and any process it started (a compiler)."""
-    if proc.popen is not None and proc.popen.returncode is None:
-        try:
-            os.killpg(proc.popen.pid, signum)
-        except (ProcessLookupError, PermissionError):
-            pass
 
 
 def launch(
