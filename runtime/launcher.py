@@ -31,15 +31,15 @@ from typing import IO, Any
 
 import zmq
 
-from messages.errors import GraphError
 from runtime import protocol
-from runtime.counters import add_stats, table
-from runtime.graph import Graph, check, ipc_path
+from runtime.counters import add_stats, delivered, table
+from runtime.graph import Graph, ipc_path
+from runtime.hostlink import HostLink, judge
 from runtime.isolation import make_rundir
 from runtime.procs import Proc, reap, signal_group, spawn
 from runtime.protocol import ControlServer
 from runtime.registry import class_path
-from runtime.taps import add_recorder
+from runtime.security import KeyPair
 
 STARTUP_TIMEOUT_SECS = 300.0
 HEARTBEAT_TIMEOUT_SECS = 5.0
@@ -62,13 +62,23 @@ class Launcher:
         duration_secs: float | None = None,
         log_level: str = "INFO",
         out: IO[str] | None = None,
+        host: str | None = None,
+        keys: KeyPair | None = None,
     ) -> None:
         self.graph = graph
+        # With a hosts table: only this host's nodes, every publisher at its fixed endpoint.
+        self.host, self.keys = host, keys
+        placed = graph.hosts.placement({n: s.host for n, s in graph.nodes.items()})
+        self.fixed = graph.hosts.endpoints(placed) if host else {}
+        local = {n for n in graph.nodes if not host or placed[n] == host}
         self.lockstep = lockstep
         self.duration_secs = duration_secs
         self.log_level = log_level
         self.out = out or sys.stdout
-        self.procs = {name: Proc(spec) for name, spec in graph.nodes.items()}
+        self.procs = {name: Proc(spec) for name, spec in graph.nodes.items() if name in local}
+        self.servers = {
+            n: graph.hosts.table[h].public_key for n, h in placed.items() if self.fixed and keys
+        }
         self.providers = {topic: node for topic, (node, _) in graph.providers().items()}
         # Subscriptions each publisher waits for: one per input, but in lockstep a node
         # reads each publisher through one socket, subscribed once per topic.
@@ -77,6 +87,8 @@ class Launcher:
         subscriptions = {(t, n) for t, n, _ in edges} if lockstep else [(t, n) for t, n, _ in edges]
         for topic, _ in subscriptions:
             self.expected[self.providers[topic]][topic] += 1
+        # The edges this launcher sees both ends of (all of them on one host).
+        self.local_edges = [e for e in edges if {e[1], self.providers[e[0]]} <= local]
         self.barrier_topics = graph.barrier_topics() if lockstep else set()
         self.stop_reason: str | None = None
         self.exit_code = 0
@@ -89,6 +101,7 @@ class Launcher:
         self.secret = protocol.new_secret()
         self.rundir: Path | None = None
         self.ctx: zmq.Context[Any] | None = None
+        self.link: HostLink | None = None
 
     def _open(self) -> None:
         """The run folder (for ``ipc://`` endpoints) and the control socket."""
@@ -96,8 +109,13 @@ class Launcher:
         self.ctx = zmq.Context()
         self.control_endpoint = f"ipc://{self.rundir}/control"
         self.control = ControlServer(self.ctx, self.control_endpoint, self.secret, self.say)
+        if self.host is not None:
+            self.link = HostLink(self.ctx, self.graph.hosts, self.host, self.keys, self.say)
+            self.link.start()
 
     def _close(self) -> None:
+        if self.link is not None:
+            self.link.close()
         if self.ctx is not None:
             self.control.close()
             self.ctx.term()
@@ -114,6 +132,8 @@ class Launcher:
     def _bind_endpoint(self, proc: Proc) -> str:
         if proc.endpoint:  # a restart binds where the subscribers already connect
             return proc.endpoint
+        if self.fixed:
+            return self.fixed[proc.spec.name]
         if proc.spec.host:
             return f"tcp://{proc.spec.host}:*"
         assert self.rundir is not None, "the run folder is made before any node starts"
@@ -145,6 +165,13 @@ class Launcher:
             "barrier_topics": sorted(self.barrier_topics & set(spec.topics.values())),
             "log_level": self.log_level,
         }
+        if self.keys is not None:  # the host's own key pair and the publishers' keys
+            child_spec["curve"] = {
+                "public": self.keys.public,
+                "secret": self.keys.secret,
+                "authorized": {h.public_key: n for n, h in self.graph.hosts.table.items()},
+                "servers": self.servers,
+            }
         assert self.rundir is not None
         spawn(proc, child_spec, self.rundir, self.say)
 
@@ -241,16 +268,15 @@ class Launcher:
             self._request_stop(f"{name}: {reason}")
 
     def _endpoints(self) -> dict[str, str]:
-        return {name: p.endpoint for name, p in self.procs.items() if p.endpoint}
+        return self.fixed | {name: p.endpoint for name, p in self.procs.items() if p.endpoint}
 
     def _graph_idle(self) -> bool:
-        published: dict[str, int] = {}
-        for proc in self.procs.values():
-            published.update(proc.counts_published)
-        for topic, node, port in self.graph.edges():
-            if self.procs[node].counts_received.get(port, 0) < published.get(topic, 0):
-                return False
-        return True
+        published = {t: n for p in self.procs.values() for t, n in p.counts_published.items()}
+        return delivered(
+            self.local_edges,
+            published,
+            lambda node, port: self.procs[node].counts_received.get(port, 0),
+        )
 
     def _serve(self, timeout_ms: int) -> None:
         for rid, msg in self.control.receive(timeout_ms):
@@ -259,15 +285,27 @@ class Launcher:
                 self.control.refuse(f"signed, but names no node of the graph: {msg['node']!r:.40}")
             else:
                 self._on_message(proc, rid, msg)
+        if self.link is not None:
+            for event in self.link.events():
+                act = judge(event, self.graph.hosts)
+                for line in act.lines:
+                    self.say(line)
+                if act.stop is not None:
+                    self.exit_code = self.exit_code or act.exit_code
+                    self.verdict_code = self.verdict_code or act.verdict_code
+                    self._request_stop(act.stop, echo=act.echo)
         if self.idle_waiters and self._graph_idle():
             for rid in self.idle_waiters:
                 self.control.send(rid, "idle")
             self.idle_waiters.clear()
 
     # -- run ---------------------------------------------------------------------
-    def _request_stop(self, reason: str) -> None:
+    def _request_stop(self, reason: str, *, echo: bool = True) -> None:
+        """Stop the graph; ``echo``: tell the other hosts (not when one of them said it)."""
         if self.stop_reason is None:
             self.stop_reason = reason
+            if echo and self.link is not None:
+                self.link.send_stop(reason, self.exit_code or self.verdict_code)
 
     def _on_signal(self, signum: int, frame: Any) -> None:
         self._signals.append(signum)
@@ -362,18 +400,16 @@ class Launcher:
                 return
 
     def _stats_balanced(self) -> bool:
-        published: dict[str, int] = {}
-        for proc in self.procs.values():
-            if proc.state == "running":
-                published.update(proc.stats.get("published", {}))
-        for topic, node, port in self.graph.edges():
-            proc = self.procs[node]
-            if proc.state != "running":
-                continue
-            received = proc.stats.get("inputs", {}).get(port, {}).get("received", 0)
-            if received < published.get(topic, 0):
-                return False
-        return True
+        running = {n: p.stats for n, p in self.procs.items() if p.state == "running"}
+        published = {t: n for st in running.values() for t, n in st.get("published", {}).items()}
+
+        def received(node: str, port: str) -> int | None:
+            stats = running.get(node)
+            return (
+                None if stats is None else stats.get("inputs", {}).get(port, {}).get("received", 0)
+            )
+
+        return delivered(self.local_edges, published, received)
 
     def _shutdown(self) -> None:
         live = [
@@ -448,36 +484,3 @@ class Launcher:
                 f"\ncontrol: refused {self.control.refused} message(s) (malformed or not signed)"
             )
         return text
-
-
-def launch(
-    graph: dict[str, Any],
-    *,
-    source: str,
-    record: Path | None = None,
-    topics: str | None = None,
-    overwrite: bool = False,
-    lockstep: bool = False,
-    duration_secs: float | None = None,
-    log_level: str = "INFO",
-    command_line: str = "",
-) -> int:
-    """Check and run a graph document; returns the exit code (2 when the check fails)."""
-    try:
-        if record is not None:
-            graph = add_recorder(
-                graph,
-                record,
-                topics,
-                command_line or " ".join(sys.argv),
-                source,
-                overwrite=overwrite,
-            )
-        checked = check(graph, source=source)
-        launcher = Launcher(
-            checked, lockstep=lockstep, duration_secs=duration_secs, log_level=log_level
-        )
-    except GraphError as err:
-        print(f"graph check failed:\n{err}", file=sys.stderr)
-        return 2
-    return launcher.run()

@@ -35,6 +35,10 @@ Handshake. hello (endpoint) -> connect (peers' endpoints) -> wait until every
 expected subscription has arrived on the XPUB -> setup done -> ready -> start. No
 node publishes before start, so no subscriber misses the first message.
 
+Security. tcp on an address that is not loopback is CURVE (``runtime.security``): the
+publisher is a CURVE server behind a ZAP handler that admits the graph's host keys only,
+and each input a CURVE client with the host's key pair (handed on stdin with the spec).
+
 Control. Every control message is signed with the run's secret and checked
 (``runtime.protocol``); one that fails is logged and dropped.
 
@@ -63,6 +67,7 @@ from runtime import protocol
 from runtime.node import Node
 from runtime.params import build_params
 from runtime.registry import resolve
+from runtime.security import connect_to, needs_curve
 from runtime.zmqio import Input, Source, ZmqIO, recv_parts
 
 _BAD_FRAME_LOG_EVERY = 100
@@ -108,7 +113,10 @@ class Runner:
                 sock = self.ctx.socket(zmq.SUB)
                 sock.setsockopt(zmq.RCVHWM, 0 if io.lockstep else inp["queue_size"])
                 sock.setsockopt(zmq.LINGER, 0)
-                sock.connect(connect["endpoints"][inp["provider"]])
+                endpoint = connect["endpoints"][inp["provider"]]
+                if io.keys is not None and needs_curve(endpoint):
+                    connect_to(sock, io.keys, self.spec["curve"]["servers"][inp["provider"]])
+                sock.connect(endpoint)
                 latest = inp["policy"] == "latest" and not io.lockstep
                 source = by_key[key] = Source(sock, latest=latest)
                 self.sources.append(source)
@@ -140,6 +148,8 @@ class Runner:
             for source in self.sources:
                 source.socket.close(linger=0)
             self.io.pub.close(linger=1000)
+            if self.io.guard is not None:
+                self.io.guard.close()
             self.io.control.close(linger=1000)
             self._hb_thread.join(timeout=2)
             self.ctx.term()

@@ -22,6 +22,7 @@ from messages.codec import encode
 from runtime import protocol
 from runtime.counters import InputCounters
 from runtime.protocol import ControlError
+from runtime.security import Guard, KeyPair, needs_curve, serve
 
 # Plain ints: pyzmq 27's flags are enum members, and arithmetic on them costs about a
 # microsecond per part of a message.
@@ -99,6 +100,15 @@ class ZmqIO:
         # Lockstep must not lose a message to a high-water mark: the replay bounds the flow.
         self.pub.setsockopt(zmq.SNDHWM, 0 if self.lockstep else spec.get("sndhwm", 1000))
         self.pub.setsockopt(zmq.LINGER, 1000)
+        curve: dict[str, Any] = spec.get("curve") or {}
+        self.keys = KeyPair(curve["public"], curve["secret"]) if curve else None
+        self.guard: Guard | None = None
+        if self.keys is not None and needs_curve(spec["bind"]):
+            # ZAP before the bind: a CURVE socket with no handler would admit any key.
+            self.guard = Guard(ctx, curve["authorized"], self.log.warning)
+            serve(self.pub, self.keys)
+            self.guard.watch(self.pub)
+            self.guard.start()
         self.endpoint = self._bind(spec["bind"])
         self.secret = bytes.fromhex(spec["secret"])
         self.control = ctx.socket(zmq.DEALER)
