@@ -37,7 +37,13 @@ ZAP_ENDPOINT = "inproc://zeromq.zap.01"
 KEY_SUFFIX = ".key"
 PUBLIC_SUFFIX = ".pub"
 Z85_KEY_CHARS = 40
-_MONITOR_EVENTS = zmq.EVENT_ACCEPTED | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL | zmq.EVENT_DISCONNECTED
+_HANDSHAKE_ENDS = (
+    zmq.EVENT_HANDSHAKE_SUCCEEDED
+    | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
+    | zmq.EVENT_HANDSHAKE_FAILED_AUTH
+    | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL
+)
+_MONITOR_EVENTS = zmq.EVENT_ACCEPTED | zmq.EVENT_DISCONNECTED | _HANDSHAKE_ENDS
 # A refused peer usually retries: the first refusal of each (address, reason) is logged,
 # then every 100th.
 REFUSED_LOG_EVERY = 100
@@ -196,8 +202,9 @@ class Guard:
         poller.register(self.zap, zmq.POLLIN)
         for mon in self.monitors:
             poller.register(mon, zmq.POLLIN)
-        peers: dict[int, str] = {}
-        failed: str | None = None
+        # Accepted connections whose handshake has not ended, oldest first: a handshake
+        # event names no connection, and they end in the order they began.
+        pending: dict[int, str] = {}
         while not self.stopping.is_set():
             for sock, _ in poller.poll(200):
                 if sock is self.zap:
@@ -206,14 +213,19 @@ class Guard:
                 event = zmq.utils.monitor.recv_monitor_message(sock)
                 kind, value = event["event"], event["value"]
                 if kind == zmq.EVENT_ACCEPTED:
-                    peers[value] = _peer_of(value)
-                elif kind == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL:
-                    failed = _handshake_error(value)
+                    pending[value] = _peer_of(value)
                 elif kind == zmq.EVENT_DISCONNECTED:
-                    peer = peers.pop(value, "?:?")
-                    if failed is not None:
-                        self._refuse(peer.rpartition(":")[0], failed)
-                        failed = None
+                    pending.pop(value, None)
+                elif kind & _HANDSHAKE_ENDS:
+                    fd = next(iter(pending), None)
+                    peer = "?" if fd is None else pending.pop(fd).rpartition(":")[0]
+                    if kind == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL:
+                        self._refuse(peer, _handshake_error(value))
+                    elif kind == zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL:  # ZAP logs a bad key
+                        why = os.strerror(value) if value > 0 else "no detail"
+                        self._refuse(
+                            peer, f"the handshake failed ({why}): not CURVE with a graph key"
+                        )
 
     def _answer(self, frames: list[bytes]) -> None:
         """One ZAP request (RFC 27): accept an authorized CURVE key, refuse anything else."""
