@@ -9,6 +9,7 @@ not when it cannot work here.
 
 from __future__ import annotations
 
+import ctypes
 import os
 import shutil
 import subprocess
@@ -16,7 +17,10 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 
+from runtime.security import KeyPair
+
 SUBNET = "10.77.0"
+CLONE_NEWNET = 0x40000000
 
 
 @dataclass(frozen=True)
@@ -77,3 +81,25 @@ def namespaces(count: int) -> Iterator[list[Namespace]]:
     finally:
         for name in reversed(made):
             subprocess.run(["ip", "netns", "del", name], capture_output=True, timeout=30)
+
+
+def enter(name: str) -> None:
+    """Move this process into namespace ``name``: call it first thing in a new process,
+    before any thread (ZeroMQ's I/O threads) is started, so they all start inside."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    fd = os.open(f"/var/run/netns/{name}", os.O_RDONLY)
+    try:
+        if libc.setns(fd, CLONE_NEWNET) != 0:
+            err = ctypes.get_errno()
+            raise OSError(err, f"setns into {name}: {os.strerror(err)}")
+    finally:
+        os.close(fd)
+
+
+@dataclass(frozen=True)
+class Net:
+    """Where a benchmark's two processes run: namespaces ``spaces`` (source, sink) and,
+    for CURVE, the (server, client) key pairs."""
+
+    spaces: tuple[str, str]
+    keys: tuple[KeyPair, KeyPair] | None = None

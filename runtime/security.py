@@ -206,7 +206,11 @@ class Guard:
         # event names no connection, and they end in the order they began.
         pending: dict[int, str] = {}
         while not self.stopping.is_set():
-            for sock, _ in poller.poll(200):
+            try:
+                ready = poller.poll(200)
+            except zmq.ContextTerminated:
+                return
+            for sock, _ in ready:
                 if sock is self.zap:
                     self._answer(self.zap.recv_multipart())
                     continue
