@@ -21,7 +21,7 @@ def test_help_lists_every_subcommand(capsys: pytest.CaptureFixture[str]) -> None
         launch.main(["--help"])
     assert info.value.code == 0
     out = capsys.readouterr().out
-    assert "python launch.py GRAPH [options] | python launch.py {nodes,bag,replay}" in out
+    assert "python launch.py GRAPH [options] | python launch.py {nodes,bag,replay,keys}" in out
     for name, (summary, _) in launch.SUBCOMMANDS.items():
         assert f"  {name}" in out and summary in out
     assert "--record-topics" in out and "--swap" in out and "--topics" not in out
