@@ -121,14 +121,18 @@ class BagMessage:
         return out
 
     def decode(self) -> TypedMessage:
-        """Decode into today's message class (fingerprint checked).
+        """Decode into today's message class.
+
+        A message recorded under an older declaration of its type decodes when today's
+        only adds fields with defaults (filled in; ``messages.evolution``).
 
         Raises:
-            BagError: the type is unknown today or its fields changed since the recording
-                (use :meth:`decode_plain`), or the message is malformed.
+            BagError: the type is unknown today or changed otherwise since the recording
+                (the message names the type and the field; use :meth:`decode_plain`), or
+                the message is malformed.
         """
         try:
-            return decode(self.wire_frames())[1]
+            return decode(self.wire_frames(), stored=self.channel.schema.description)[1]
         except FrameDecodeError as err:
             raise BagError(f"{self.where()}: {err}") from err
 
