@@ -105,6 +105,40 @@ def test_arrays_are_stored_as_received(tmp_path: Path) -> None:
     assert [bytes(f) for f in stored] == [bytes(memoryview(f).cast("B")) for f in frames[1:]]
 
 
+_OUTLIVES_READER = """
+import sys
+import numpy as np
+from runtime.bag import BagReader
+with BagReader(sys.argv[1]) as r:
+    (m,) = r.messages()
+    depth = m.decode().depth_m
+    del m
+print(np.nansum(depth))
+with BagReader(sys.argv[1]) as r:
+    depth = next(iter(r.messages())).decode_plain()["depth_m"]
+print(np.nansum(depth))
+"""
+
+
+def test_decoded_arrays_outlive_the_reader(tmp_path: Path) -> None:
+    """A typed array is a view on the mapped file; closing the reader must not unmap it
+    under the array (run in a child: a dangling view is a segmentation fault)."""
+    path = tmp_path / "a.mcap"
+    msg = tof(1)
+    with BagWriter(path) as w:
+        w.write_message("c/image", msg, log_time_nanos=1)
+    done = subprocess.run(
+        [sys.executable, "-c", _OUTLIVES_READER, str(path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=Path(__file__).parents[2],
+    )
+    assert done.returncode == 0, done.stderr
+    typed, plain = (float(x) for x in done.stdout.split())
+    assert typed == plain == pytest.approx(float(np.nansum(msg.depth_m)))
+
+
 _THIRD_PARTY_READER = """
 import json, sys
 import msgpack
