@@ -3,11 +3,12 @@
 python launch.py GRAPH [--check] [--set NODE.PARAM=VALUE ...] [--swap NODE=IMPL ...]
                        [--only NODE,NODE] [--duration SECS] [--log-level LEVEL]
                        [--record OUT.mcap [--record-topics REGEX] [--overwrite]] [--lockstep]
-                       [--view [OUT.rrd | foxglove]]
+                       [--view [OUT.rrd | foxglove]] [--host NAME [--keys DIR]]
 python launch.py nodes [IMPL]                list implementations, or one's ports and params
 python launch.py bag info|echo|diff ...      inspect bags (see docs/bags.md)
 python launch.py bag view|export|video ...   look at bags (see docs/viewing.md)
 python launch.py replay BAG [--swap NODE[=IMPL] ...] [...]
+python launch.py keys make HOST | list [--keys DIR]   CURVE keys of hosts (docs/hosts.md)
 """
 
 from __future__ import annotations
@@ -69,8 +70,25 @@ def run_parser() -> argparse.ArgumentParser:
         metavar="OUT.rrd|foxglove",
         help="add a viewer: a Rerun window, an .rrd file, or a Foxglove live server",
     )
+    parser.add_argument(
+        "--host",
+        default=None,
+        metavar="NAME",
+        help="with a hosts table: run this host's nodes only (docs/hosts.md)",
+    )
+    add_keys_option(parser)
     add_deprecated(parser, "--topics", "--record-topics", "record_topics")
     return parser
+
+
+def add_keys_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--keys",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="the hosts' key folder (default ~/.config/softbubble/keys)",
+    )
 
 
 def run_main(argv: list[str]) -> int:
@@ -78,7 +96,7 @@ def run_main(argv: list[str]) -> int:
     import nodes  # noqa: F401 - the index of node implementations (no node module)
     from messages.errors import GraphError
     from runtime import graph as graphs
-    from runtime.launcher import launch
+    from runtime.run import launch
 
     source = str(args.graph)
     try:
@@ -96,7 +114,20 @@ def run_main(argv: list[str]) -> int:
         print(f"graph check failed:\n{err}", file=sys.stderr)
         return 2
     if args.check:
-        print(f"{source}: OK, {len(checked.nodes)} nodes, {len(checked.edges())} edges")
+        if args.host is not None:
+            from runtime.run import host_keys
+
+            try:
+                keys = host_keys(checked, args.host, args.keys)
+            except GraphError as err:
+                print(f"graph check failed:\n{err}", file=sys.stderr)
+                return 2
+            on = f"; host {args.host}" + (", its key matches" if keys else "")
+        elif checked.hosts.table:
+            on = f"; hosts: {', '.join(checked.hosts.table)} (run each with --host NAME)"
+        else:
+            on = ""
+        print(f"{source}: OK, {len(checked.nodes)} nodes, {len(checked.edges())} edges{on}")
         return 0
     return launch(
         doc,
@@ -108,6 +139,8 @@ def run_main(argv: list[str]) -> int:
         duration_secs=args.duration,
         log_level=args.log_level,
         command_line=shlex.join([sys.executable, *sys.argv]),
+        host=args.host,
+        key_dir=args.keys,
     )
 
 
@@ -152,6 +185,39 @@ def replay_main(argv: list[str]) -> int:
     return replay(argv)
 
 
+def keys_main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python launch.py keys",
+        description="Make or list the CURVE key pairs of a graph's hosts: the secret key "
+        "stays in the key folder (mode 0600), the public key goes in the graph's hosts table.",
+    )
+    parser.add_argument("action", choices=("make", "list"))
+    parser.add_argument("host", nargs="?", help="make: the host's name in the hosts table")
+    parser.add_argument("--overwrite", action="store_true", help="make: replace a host's key")
+    add_keys_option(parser)
+    args = parser.parse_args(argv)
+    from runtime.security import default_key_dir, list_keys, make_key
+
+    key_dir = args.keys or default_key_dir()
+    if args.action == "make":
+        if not args.host:
+            parser.error("keys make: name the host")
+        try:
+            keys = make_key(key_dir, args.host, overwrite=args.overwrite)
+        except (FileExistsError, OSError) as err:
+            print(f"launch.py keys: {err}", file=sys.stderr)
+            return 2
+        print(f"{key_dir / args.host}.key: secret key of host {args.host} (mode 0600)")
+        print(f'its hosts-table entry: public_key: "{keys.public}"')
+        return 0
+    rows = list_keys(key_dir)
+    for name, public, secret in rows:
+        print(f"{name:16} {public}  {'secret key here' if secret else 'public key only'}")
+    if not rows:
+        print(f"no keys in {key_dir}")
+    return 0
+
+
 # name -> (what --help says, handler): each reads the rest of the command line.
 SUBCOMMANDS: dict[str, tuple[str, Callable[[list[str]], int]]] = {
     "nodes": ("list node implementations; `nodes IMPL`: its ports and parameters", nodes_main),
@@ -160,6 +226,7 @@ SUBCOMMANDS: dict[str, tuple[str, Callable[[list[str]], int]]] = {
         bag_main,
     ),
     "replay": ("replay a bag through its graph, some nodes swapped (docs/bags.md)", replay_main),
+    "keys": ("make or list the CURVE keys of a graph's hosts (docs/hosts.md)", keys_main),
 }
 
 

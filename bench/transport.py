@@ -14,7 +14,7 @@ Three implementations run side by side, in the same run, alternating per repeat:
 ``raw``      two bare processes with pyzmq PUB/SUB sending the same pixel buffers as
              ``[topic, 16-byte stamp/seq + frame id, depth, ir]`` with pyzmq's
              ``send_multipart``/``recv_multipart``, ``copy=False``: the target's baseline.
-``raw_parts`` ``raw`` with the runtime's own part loops (``runtime.process.send_parts``,
+``raw_parts`` ``raw`` with the runtime's own part loops (``runtime.zmqio.send_parts``,
              ``recv_parts``) instead of pyzmq's multipart helpers: what the runtime's
              way of driving pyzmq is worth on its own, so a ratio against ``raw`` is
              not read as the runtime using a cheaper socket.
@@ -27,6 +27,10 @@ acknowledged every ``ack_every`` frames over a return channel (a Tick edge for t
 runtime, PUSH/PULL for the bare processes). Throughput is counted at the receiver:
 ``(frames - 1) / (last - first receive time)``. Frames lost at a high-water mark
 (sequence gaps) are counted as ``drops``.
+
+Two more rows, ``netns_tcp`` and ``netns_curve``: the ``raw_parts`` pair between two
+network namespaces (two hosts on one machine), plain and CURVE-encrypted, and the ratio
+CURVE costs (``bench.transport_netns``; skipped, with the reason, without root).
 
 Rows report medians over repeats (of each repeat's rate, median and p99 latency).
 ``throughput_vs_raw`` is the median over repeats of the rate divided by raw's rate in
@@ -53,14 +57,17 @@ import numpy as np
 import zmq
 
 from bench.common import Row, launcher_log, main, median, percentile, progress
+from bench.netns import SUBNET, Net, enter
 from bench.nodes import LATENCY, SinkRecord, WindowPlan, bench_images
 from messages import Header, ToFImage, decode, encode
 from runtime.graph import check
 from runtime.launcher import Launcher
-from runtime.process import recv_parts, send_parts
+from runtime.security import Guard, connect_to, serve
+from runtime.zmqio import recv_parts, send_parts
 
 ROWS, COLS = 172, 224
 TRANSPORTS = ("ipc", "tcp")
+NETNS = ("netns_tcp", "netns_curve")  # see bench.transport_netns
 IMPLS = ("runtime", "codec", "raw", "raw_parts")
 TOPIC = b"source/image"
 PROBE = b"source/probe"
@@ -165,6 +172,8 @@ def run_runtime(transport: str, sizes: Sizes, workdir: Path) -> Measured:
 
 
 def _endpoint(transport: str, workdir: Path, name: str) -> str:
+    if transport in NETNS:
+        return f"tcp://{SUBNET}.1:*"  # the source's namespace
     return f"ipc://{workdir}/{name}" if transport == "ipc" else "tcp://127.0.0.1:*"
 
 
@@ -189,15 +198,26 @@ def _codec_frames(frame_id: str, seq: int, depth_m: np.ndarray, ir: np.ndarray) 
 
 
 def _source_process(
-    conn: Connection, impl: str, transport: str, sizes: Sizes, workdir: str
+    conn: Connection, impl: str, transport: str, sizes: Sizes, workdir: str, net: Net | None = None
 ) -> None:
-    """The sending process: PUB for frames, PULL for acks; paced, then windowed."""
+    """The sending process: PUB for frames, PULL for acks; paced, then windowed.
+
+    With ``net``: in the first namespace, both sockets CURVE servers if it has keys."""
+    if net is not None:
+        enter(net.spaces[0])
     ctx: zmq.Context[Any] = zmq.Context()
     pub = ctx.socket(zmq.PUB)
     pub.setsockopt(zmq.SNDHWM, sizes.hwm)
     pub.setsockopt(zmq.LINGER, 1000)
     acks = ctx.socket(zmq.PULL)
     acks.setsockopt(zmq.LINGER, 0)
+    guard = None
+    if net is not None and net.keys is not None:
+        server, client = net.keys
+        guard = Guard(ctx, {client.public: "sink"}, print)
+        for sock in (pub, acks):
+            serve(sock, server)
+        guard.start()
     pub.bind(_endpoint(transport, Path(workdir), "data"))
     acks.bind(_endpoint(transport, Path(workdir), "ack"))
     conn.send(
@@ -240,18 +260,30 @@ def _source_process(
     conn.send(plan.result())
     pub.close()
     acks.close()
+    if guard is not None:
+        guard.close()
     ctx.term()
 
 
-def _sink_process(conn: Connection, impl: str, endpoints: list[str], sizes: Sizes) -> None:
-    """The receiving process: SUB for frames, PUSH for acks; sends its record back."""
+def _sink_process(
+    conn: Connection, impl: str, endpoints: list[str], sizes: Sizes, net: Net | None = None
+) -> None:
+    """The receiving process: SUB for frames, PUSH for acks; sends its record back.
+
+    With ``net``: in the second namespace, both sockets CURVE clients if it has keys."""
+    if net is not None:
+        enter(net.spaces[1])
     ctx: zmq.Context[Any] = zmq.Context()
     sub = ctx.socket(zmq.SUB)
     sub.setsockopt(zmq.RCVHWM, sizes.hwm)
     sub.setsockopt(zmq.LINGER, 0)
+    acks = ctx.socket(zmq.PUSH)
+    if net is not None and net.keys is not None:
+        server, client = net.keys
+        for sock in (sub, acks):
+            connect_to(sock, client, server.public)
     sub.connect(endpoints[0])
     sub.setsockopt(zmq.SUBSCRIBE, b"source/")
-    acks = ctx.socket(zmq.PUSH)
     acks.setsockopt(zmq.LINGER, 1000)
     acks.connect(endpoints[1])
     record = SinkRecord(sizes.ack_every)
@@ -284,20 +316,22 @@ def _sink_process(conn: Connection, impl: str, endpoints: list[str], sizes: Size
     ctx.term()
 
 
-def run_bare(impl: str, transport: str, sizes: Sizes, workdir: Path) -> Measured:
+def run_bare(
+    impl: str, transport: str, sizes: Sizes, workdir: Path, net: Net | None = None
+) -> Measured:
     """Run the ``raw`` or ``codec`` pair of processes and read what the sink measured."""
     spawn = mp.get_context("spawn")
     source_end, source_conn = spawn.Pipe()
     sink_end, sink_conn = spawn.Pipe()
     source = spawn.Process(
-        target=_source_process, args=(source_conn, impl, transport, sizes, str(workdir))
+        target=_source_process, args=(source_conn, impl, transport, sizes, str(workdir), net)
     )
     source.start()
     try:
         if not source_end.poll(TIMEOUT_MS / 1000):
             raise RuntimeError(f"{impl}/{transport}: the source process did not bind")
         endpoints = source_end.recv()
-        sink = spawn.Process(target=_sink_process, args=(sink_conn, impl, endpoints, sizes))
+        sink = spawn.Process(target=_sink_process, args=(sink_conn, impl, endpoints, sizes, net))
         sink.start()
         try:
             if not sink_end.poll(2 * TIMEOUT_MS / 1000):
@@ -344,12 +378,37 @@ def run(quick: bool, sizes: Sizes | None = None) -> list[Row]:
             workdir = Path(tmp) / f"{impl}-{transport}-{repeat}"
             workdir.mkdir()
             runs.setdefault((transport, impl), []).append(measure(impl, transport, sizes, workdir))
+    from bench.transport_netns import run_netns  # which runs this module's processes
+
+    return _rows(runs, sizes) + run_netns(sizes)
+
+
+def figures(m: Measured, sizes: Sizes, repeats: int) -> Row:
+    """The measured figures of one row, and the sizes they were measured at."""
+    return {
+        "frames_per_sec": m.frames_per_sec,
+        "latency_ms_median": m.latency_ms_median,
+        "latency_ms_p99": m.latency_ms_p99,
+        "megabytes_per_sec": m.frames_per_sec * frame_bytes() / 1e6,
+        "source_cpu_us_per_frame": m.source_cpu_us_per_frame,
+        "sink_cpu_us_per_frame": m.sink_cpu_us_per_frame,
+        "drops": m.drops,
+        "repeats": repeats,
+        "latency_frames": sizes.latency_frames,
+        "throughput_frames": sizes.throughput_frames,
+        "rate_hz": sizes.rate_hz,
+        "window": sizes.window,
+    }
+
+
+def _rows(runs: dict[tuple[str, str], list[Measured]], sizes: Sizes) -> list[Row]:
+    """One row per transport and implementation, with ratios against ``raw``."""
     rows: list[Row] = []
     for transport in TRANSPORTS:
         raw_runs = runs[(transport, "raw")]
-        raw = _medians(raw_runs)
+        raw = medians(raw_runs)
         for impl in IMPLS:
-            m = _medians(runs[(transport, impl)])
+            m = medians(runs[(transport, impl)])
             # Each repeat's ratio against raw measured next to it: the machine's load
             # drifts between repeats far more than it does within one.
             paired = [
@@ -360,28 +419,17 @@ def run(quick: bool, sizes: Sizes | None = None) -> list[Row]:
                 {
                     "transport": transport,
                     "impl": impl,
-                    "frames_per_sec": m.frames_per_sec,
+                    **figures(m, sizes, sizes.repeats),
                     "throughput_vs_raw": median(paired),
                     "throughput_vs_raw_min": min(paired),
                     "throughput_vs_raw_max": max(paired),
-                    "latency_ms_median": m.latency_ms_median,
-                    "latency_ms_p99": m.latency_ms_p99,
                     "latency_vs_raw": m.latency_ms_median / raw.latency_ms_median,
-                    "megabytes_per_sec": m.frames_per_sec * frame_bytes() / 1e6,
-                    "source_cpu_us_per_frame": m.source_cpu_us_per_frame,
-                    "sink_cpu_us_per_frame": m.sink_cpu_us_per_frame,
-                    "drops": m.drops,
-                    "repeats": sizes.repeats,
-                    "latency_frames": sizes.latency_frames,
-                    "throughput_frames": sizes.throughput_frames,
-                    "rate_hz": sizes.rate_hz,
-                    "window": sizes.window,
                 }
             )
     return rows
 
 
-def _medians(measured: list[Measured]) -> Measured:
+def medians(measured: list[Measured]) -> Measured:
     return Measured(
         frames_per_sec=median([m.frames_per_sec for m in measured]),
         latency_ms_median=median([m.latency_ms_median for m in measured]),
@@ -397,51 +445,6 @@ def frame_bytes() -> int:
     return ROWS * COLS * (4 + 2)
 
 
-def plot(rows: list[Row], path: Path) -> None:
-    """Throughput, latency and CPU per frame, as bars per transport and implementation."""
-    import matplotlib.pyplot as plt
-
-    fig, (ax_rate, ax_lat, ax_cpu) = plt.subplots(1, 3, figsize=(14, 4))
-    width = 0.8 / len(IMPLS)
-    x = np.arange(len(TRANSPORTS))
-    for i, impl in enumerate(IMPLS):
-        mine = [
-            next(r for r in rows if r["transport"] == t and r["impl"] == impl) for t in TRANSPORTS
-        ]
-        at = x + (i - (len(IMPLS) - 1) / 2) * width
-        color = f"C{i}"
-        ax_rate.bar(at, [r["frames_per_sec"] for r in mine], width, color=color, label=impl)
-        medians = [r["latency_ms_median"] for r in mine]
-        p99s = [r["latency_ms_p99"] for r in mine]
-        ax_lat.bar(at, medians, width, color=color, label=f"{impl} median")
-        ax_lat.scatter(at, p99s, color=color, marker="_", s=200, label=f"{impl} p99")
-        source = [r["source_cpu_us_per_frame"] for r in mine]
-        ax_cpu.bar(at, source, width, color=color, label=f"{impl} source")
-        ax_cpu.bar(
-            at,
-            [r["sink_cpu_us_per_frame"] for r in mine],
-            width,
-            bottom=source,
-            color=color,
-            alpha=0.5,
-            label=f"{impl} sink",
-        )
-    for ax in (ax_rate, ax_lat, ax_cpu):
-        ax.set_xticks(x, TRANSPORTS)
-        ax.legend(fontsize=7)
-    ax_rate.set_ylabel("frames / s (172x224 depth f32 + IR u16)")
-    ax_rate.set_title(f"throughput, {rows[0]['window']} frames in flight")
-    ax_lat.set_yscale("log")
-    ax_lat.set_ylabel("latency, ms (bar: median, tick: p99)")
-    ax_lat.set_title(f"latency at {rows[0]['rate_hz']:g} Hz")
-    ax_cpu.set_ylabel("process CPU, us per frame")
-    ax_cpu.set_title("CPU per frame (solid: source, light: sink)")
-    fig.suptitle(f"bench.transport: medians of {rows[0]['repeats']} repeats")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
 COLUMNS = [
     "transport",
     "impl",
@@ -454,7 +457,12 @@ COLUMNS = [
     "sink_cpu_us_per_frame",
     "drops",
     "repeats",
+    "throughput_vs_plain",
+    "latency_vs_plain",
+    "skipped",
 ]
 
 if __name__ == "__main__":
+    from bench.transport_plot import plot
+
     main("transport", run, columns=COLUMNS, plot=plot)

@@ -14,6 +14,7 @@ arrived but did not decode is ``bad``, not also dropped.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -62,6 +63,20 @@ class InputCounters:
             self.suspect = (seq, unseq)
 
 
+def delivered(
+    edges: Iterable[tuple[str, str, str]],
+    published: Mapping[str, int],
+    received: Callable[[str, str], int | None],
+) -> bool:
+    """Whether each edge ``(topic, node, port)`` received all ``published[topic]`` messages
+    (``received(node, port)``; an edge it answers None for is not counted)."""
+    for topic, node, port in edges:
+        got = received(node, port)
+        if got is not None and got < published.get(topic, 0):
+            return False
+    return True
+
+
 def add_stats(base: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
     """Sum two stats snapshots (of two incarnations of one node)."""
     if not base:
@@ -82,7 +97,8 @@ def add_stats(base: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
 
 
 def topic_totals(stats: dict[str, dict[str, Any]]) -> dict[str, dict[str, int]]:
-    """Per topic: messages published and the summed counters of its subscribers."""
+    """Per topic: messages published and the summed counters of its subscribers (for a
+    topic no node of ``stats`` publishes, as on another host: the most any received)."""
     topics: dict[str, dict[str, int]] = {}
 
     def row(topic: str) -> dict[str, int]:
@@ -101,6 +117,8 @@ def topic_totals(stats: dict[str, dict[str, Any]]) -> dict[str, dict[str, int]]:
             r["dropped"] += dropped
             for key in _COLUMNS[1:]:
                 r[key] += inp.get(key, 0)
+            if inp["topic"] not in published:  # published on another host: what came here
+                r["messages"] = max(r["messages"], inp["received"])
     return topics
 
 

@@ -12,6 +12,8 @@ A graph file (YAML, read with a duplicate-key-refusing ``safe_load``, see
         restart: {policy: on-failure, max_restarts: 3, backoff_secs: 0.5}
         required: true                        # a final crash stops the graph
         host: 127.0.0.1                       # tcp on this address; ipc otherwise
+                                              # (a host's name with a hosts: table,
+                                              # see runtime.hosts)
 
 :func:`check` runs the node checks (name, keys, implementation, parameters, inputs'
 form, restart policy, host, socket path) on each node, then the edge checks (each
@@ -41,6 +43,8 @@ import zmq
 from messages.base import Message
 from messages.errors import GraphError
 from runtime.graphfile import apply_overrides, load_document, parse_yaml
+from runtime.hosts import TOP_KEYS as HOSTS_TOP_KEYS
+from runtime.hosts import Hosts, check_hosts, check_placement
 from runtime.node import Node
 from runtime.params import ParamError, build_params
 from runtime.registry import resolve
@@ -51,7 +55,7 @@ __all__ += ["apply_overrides", "load_document", "parse_yaml"]  # the file side, 
 POLICIES = ("queue", "latest")
 RESTART_POLICIES = ("never", "on-failure")
 NODE_KEYS = {"impl", "params", "inputs", "restart", "required", "host", "hang_timeout_secs"}
-TOP_KEYS = {"nodes", "name", "description"}
+TOP_KEYS = {"nodes", "name", "description", *HOSTS_TOP_KEYS}
 MAX_QUEUE_SIZE = 2**31 - 1  # ZeroMQ's high-water mark is a C int
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_\-]*")
 # The launcher's run directory: tempfile.mkdtemp(prefix=f"{RUNDIR_PREFIX}{pid}-").
@@ -155,6 +159,7 @@ class Graph:
     source: str
     nodes: dict[str, NodeSpec]
     document: dict[str, Any]
+    hosts: Hosts = field(default_factory=lambda: Hosts({}))
     producers: dict[str, str] = field(init=False)
     types: dict[str, type[Message]] = field(init=False)
     consumers: dict[str, list[tuple[str, str]]] = field(init=False)
@@ -276,12 +281,12 @@ def _input(port: str, ref: Any, where: str, errors: list[str]) -> InputSpec | No
     return InputSpec(port=port, topic=topic, policy=policy, queue_size=size)
 
 
-def _host(host: Any, where: str, errors: list[str]) -> str | None:
-    """A host the node's publisher can bind (tried now, as the node will at start), and a
-    loopback one: frames and control travel unencrypted, and no graph can enable
-    encryption yet."""
-    if host is None:
-        return None
+def _host(host: Any, where: str, errors: list[str], table: Hosts) -> str | None:
+    """A host of the graph's table, or (without one) an address of this machine the node's
+    publisher can bind (tried now, as the node will at start) that is loopback: tcp
+    elsewhere is encrypted, with the keys only a hosts table names."""
+    if host is None or table.table:
+        return host if isinstance(host, str) else None
     if not isinstance(host, str) or not host.strip() or host != host.strip() or "/" in host:
         errors.append(
             f"{where}.host: must be an address or interface of this machine, got {host!r}"
@@ -305,8 +310,9 @@ def _host(host: Any, where: str, errors: list[str]) -> str | None:
     if not address.is_loopback:
         errors.append(
             f"{where}.host: must be a loopback address (127.0.0.1), got {host!r} (it binds "
-            f"{address}): frames and control would travel unencrypted on the network, and "
-            "encryption is not supported yet"
+            f"{address}): tcp there would carry frames unencrypted and unauthenticated; "
+            "put the node on a host of a `hosts:` table with that host's CURVE public key "
+            "(docs/hosts.md)"
         )
         return None
     return host
@@ -321,7 +327,9 @@ def _check_name(name: Any, where: str, errors: list[str]) -> bool:
     return True
 
 
-def _check_node(name: str, body: Any, source: str, errors: list[str]) -> NodeSpec | None:
+def _check_node(
+    name: str, body: Any, source: str, errors: list[str], hosts: Hosts
+) -> NodeSpec | None:
     """One node's own checks; its spec, or None when its ports cannot be known."""
     where = f"{source}: node {name!r}"
     if not isinstance(body, Mapping):
@@ -372,8 +380,8 @@ def _check_node(name: str, body: Any, source: str, errors: list[str]) -> NodeSpe
     required = body.get("required", True)
     if not isinstance(required, bool):
         errors.append(f"{where}.required: must be true or false, got {required!r}")
-    host = _host(body.get("host"), where, errors)
-    if host is None and "host" not in body:
+    host = _host(body.get("host"), where, errors, hosts)
+    if host is None and "host" not in body and not hosts.table:
         path = _longest_ipc_path(name)
         if len(path.encode()) > zmq.IPC_PATH_MAX_LEN:
             errors.append(
@@ -456,17 +464,20 @@ def check(doc: Mapping[str, Any], source: str = "<graph>") -> Graph:
         f"{source}: unknown top-level key {key!r} (valid: {sorted(TOP_KEYS)})"
         for key in sorted(set(doc) - TOP_KEYS, key=str)
     ]
+    hosts = check_hosts(doc, source, errors)
     specs: dict[str, NodeSpec] = {}
     failed: set[str] = set()
     for name, body in doc["nodes"].items():
         spec = None
         if _check_name(name, f"{source}: node {name!r}", errors):
-            spec = _check_node(name, body, source, errors)
+            spec = _check_node(name, body, source, errors, hosts)
         if spec is None:
             failed.add(str(name))
         else:
             specs[name] = spec
-    graph = Graph(source=source, nodes=specs, document=dict(doc))
+    if hosts.table:
+        check_placement(hosts, {name: spec.host for name, spec in specs.items()}, source, errors)
+    graph = Graph(source=source, nodes=specs, document=dict(doc), hosts=hosts)
     _check_edges(graph, failed, errors)
     if errors:
         raise GraphError("\n".join(errors))

@@ -1,13 +1,13 @@
 """Start a checked graph as OS processes, supervise them, stop them, report.
 
-One process per node (``python -m runtime.process``), a control ROUTER socket for
+One process per node (``python -m runtime.child``), a control ROUTER socket for
 the handshake, heartbeats, lockstep counters and stop requests (see
 ``runtime.protocol``). Supervision: a node that exits with an error, or whose
 heartbeat stops, or that stays busy in one handler longer than its
 ``hang_timeout_secs``, is handled by its restart policy (``never``, or
 ``on-failure`` with exponential back-off and a cap); when a node marked
-``required`` fails for good, the graph stops with a non-zero exit and that node's
-last log lines. A node that is starting (first start or restart) has
+``required`` fails for good, the graph stops with a non-zero exit (the node's own
+lines, printed as they came with its name, are not repeated). A node that is starting (first start or restart) has
 ``STARTUP_TIMEOUT_SECS`` to say ready; the heartbeat rule applies once it runs.
 Stopping (Ctrl-C, SIGTERM, ``--duration``, a node's request): every node is asked to
 stop, then terminated after a grace period, then killed; after a signal the whole
@@ -19,7 +19,6 @@ secret and checked (``runtime.protocol``); a bad one is counted and logged.
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import signal
@@ -27,23 +26,22 @@ import subprocess
 import sys
 import threading
 import time
-from collections import defaultdict, deque
-from dataclasses import dataclass, field
+from collections import defaultdict
 from pathlib import Path
-from typing import IO, Any, Literal
+from typing import IO, Any
 
 import zmq
 
-from messages.errors import GraphError
 from runtime import child, protocol
-from runtime.counters import add_stats, table
-from runtime.graph import Graph, NodeSpec, check, ipc_path
+from runtime.counters import add_stats, delivered, table
+from runtime.graph import Graph, ipc_path
+from runtime.hostlink import HostLink, judge
 from runtime.isolation import make_rundir
+from runtime.procs import Proc, reap, signal_group, spawn
 from runtime.protocol import ControlServer
 from runtime.registry import class_path
-from runtime.taps import add_recorder
+from runtime.security import KeyPair
 
-PROJECT_ROOT = Path(__file__).resolve().parent.parent
 STARTUP_TIMEOUT_SECS = 300.0
 HEARTBEAT_TIMEOUT_SECS = 5.0
 DRAIN_SECS = 3.0
@@ -52,31 +50,6 @@ TERM_GRACE_SECS = 2.0
 # After Ctrl-C or SIGTERM: "stop", then SIGTERM, then SIGKILL, all within 2 s.
 SIGNAL_STOP_GRACE_SECS = 1.0
 SIGNAL_TERM_GRACE_SECS = 0.5
-LOG_TAIL_LINES = 20
-# A node process's life, as the launcher sees it (mypy checks every assignment).
-ProcState = Literal["new", "hello", "ready", "running", "exited", "waiting_restart", "failed"]
-
-
-@dataclass
-class _Proc:
-    spec: NodeSpec
-    popen: subprocess.Popen[bytes] | None = None
-    rid: bytes | None = None  # the ROUTER id of the node's main control socket
-    spawned_at: float = 0.0
-    endpoint: str | None = None
-    state: ProcState = "new"
-    restarts: int = 0
-    restart_at: float = 0.0
-    last_heartbeat: float = 0.0
-    busy_secs: float = 0.0
-    cpu_secs: float = 0.0
-    exit_codes: list[int] = field(default_factory=list)
-    tail: deque[str] = field(default_factory=lambda: deque(maxlen=LOG_TAIL_LINES))
-    stats: dict[str, Any] = field(default_factory=dict)
-    stats_at: float = 0.0
-    stats_base: dict[str, Any] = field(default_factory=dict)
-    counts_published: dict[str, int] = field(default_factory=dict)
-    counts_received: dict[str, int] = field(default_factory=dict)
 
 
 class Launcher:
@@ -90,13 +63,25 @@ class Launcher:
         duration_secs: float | None = None,
         log_level: str = "INFO",
         out: IO[str] | None = None,
+        host: str | None = None,
+        keys: KeyPair | None = None,
+        rundir: Path | None = None,
+        prestarted: list[subprocess.Popen[bytes]] | None = None,
     ) -> None:
         self.graph = graph
+        # With a hosts table: only this host's nodes, every publisher at its fixed endpoint.
+        self.host, self.keys = host, keys
+        placed = graph.hosts.placement({n: s.host for n, s in graph.nodes.items()})
+        self.fixed = graph.hosts.endpoints(placed) if host else {}
+        local = {n for n in graph.nodes if not host or placed[n] == host}
         self.lockstep = lockstep
         self.duration_secs = duration_secs
         self.log_level = log_level
         self.out = out or sys.stdout
-        self.procs = {name: _Proc(spec) for name, spec in graph.nodes.items()}
+        self.procs = {name: Proc(spec) for name, spec in graph.nodes.items() if name in local}
+        self.servers = {
+            n: graph.hosts.table[h].public_key for n, h in placed.items() if self.fixed and keys
+        }
         self.providers = {topic: node for topic, (node, _) in graph.providers().items()}
         # Subscriptions each publisher waits for: one per input, but in lockstep a node
         # reads each publisher through one socket, subscribed once per topic.
@@ -105,6 +90,8 @@ class Launcher:
         subscriptions = {(t, n) for t, n, _ in edges} if lockstep else [(t, n) for t, n, _ in edges]
         for topic, _ in subscriptions:
             self.expected[self.providers[topic]][topic] += 1
+        # The edges this launcher sees both ends of (all of them on one host).
+        self.local_edges = [e for e in edges if {e[1], self.providers[e[0]]} <= local]
         self.barrier_topics = graph.barrier_topics() if lockstep else set()
         self.stop_reason: str | None = None
         self.exit_code = 0
@@ -115,17 +102,25 @@ class Launcher:
         self._print_lock = threading.Lock()
         self._signals: list[int] = []
         self.secret = protocol.new_secret()
-        self.rundir: Path | None = None
+        self.rundir = rundir
+        self.prestarted = list(prestarted or [])  # started by ``launch`` during the check
         self.ctx: zmq.Context[Any] | None = None
+        self.link: HostLink | None = None
 
     def _open(self) -> None:
         """The run folder (for ``ipc://`` endpoints) and the control socket."""
-        self.rundir = make_rundir()
+        self.rundir = self.rundir or make_rundir()
         self.ctx = zmq.Context()
         self.control_endpoint = f"ipc://{self.rundir}/control"
         self.control = ControlServer(self.ctx, self.control_endpoint, self.secret, self.say)
+        if self.host is not None:
+            self.link = HostLink(self.ctx, self.graph.hosts, self.host, self.keys, self.say)
+            self.link.start()
 
     def _close(self) -> None:
+        child.release(self.prestarted)  # a stop before every node was spawned
+        if self.link is not None:
+            self.link.close()
         if self.ctx is not None:
             self.control.close()
             self.ctx.term()
@@ -138,23 +133,18 @@ class Launcher:
             for line in text.splitlines() or [""]:
                 print(f"[{node}] {line}", file=self.out, flush=True)
 
-    def _pump(self, proc: _Proc, stream: IO[bytes]) -> None:
-        for raw in iter(stream.readline, b""):
-            line = raw.decode(errors="replace").rstrip("\n")
-            proc.tail.append(line)
-            self.say(line, proc.spec.name)
-        stream.close()
-
     # -- processes ---------------------------------------------------------------
-    def _bind_endpoint(self, proc: _Proc) -> str:
+    def _bind_endpoint(self, proc: Proc) -> str:
         if proc.endpoint:  # a restart binds where the subscribers already connect
             return proc.endpoint
+        if self.fixed:
+            return self.fixed[proc.spec.name]
         if proc.spec.host:
             return f"tcp://{proc.spec.host}:*"
         assert self.rundir is not None, "the run folder is made before any node starts"
         return f"ipc://{ipc_path(self.rundir, proc.spec.name)}"
 
-    def _spawn(self, proc: _Proc) -> None:
+    def _spawn(self, proc: Proc) -> None:
         spec = proc.spec
         child_spec = {
             "name": spec.name,
@@ -180,65 +170,34 @@ class Launcher:
             "barrier_topics": sorted(self.barrier_topics & set(spec.topics.values())),
             "log_level": self.log_level,
         }
-        env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join(
-            filter(None, [str(PROJECT_ROOT), env.get("PYTHONPATH")])
-        )
-        env["PYTHONUNBUFFERED"] = "1"
-        env[child.PARENT_ENV] = str(os.getpid())
-        env[child.RUNDIR_ENV] = str(self.rundir)
-        # Its own process group: a Ctrl-C at the terminal reaches the launcher only,
-        # which stops the nodes in order.
-        popen = subprocess.Popen(
-            [sys.executable, "-m", "runtime.child"],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            cwd=os.getcwd(),
-            env=env,
-            process_group=0,
-        )
-        assert popen.stdin is not None and popen.stdout is not None
-        popen.stdin.write(json.dumps(child_spec).encode())
-        popen.stdin.close()
-        threading.Thread(target=self._pump, args=(proc, popen.stdout), daemon=True).start()
-        proc.popen = popen
-        proc.rid = None
-        proc.state = "new"
-        proc.spawned_at = proc.last_heartbeat = time.monotonic()
-        proc.busy_secs = 0.0
-        proc.stats_base = add_stats(proc.stats_base, proc.stats)
-        proc.stats = {}
+        if self.keys is not None:  # the host's own key pair and the publishers' keys
+            child_spec["curve"] = {
+                "public": self.keys.public,
+                "secret": self.keys.secret,
+                "authorized": {h.public_key: n for n, h in self.graph.hosts.table.items()},
+                "servers": self.servers,
+            }
+        assert self.rundir is not None
+        popen = self.prestarted.pop(0) if self.prestarted else child.start(self.rundir)
+        spawn(proc, popen, child_spec, self.say)
 
     def _reap(self) -> None:
         for proc in self.procs.values():
             if proc.popen is None or proc.state in ("exited", "failed", "waiting_restart"):
                 continue
-            try:
-                pid, status, usage = os.wait4(proc.popen.pid, os.WNOHANG)
-            except ChildProcessError:
-                pid, status, usage = proc.popen.pid, 0, None
-            if pid == 0:
+            code = reap(proc)
+            if code is None:
                 continue
-            if usage is not None:
-                proc.cpu_secs += usage.ru_utime + usage.ru_stime
-            code = os.waitstatus_to_exitcode(status)
-            proc.popen.returncode = code
-            try:  # what the node started and left behind (the group outlives its leader)
-                os.killpg(pid, signal.SIGKILL)
-            except (ProcessLookupError, PermissionError):
-                pass
-            proc.exit_codes.append(code)
             self._on_exit(proc, code)
 
-    def _on_exit(self, proc: _Proc, code: int) -> None:
+    def _on_exit(self, proc: Proc, code: int) -> None:
         if code == 0 or self.stop_reason is not None:
             proc.state = "exited"
             return
         reason = f"signal {-code}" if code < 0 else f"exit code {code}"
         self._failed(proc, reason)
 
-    def _failed(self, proc: _Proc, reason: str) -> None:
+    def _failed(self, proc: Proc, reason: str) -> None:
         name = proc.spec.name
         policy = proc.spec.restart
         if policy.policy == "on-failure" and proc.restarts < policy.max_restarts:
@@ -252,24 +211,22 @@ class Launcher:
             return
         proc.state = "failed"
         if proc.spec.required:
-            tail = "\n".join(f"    {line}" for line in proc.tail) or "    (no output)"
-            self.say(
-                f"required node {name!r} failed ({reason}); stopping the graph. Its last lines:\n{tail}"
-            )
+            # Its output was printed as it came, marked with its name: not repeated here.
+            self.say(f"required node {name!r} failed ({reason}); stopping the graph")
             self.exit_code = 1
             self._request_stop(f"required node {name!r} failed")
         else:
             self.say(f"node {name!r} failed ({reason}); not required, the graph goes on")
 
-    def _kill_hung(self, proc: _Proc, why: str) -> None:
-        _signal(proc, signal.SIGKILL)
+    def _kill_hung(self, proc: Proc, why: str) -> None:
+        signal_group(proc, signal.SIGKILL)
         self.say(f"node {proc.spec.name!r} {why}; killed")
 
     # -- control messages --------------------------------------------------------
     def _send(self, name: str, kind: str, **body: Any) -> None:
         self.control.send(self.procs[name].rid, kind, **body)
 
-    def _on_message(self, proc: _Proc, rid: bytes, msg: dict[str, Any]) -> None:
+    def _on_message(self, proc: Proc, rid: bytes, msg: dict[str, Any]) -> None:
         name = proc.spec.name
         kind = msg["kind"]
         proc.last_heartbeat = time.monotonic()
@@ -315,16 +272,15 @@ class Launcher:
             self._request_stop(f"{name}: {reason}")
 
     def _endpoints(self) -> dict[str, str]:
-        return {name: p.endpoint for name, p in self.procs.items() if p.endpoint}
+        return self.fixed | {name: p.endpoint for name, p in self.procs.items() if p.endpoint}
 
     def _graph_idle(self) -> bool:
-        published: dict[str, int] = {}
-        for proc in self.procs.values():
-            published.update(proc.counts_published)
-        for topic, node, port in self.graph.edges():
-            if self.procs[node].counts_received.get(port, 0) < published.get(topic, 0):
-                return False
-        return True
+        published = {t: n for p in self.procs.values() for t, n in p.counts_published.items()}
+        return delivered(
+            self.local_edges,
+            published,
+            lambda node, port: self.procs[node].counts_received.get(port, 0),
+        )
 
     def _serve(self, timeout_ms: int) -> None:
         for rid, msg in self.control.receive(timeout_ms):
@@ -333,28 +289,41 @@ class Launcher:
                 self.control.refuse(f"signed, but names no node of the graph: {msg['node']!r:.40}")
             else:
                 self._on_message(proc, rid, msg)
+        if self.link is not None:
+            for event in self.link.events():
+                act = judge(event, self.graph.hosts)
+                for line in act.lines:
+                    self.say(line)
+                if act.stop is not None:
+                    self.exit_code = self.exit_code or act.exit_code
+                    self.verdict_code = self.verdict_code or act.verdict_code
+                    self._request_stop(act.stop, echo=act.echo)
         if self.idle_waiters and self._graph_idle():
             for rid in self.idle_waiters:
                 self.control.send(rid, "idle")
             self.idle_waiters.clear()
 
     # -- run ---------------------------------------------------------------------
-    def _request_stop(self, reason: str) -> None:
+    def _request_stop(self, reason: str, *, echo: bool = True) -> None:
+        """Stop the graph; ``echo``: tell the other hosts (not when one of them said it)."""
         if self.stop_reason is None:
             self.stop_reason = reason
+            if echo and self.link is not None:
+                self.link.send_stop(reason, self.exit_code or self.verdict_code)
 
     def _on_signal(self, signum: int, frame: Any) -> None:
         self._signals.append(signum)
         self._request_stop(f"signal {signal.Signals(signum).name}")
         if len(self._signals) >= 3:  # an impatient user: no more grace
             for proc in self.procs.values():
-                _signal(proc, signal.SIGKILL)
+                signal_group(proc, signal.SIGKILL)
 
     def _startup(self) -> bool:
         for proc in self.procs.values():
             if self.stop_reason is not None:
                 return False
             self._spawn(proc)
+        child.release(self.prestarted)  # more than this host's nodes: not needed
         deadline = time.monotonic() + STARTUP_TIMEOUT_SECS
         connected = False
         while self.stop_reason is None:
@@ -366,10 +335,7 @@ class Launcher:
                     for n, p in self.procs.items()
                     if p.state in ("failed", "waiting_restart", "exited")
                 ]
-                self.say(f"node(s) {bad} died during start-up")
-                for name in bad:
-                    tail = "\n".join(f"    {line}" for line in self.procs[name].tail)
-                    self.say(f"last lines of {name!r}:\n{tail}")
+                self.say(f"node(s) {bad} died during start-up (their output is above)")
                 self.exit_code = 1
                 return False
             if not connected and all(p.state in ("hello", "ready") for p in self.procs.values()):
@@ -436,18 +402,16 @@ class Launcher:
                 return
 
     def _stats_balanced(self) -> bool:
-        published: dict[str, int] = {}
-        for proc in self.procs.values():
-            if proc.state == "running":
-                published.update(proc.stats.get("published", {}))
-        for topic, node, port in self.graph.edges():
-            proc = self.procs[node]
-            if proc.state != "running":
-                continue
-            received = proc.stats.get("inputs", {}).get(port, {}).get("received", 0)
-            if received < published.get(topic, 0):
-                return False
-        return True
+        running = {n: p.stats for n, p in self.procs.items() if p.state == "running"}
+        published = {t: n for st in running.values() for t, n in st.get("published", {}).items()}
+
+        def received(node: str, port: str) -> int | None:
+            stats = running.get(node)
+            return (
+                None if stats is None else stats.get("inputs", {}).get(port, {}).get("received", 0)
+            )
+
+        return delivered(self.local_edges, published, received)
 
     def _shutdown(self) -> None:
         live = [
@@ -455,7 +419,7 @@ class Launcher:
         ]
         for proc in live:
             if proc.rid is None:  # still importing: it cannot hear "stop" yet
-                _signal(proc, signal.SIGTERM)
+                signal_group(proc, signal.SIGTERM)
             else:
                 self._send(proc.spec.name, "stop")
         hurry = bool(self._signals)
@@ -472,7 +436,7 @@ class Launcher:
             if signum is not None:
                 self.say(f"{len(live)} node(s) still running: sending {signum.name}")
                 for proc in live:
-                    _signal(proc, signum)
+                    signal_group(proc, signum)
             end = time.monotonic() + grace
             while time.monotonic() < end and any(p.popen.returncode is None for p in live):  # type: ignore[union-attr]
                 self._serve(50)
@@ -522,45 +486,3 @@ class Launcher:
                 f"\ncontrol: refused {self.control.refused} message(s) (malformed or not signed)"
             )
         return text
-
-
-def _signal(proc: _Proc, signum: int) -> None:
-    """Signal a node's process group: the node and any process it started (a compiler)."""
-    if proc.popen is not None and proc.popen.returncode is None:
-        try:
-            os.killpg(proc.popen.pid, signum)
-        except (ProcessLookupError, PermissionError):
-            pass
-
-
-def launch(
-    graph: dict[str, Any],
-    *,
-    source: str,
-    record: Path | None = None,
-    topics: str | None = None,
-    overwrite: bool = False,
-    lockstep: bool = False,
-    duration_secs: float | None = None,
-    log_level: str = "INFO",
-    command_line: str = "",
-) -> int:
-    """Check and run a graph document; returns the exit code (2 when the check fails)."""
-    try:
-        if record is not None:
-            graph = add_recorder(
-                graph,
-                record,
-                topics,
-                command_line or " ".join(sys.argv),
-                source,
-                overwrite=overwrite,
-            )
-        checked = check(graph, source=source)
-        launcher = Launcher(
-            checked, lockstep=lockstep, duration_secs=duration_secs, log_level=log_level
-        )
-    except GraphError as err:
-        print(f"graph check failed:\n{err}", file=sys.stderr)
-        return 2
-    return launcher.run()

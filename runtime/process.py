@@ -35,6 +35,10 @@ Handshake. hello (endpoint) -> connect (peers' endpoints) -> wait until every
 expected subscription has arrived on the XPUB -> setup done -> ready -> start. No
 node publishes before start, so no subscriber misses the first message.
 
+Security. tcp on an address that is not loopback is CURVE (``runtime.security``): the
+publisher is a CURVE server behind a ZAP handler that admits the graph's host keys only,
+and each input a CURVE client with the host's key pair (handed on stdin with the spec).
+
 Control. Every control message is signed with the run's secret and checked
 (``runtime.protocol``); one that fails is logged and dropped.
 
@@ -52,218 +56,22 @@ import sys
 import threading
 import time
 import traceback
-from collections import defaultdict
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
-from typing import Any, cast
+from collections.abc import Callable
+from typing import Any
 
 import zmq
 
-from messages.base import Message
-from messages.codec import decode, encode
+from messages.codec import decode
 from messages.errors import FrameDecodeError, NodeError
 from runtime import protocol
-from runtime.counters import InputCounters
 from runtime.node import Node
 from runtime.params import build_params
-from runtime.protocol import ControlError
 from runtime.registry import resolve
+from runtime.security import connect_to, needs_curve
+from runtime.zmqio import Input, Source, ZmqIO, recv_parts
 
 _BAD_FRAME_LOG_EVERY = 100
 _BATCH_NANOS = 2_000_000
-# Plain ints: pyzmq 27's flags are enum members, and arithmetic on them costs about a
-# microsecond per part of a message.
-_SNDMORE = int(zmq.SNDMORE)
-_POLLIN = int(zmq.POLLIN)
-
-
-def send_parts(sock: zmq.Socket[Any], parts: Sequence[Any]) -> None:
-    """Send ``parts`` as one multipart message, arrays without copying.
-
-    The same frames as ``send_multipart(parts, copy=False)`` at about 6 us less per
-    message: no flag arithmetic on enum members per part (see docs/transport.md).
-    """
-    last = len(parts) - 1
-    for i, part in enumerate(parts):
-        sock.send(part, _SNDMORE if i < last else 0, copy=False)
-
-
-def recv_parts(sock: zmq.Socket[Any]) -> list[zmq.Frame] | None:
-    """The next whole multipart message as zero-copy frames, or None if none is waiting.
-
-    Asks the socket whether a message waits rather than catching ``zmq.Again`` (a raised
-    error costs 3.8 us, the question 1.4), and follows each frame's ``more`` flag rather
-    than ``recv_multipart``'s ``getsockopt(RCVMORE)`` per part. The parts of a message
-    arrive together, so the reads after the first never block.
-    """
-    if not cast(int, sock.get(zmq.EVENTS)) & _POLLIN:
-        return None
-    frame = sock.recv(copy=False)
-    frames = [frame]
-    while frame.more:
-        frame = sock.recv(copy=False)
-        frames.append(frame)
-    return frames
-
-
-@dataclass
-class _Input:
-    port: str
-    topic: str
-    policy: str
-    kind: type[Message] | None
-    counters: InputCounters = field(default_factory=InputCounters)
-
-
-@dataclass
-class _Source:
-    """One SUB socket and the inputs it feeds, by exact topic (SUB filters by prefix)."""
-
-    socket: zmq.Socket[Any]
-    inputs: dict[bytes, list[_Input]] = field(default_factory=dict)
-    latest: bool = False  # only a socket of one ``latest`` input, outside lockstep
-
-
-@dataclass
-class _Timer:
-    period_nanos: int
-    callback: Callable[[], None]
-    due_nanos: int
-
-
-class ZmqIO:
-    """The node's IO in a live graph (see :class:`runtime.node.IO`)."""
-
-    def __init__(self, spec: dict[str, Any], ctx: zmq.Context[Any]) -> None:
-        self.spec = spec
-        self.name: str = spec["name"]
-        self.log = logging.getLogger(self.name)
-        self.ctx = ctx
-        self.topics: dict[str, str] = spec["outputs"]
-        self.output_types: dict[str, type[Message] | None] = {}
-        self.pub = ctx.socket(zmq.XPUB)
-        self.pub.setsockopt(zmq.XPUB_VERBOSE, 1)
-        self.lockstep: bool = spec.get("lockstep", False)
-        # Lockstep must not lose a message to a high-water mark: the replay bounds the flow.
-        self.pub.setsockopt(zmq.SNDHWM, 0 if self.lockstep else spec.get("sndhwm", 1000))
-        self.pub.setsockopt(zmq.LINGER, 1000)
-        self.endpoint = self._bind(spec["bind"])
-        self.secret = bytes.fromhex(spec["secret"])
-        self.control = ctx.socket(zmq.DEALER)
-        self.control.setsockopt(zmq.LINGER, 1000)
-        self.control.connect(spec["control"])
-        self.inputs: list[_Input] = []
-        self.published: dict[str, int] = defaultdict(int)
-        self.timers: list[_Timer] = []
-        self.stop_requested = False
-        self.barrier_topics = frozenset(spec.get("barrier_topics", ()))
-        self.subscriptions: dict[bytes, int] = defaultdict(int)
-
-    def _bind(self, endpoint: str) -> str:
-        self.pub.bind(endpoint)
-        endpoint = self.pub.getsockopt(zmq.LAST_ENDPOINT)
-        assert isinstance(endpoint, bytes)
-        return endpoint.decode()
-
-    # -- the IO protocol -------------------------------------------------------
-    def publish(self, output: str, msg: Message) -> None:
-        kind = self.output_types.get(output)
-        if output not in self.topics:
-            raise KeyError(
-                f"{self.name}: {output!r} is not a declared output: {sorted(self.topics)}"
-            )
-        if kind is not None and not isinstance(msg, kind):
-            raise TypeError(
-                f"{self.name}.{output}: expected {kind.__name__}, got {type(msg).__name__}"
-            )
-        topic = self.topics[output]
-        header = getattr(msg, "header", None)
-        if header is not None:
-            header.seq = self.published[topic]
-        send_parts(self.pub, encode(topic, msg))
-        self.published[topic] += 1
-
-    def publish_raw(self, topic: str, frames: list[Any]) -> None:
-        if topic not in self.topics.values():
-            raise KeyError(f"{self.name}: {topic!r} is not one of its output topics")
-        send_parts(self.pub, [topic.encode(), *frames[1:]])
-        self.published[topic] += 1
-
-    def add_timer(self, period_secs: float, callback: Callable[[], None]) -> None:
-        if period_secs <= 0:
-            raise ValueError(f"{self.name}: timer period_secs must be > 0, got {period_secs}")
-        period = int(period_secs * 1e9)
-        self.timers.append(_Timer(period, callback, time.monotonic_ns() + period))
-
-    def now_nanos(self) -> int:
-        return time.time_ns()
-
-    def request_stop(self, reason: str, *, exit_code: int = 0) -> None:
-        self.tell("stop_request", reason=reason, exit_code=exit_code)
-
-    def tell(self, kind: str, sock: zmq.Socket[Any] | None = None, **body: Any) -> None:
-        """Send one signed control message to the launcher (on ``sock``, else the main one)."""
-        frames = protocol.pack(self.secret, kind, node=self.name, **body)
-        (sock or self.control).send_multipart(frames)
-
-    def hear(self) -> dict[str, Any] | None:
-        """The next control message from the launcher; None (logged) if it fails the checks."""
-        frames = self.control.recv_multipart()
-        try:
-            return protocol.unpack(self.secret, frames, from_node=False)
-        except ControlError as err:
-            self.log.warning("refused a control message: %s", err)
-            return None
-
-    def wait_idle(self, timeout_secs: float) -> bool:
-        if not self.lockstep:
-            return True
-        self.send_counts()
-        self.tell("wait_idle")
-        deadline = time.monotonic() + timeout_secs
-        while (left := deadline - time.monotonic()) > 0:
-            if not self.control.poll(int(left * 1000) + 1):
-                break
-            msg = self.hear()
-            if msg is None:
-                continue
-            if msg["kind"] == "idle":
-                return True
-            if msg["kind"] == "stop":
-                self.stop_requested = True
-                return False
-        return False
-
-    def lockstep_barrier(self, topic: str) -> bool:
-        return self.lockstep and topic in self.barrier_topics
-
-    def drops(self) -> dict[str, int]:
-        return {i.topic: i.counters.dropped + i.counters.superseded for i in self.inputs}
-
-    # -- used by the runner ----------------------------------------------------
-    def stats(self) -> dict[str, Any]:
-        return {
-            "published": dict(self.published),
-            "inputs": {
-                i.port: {
-                    "topic": i.topic,
-                    "received": i.counters.received,
-                    "dropped": i.counters.dropped,
-                    "superseded": i.counters.superseded,
-                    "bad_frames": i.counters.bad_frames,
-                    "nonfinite": i.counters.nonfinite,
-                }
-                for i in self.inputs
-            },
-            "cpu_secs": time.process_time(),
-        }
-
-    def send_counts(self) -> None:
-        self.tell(
-            "counts",
-            published=dict(self.published),
-            received={i.port: i.counters.received for i in self.inputs},
-        )
 
 
 class Runner:
@@ -283,7 +91,7 @@ class Runner:
         self.inputs_decl = inputs_decl
         self.busy_since = 0.0
         self.set_up = False  # teardown runs only for a node whose setup ran
-        self.sources: list[_Source] = []
+        self.sources: list[Source] = []
         self.stopping = threading.Event()
         self._hb_thread = threading.Thread(target=self._heartbeat, daemon=True)
 
@@ -295,7 +103,7 @@ class Runner:
         connect = self._wait_control("connect")
         if connect is None:
             return self._finish(0)
-        by_key: dict[str, _Source] = {}
+        by_key: dict[str, Source] = {}
         for inp in self.spec["inputs"]:
             # Outside lockstep a socket per input (its own bound and policy); in lockstep
             # a socket per publisher, which keeps that publisher's order across topics.
@@ -305,15 +113,18 @@ class Runner:
                 sock = self.ctx.socket(zmq.SUB)
                 sock.setsockopt(zmq.RCVHWM, 0 if io.lockstep else inp["queue_size"])
                 sock.setsockopt(zmq.LINGER, 0)
-                sock.connect(connect["endpoints"][inp["provider"]])
+                endpoint = connect["endpoints"][inp["provider"]]
+                if io.keys is not None and needs_curve(endpoint):
+                    connect_to(sock, io.keys, self.spec["curve"]["servers"][inp["provider"]])
+                sock.connect(endpoint)
                 latest = inp["policy"] == "latest" and not io.lockstep
-                source = by_key[key] = _Source(sock, latest=latest)
+                source = by_key[key] = Source(sock, latest=latest)
                 self.sources.append(source)
             topic = inp["topic"].encode()
             if topic not in source.inputs:
                 source.socket.setsockopt(zmq.SUBSCRIBE, topic)
             kind = None if self.raw else self.inputs_decl[inp["port"]]
-            entry = _Input(inp["port"], inp["topic"], inp["policy"], kind)
+            entry = Input(inp["port"], inp["topic"], inp["policy"], kind)
             source.inputs.setdefault(topic, []).append(entry)
             io.inputs.append(entry)
         self._await_subscribers()
@@ -337,6 +148,8 @@ class Runner:
             for source in self.sources:
                 source.socket.close(linger=0)
             self.io.pub.close(linger=1000)
+            if self.io.guard is not None:
+                self.io.guard.close()
             self.io.control.close(linger=1000)
             self._hb_thread.join(timeout=2)
             self.ctx.term()
@@ -427,7 +240,7 @@ class Runner:
                 timer.due_nanos = max(timer.due_nanos + timer.period_nanos, now)
                 self._call(timer.callback)
 
-    def _service(self, source: _Source) -> bool:
+    def _service(self, source: Source) -> bool:
         got = self._recv(source)
         if got is None:
             return False
@@ -451,7 +264,7 @@ class Runner:
                 return True
             inputs, frames = got
 
-    def _recv(self, source: _Source) -> tuple[list[_Input], list[Any]] | None:
+    def _recv(self, source: Source) -> tuple[list[Input], list[Any]] | None:
         """The next message of an input of ``source`` and those inputs, or None."""
         while (frames := recv_parts(source.socket)) is not None:
             inputs = source.inputs.get(frames[0].bytes)
@@ -459,7 +272,7 @@ class Runner:
                 return inputs, frames
         return None
 
-    def _deliver(self, inp: _Input, frames: list[Any], skipped: int = 0) -> None:
+    def _deliver(self, inp: Input, frames: list[Any], skipped: int = 0) -> None:
         """Decode and handle one message; ``skipped`` newer-than-last ones were superseded."""
         counters = inp.counters
         counters.received += 1

@@ -24,6 +24,12 @@ launcher -> node
     start      {}                                every node is ready: go
     idle       {}                                answer to wait_idle
     stop       {}                                stop cleanly now
+launcher <-> launcher (one per host, ``runtime.hostlink``; CURVE-encrypted tcp)
+    link_hello {host, run_secret, reply}         this run's link secret (the tag: with it);
+                                                 reply=1: "yours is unknown here: hello?"
+    link_beat  {host}                            every ``HEARTBEAT_SECS``
+    link_ping  {host, t1} / link_pong {host, t1, t2, t3}   clock offset (NTP-style)
+    link_stop  {host, reason, exit_code}         the graph stops
 """
 
 from __future__ import annotations
@@ -60,6 +66,12 @@ _FIELDS: dict[str, dict[str, type | tuple[type, ...]]] = {
     "start": {},
     "idle": {},
     "stop": {},
+    # between the launchers of a graph's hosts (runtime.hostlink), over CURVE
+    "link_hello": {"host": str, "run_secret": str, "reply": int},
+    "link_beat": {"host": str},
+    "link_ping": {"host": str, "t1": int},
+    "link_pong": {"host": str, "t1": int, "t2": int, "t3": int},
+    "link_stop": {"host": str, "reason": str, "exit_code": int},
 }
 
 
@@ -114,8 +126,8 @@ def unpack(secret: bytes, frames: Sequence[bytes], *, from_node: bool) -> dict[s
         raise ControlError(
             f"heartbeat.busy_secs: expected a finite number >= 0, got {msg['busy_secs']!r}"
         )
-    if kind == "stop_request" and not 0 <= msg["exit_code"] <= 255:
-        raise ControlError(f"stop_request.exit_code: expected 0 to 255, got {msg['exit_code']!r}")
+    if kind in ("stop_request", "link_stop") and not 0 <= msg["exit_code"] <= 255:
+        raise ControlError(f"{kind}.exit_code: expected 0 to 255, got {msg['exit_code']!r}")
     if "stats" in msg:
         _check_stats(str(kind), msg["stats"])
     for name in ("published", "received", "endpoints"):

@@ -272,7 +272,7 @@ def replay_main(argv: Sequence[str]) -> int:
     if args.print_graph:
         print(yaml.safe_dump(replay_graph, sort_keys=False), end="")
         return 0
-    from runtime.launcher import launch
+    from runtime.run import launch
 
     return launch(
         replay_graph,

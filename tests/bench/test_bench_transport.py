@@ -41,8 +41,18 @@ def test_quick_json_has_every_transport_and_impl_with_finite_positive_figures() 
     keys = {(row["transport"], row["impl"]) for row in rows}
     assert keys == {
         (t, i) for t in ("ipc", "tcp") for i in ("runtime", "codec", "raw", "raw_parts")
-    }
+    } | {("netns_tcp", "raw_parts"), ("netns_curve", "raw_parts")}
     assert len(rows) == len(keys)
+    across = [row for row in rows if row["transport"].startswith("netns")]
+    rows = [row for row in rows if row not in across]
+    if any("skipped" in row for row in across):  # no namespaces here: both say why
+        assert all(row["skipped"] for row in across)
+    else:
+        for row in across:
+            for name in ("frames_per_sec", "latency_ms_median", "throughput_vs_plain"):
+                assert math.isfinite(row[name]) and row[name] > 0, (row["transport"], name)
+            assert row["latency_ms_p99"] >= row["latency_ms_median"]
+        assert across[0]["throughput_vs_plain"] == 1.0  # the plain row is the reference
     for row in rows:
         for name in FIGURES:
             value = row[name]

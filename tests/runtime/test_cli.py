@@ -21,7 +21,7 @@ def test_help_lists_every_subcommand(capsys: pytest.CaptureFixture[str]) -> None
         launch.main(["--help"])
     assert info.value.code == 0
     out = capsys.readouterr().out
-    assert "python launch.py GRAPH [options] | python launch.py {nodes,bag,replay}" in out
+    assert "python launch.py GRAPH [options] | python launch.py {nodes,bag,replay,keys}" in out
     for name, (summary, _) in launch.SUBCOMMANDS.items():
         assert f"  {name}" in out and summary in out
     assert "--record-topics" in out and "--swap" in out and "--topics" not in out
@@ -52,6 +52,9 @@ def test_nodes_impl_shows_params_with_defaults_units_and_limits(
     (model,) = [line for line in text.splitlines() if line.strip().startswith("model ")]
     assert "path of an existing file" in model
     assert "  tol: a solver tolerance." in text
+    # The docstring's first paragraph, whole, even where it wraps over several lines.
+    summary = node_details("pose_estimator.ipopt").splitlines()[1]
+    assert summary.endswith("or loaded from the per-user disk cache).")
 
 
 def test_nodes_with_an_unknown_impl_lists_the_valid_ones(

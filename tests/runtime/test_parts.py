@@ -11,7 +11,7 @@ import zmq
 
 from bench.codec import LAYOUTS, tof_image
 from messages import ToFImage, decode, encode
-from runtime.process import recv_parts, send_parts
+from runtime.zmqio import recv_parts, send_parts
 
 
 @pytest.fixture

@@ -1,0 +1,305 @@
+"""The link between the launchers of one graph's hosts: heartbeats, clocks, stops.
+
+Each host's launcher binds a ROUTER on the first port of its range (a CURVE server when
+its address is not loopback, behind a :class:`runtime.security.Guard` that admits only
+the graph's host keys and names the peer by its key) and connects one DEALER to each
+other host's (a CURVE client with its own host's key pair). A thread owns these sockets,
+so timestamps are taken the moment a message arrives, whatever the launcher is doing.
+
+Messages are ``runtime.protocol`` control messages. Each launcher makes a fresh link
+secret per run and sends it in ``link_hello`` (inside CURVE, and only accepted from the
+connection whose key is that host's); every later message is tagged with the sender's
+secret and checked. A peer that hears a message it cannot check (it restarted, or the
+hello was sent before the connection was up) sends its own hello asking for a reply.
+
+What the launcher learns comes out of :meth:`HostLink.events` as tuples:
+``("joined", host)``, ``("back", host)`` (a lost host speaks again; ``restarted`` says
+whether it is a new launcher), ``("lost", host, silent_secs)`` after
+``host_timeout_secs`` without a message, ``("clock", host, offset_secs, round_trip_secs)``
+once per incarnation (the NTP four-timestamp exchange, the sample with the shortest round
+trip of ``CLOCK_SAMPLES``), and ``("stop", host, reason, exit_code)``.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import msgpack
+import zmq
+
+from runtime import protocol
+from runtime.hosts import Hosts, HostSpec
+from runtime.protocol import ControlError
+from runtime.security import Guard, KeyPair, connect_to, serve
+
+CLOCK_SAMPLES = 8
+PING_TIMEOUT_SECS = 1.0
+WHO_EVERY_SECS = 0.5
+POLL_MS = 20
+
+
+@dataclass
+class _Peer:
+    spec: HostSpec
+    dealer: zmq.Socket[Any]
+    secret: bytes | None = None
+    last_seen: float = 0.0
+    lost: bool = False
+    asked_at: float = 0.0
+    ping_t1: int | None = None
+    ping_sent_at: float = 0.0
+    samples: list[tuple[float, float]] = field(default_factory=list)
+
+
+class HostLink:
+    """This host's end of the launchers' link (see the module's docstring)."""
+
+    def __init__(
+        self,
+        ctx: zmq.Context[Any],
+        hosts: Hosts,
+        me: str,
+        keys: KeyPair | None,
+        log: Callable[[str], None],
+    ) -> None:
+        self.me = me
+        self.timeout = hosts.host_timeout_secs
+        self.secret = protocol.new_secret()
+        self.refused = 0
+        self.log = log
+        self._events: deque[tuple[Any, ...]] = deque()
+        self._outbox: deque[list[bytes]] = deque()
+        self._stopping = threading.Event()
+        own = hosts.table[me]
+        authorized = {h.public_key: h.name for h in hosts.table.values() if h.public_key}
+        self.curve = keys is not None and not own.loopback
+        self.guard: Guard | None = None
+        self.router = ctx.socket(zmq.ROUTER)
+        self.router.setsockopt(zmq.LINGER, 0)
+        if self.curve:
+            assert keys is not None
+            self.guard = Guard(ctx, authorized, lambda text: log(f"link: {text}"))
+            serve(self.router, keys)
+            self.guard.watch(self.router)
+        self.router.bind(own.link)
+        self.peers: dict[str, _Peer] = {}
+        for name, spec in hosts.table.items():
+            if name == me:
+                continue
+            dealer = ctx.socket(zmq.DEALER)
+            dealer.setsockopt(zmq.LINGER, 500)
+            dealer.setsockopt(zmq.IMMEDIATE, 1)  # nothing queued for a host that is down
+            if not spec.loopback:
+                assert keys is not None and spec.public_key is not None
+                connect_to(dealer, keys, spec.public_key)
+            dealer.connect(spec.link)
+            self.peers[name] = _Peer(spec, dealer)
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    # -- the launcher's side ----------------------------------------------------------------
+    def start(self) -> None:
+        if self.guard is not None:
+            self.guard.start()
+        self._thread.start()
+
+    def events(self) -> list[tuple[Any, ...]]:
+        out = []
+        while self._events:
+            out.append(self._events.popleft())
+        return out
+
+    def send_stop(self, reason: str, exit_code: int) -> None:
+        """Tell every other host the graph stops (sent by the link's thread)."""
+        self._outbox.append(self._pack("link_stop", reason=reason, exit_code=exit_code))
+
+    def close(self) -> None:
+        self._stopping.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2)
+        if self.guard is not None:
+            self.guard.close()
+        self.router.close(linger=0)
+        for peer in self.peers.values():
+            peer.dealer.close()
+
+    # -- the thread -------------------------------------------------------------------------
+    def _pack(self, kind: str, **body: Any) -> list[bytes]:
+        return protocol.pack(self.secret, kind, host=self.me, **body)
+
+    def _hello(self, reply: int) -> list[bytes]:
+        return self._pack("link_hello", run_secret=self.secret.hex(), reply=reply)
+
+    def _send(self, peer: _Peer, frames: list[bytes]) -> None:
+        try:
+            peer.dealer.send_multipart(frames, zmq.NOBLOCK)
+        except zmq.Again:
+            pass  # not connected (yet): the heartbeat repeats, a hello is asked for again
+
+    def _run(self) -> None:
+        next_beat = 0.0
+        while True:
+            stopping = self._stopping.is_set()
+            while self._outbox:
+                frames = self._outbox.popleft()
+                for peer in self.peers.values():
+                    self._send(peer, frames)
+            if stopping:
+                return
+            now = time.monotonic()
+            if now >= next_beat:
+                next_beat = now + protocol.HEARTBEAT_SECS
+                beat = self._pack("link_beat")
+                for peer in self.peers.values():
+                    self._send(peer, beat)
+            for peer in self.peers.values():
+                self._tend(peer, now)
+            if self.router.poll(POLL_MS):
+                while True:
+                    try:
+                        frames = self.router.recv_multipart(zmq.NOBLOCK, copy=False)
+                    except zmq.Again:
+                        break
+                    self._receive(frames, time.time_ns())
+
+    def _tend(self, peer: _Peer, now: float) -> None:
+        """Pings for the clock, and the heartbeat timeout."""
+        if peer.secret is not None and len(peer.samples) < CLOCK_SAMPLES:
+            if peer.ping_t1 is None or now - peer.ping_sent_at > PING_TIMEOUT_SECS:
+                peer.ping_t1 = time.time_ns()
+                peer.ping_sent_at = now
+                self._send(peer, self._pack("link_ping", t1=peer.ping_t1))
+        if peer.last_seen and not peer.lost and now - peer.last_seen > self.timeout:
+            peer.lost = True
+            self._events.append(("lost", peer.spec.name, now - peer.last_seen))
+
+    def _refuse(self, why: str) -> None:
+        self.refused += 1
+        if self.refused <= protocol.REFUSED_LOG_FIRST or self.refused % 100 == 0:
+            self.log(f"link: refused message #{self.refused}: {why}")
+
+    def _ask(self, peer: _Peer) -> None:
+        now = time.monotonic()
+        if now - peer.asked_at > WHO_EVERY_SECS:
+            peer.asked_at = now
+            self._send(peer, self._hello(reply=1))
+
+    def _receive(self, frames: list[zmq.Frame], arrived_ns: int) -> None:
+        if len(frames) != 3:
+            self._refuse(f"{len(frames) - 1} frame(s), expected 2")
+            return
+        payload, tag = frames[1].bytes, frames[2].bytes
+        try:
+            head = msgpack.unpackb(payload, raw=False)
+            host, kind = head["host"], head["kind"]
+        except (ValueError, TypeError, KeyError, msgpack.UnpackException):
+            self._refuse("not a link message")
+            return
+        peer = self.peers.get(host) if isinstance(host, str) else None
+        if peer is None:
+            self._refuse(f"from {host!r:.40}, not another host of the graph")
+            return
+        if self.curve:
+            try:
+                user = frames[1].get("User-Id")
+            except zmq.ZMQError:
+                user = None
+            if user != host:
+                self._refuse(f"claims to be host {host!r}, but its key is {user!r}'s")
+                return
+        try:
+            if kind == "link_hello":  # tagged with the secret it carries
+                secret = bytes.fromhex(str(head.get("run_secret")))
+                msg = protocol.unpack(secret, [payload, tag], from_node=False)
+            elif peer.secret is None:
+                self._ask(peer)
+                return
+            else:
+                msg = protocol.unpack(peer.secret, [payload, tag], from_node=False)
+        except (ControlError, ValueError) as err:
+            self._ask(peer)  # most likely a new launcher there whose hello is still to come
+            self._refuse(f"from host {host!r}: {err}")
+            return
+        self._on_message(peer, msg, arrived_ns)
+
+    def _on_message(self, peer: _Peer, msg: dict[str, Any], arrived_ns: int) -> None:
+        name = peer.spec.name
+        kind = msg["kind"]
+        if kind == "link_hello":
+            secret = bytes.fromhex(msg["run_secret"])
+            if msg["reply"]:
+                self._send(peer, self._hello(reply=0))
+            if secret != peer.secret:
+                first = peer.secret is None and not peer.last_seen
+                peer.secret = secret
+                peer.samples = []
+                peer.ping_t1 = None
+                if first:
+                    self._events.append(("joined", name))
+                elif not peer.lost:  # restarted within the timeout
+                    self._events.append(("back", name, True))
+        elif kind == "link_ping":
+            self._send(
+                peer, self._pack("link_pong", t1=msg["t1"], t2=arrived_ns, t3=time.time_ns())
+            )
+        elif kind == "link_pong" and msg["t1"] == peer.ping_t1:
+            t1, t2, t3, t4 = msg["t1"], msg["t2"], msg["t3"], arrived_ns
+            peer.ping_t1 = None
+            peer.samples.append((((t2 - t1) + (t3 - t4)) / 2e9, ((t4 - t1) - (t3 - t2)) / 1e9))
+            if len(peer.samples) == CLOCK_SAMPLES:
+                offset, rtt = min(peer.samples, key=lambda s: s[1])
+                self._events.append(("clock", name, offset, rtt))
+        elif kind == "link_stop":
+            self._events.append(("stop", name, msg["reason"], msg["exit_code"]))
+        peer.last_seen = time.monotonic()
+        if peer.lost:
+            peer.lost = False
+            self._events.append(("back", name, kind == "link_hello"))
+
+
+@dataclass
+class Act:
+    """What the launcher does about one event: say ``lines``; if ``stop``, stop the graph
+    (``echo``: tell the other hosts) with these codes."""
+
+    lines: list[str]
+    stop: str | None = None
+    exit_code: int = 0
+    verdict_code: int = 0
+    echo: bool = True
+
+
+def judge(event: tuple[Any, ...], hosts: Hosts) -> Act:
+    """The launcher's answer to an event of :meth:`HostLink.events`, by the graph's policies."""
+    kind, host, *args = event
+    if kind == "joined":
+        return Act([f"host {host!r} joined"])
+    if kind == "back":
+        return Act([f"host {host!r} is back{' (a new launcher)' if args[0] else ''}"])
+    if kind == "lost":
+        policy = hosts.on_host_lost
+        act = Act([f"host {host!r} lost: no heartbeat for {args[0]:.1f} s; on_host_lost: {policy}"])
+        if policy == "stop":
+            act.stop, act.exit_code, act.echo = f"host {host!r} lost", 1, False
+        return act
+    if kind == "clock":
+        offset, rtt = args
+        limit = hosts.max_clock_offset_secs
+        act = Act(
+            [
+                f"clock offset to host {host!r}: {offset * 1e3:+.3f} ms "
+                f"(round trip {rtt * 1e3:.3f} ms, limit {limit * 1e3:g} ms)"
+            ]
+        )
+        if abs(offset) - rtt / 2 > limit:  # above the limit whatever the path's asymmetry
+            act.lines.append(f"clocks differ by more than {limit * 1e3:g} ms: see docs/hosts.md")
+            act.stop, act.exit_code = f"clock offset to host {host!r}", 1
+        elif abs(offset) > limit:
+            act.lines.append(f"warning: the clock offset to host {host!r} may exceed the limit")
+        return act
+    reason, code = args  # "stop"
+    return Act([], f"host {host!r} stops: {reason}", verdict_code=code, echo=False)

@@ -1,0 +1,109 @@
+"""The launcher's node processes: what it knows of each, and starting, reaping and
+signalling them.
+
+A node runs as ``python -m runtime.child`` in its own process group (a Ctrl-C at the
+terminal reaches the launcher only, which stops the nodes in order), its JSON spec on
+stdin (the run's secret with it: never on a command line or in the environment), its
+output read line by line by a thread and printed with the node's name.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import IO, Any, Literal
+
+from runtime.counters import add_stats
+from runtime.graph import NodeSpec
+
+# A node process's life, as the launcher sees it (mypy checks every assignment).
+ProcState = Literal["new", "hello", "ready", "running", "exited", "waiting_restart", "failed"]
+
+
+@dataclass
+class Proc:
+    spec: NodeSpec
+    popen: subprocess.Popen[bytes] | None = None
+    rid: bytes | None = None  # the ROUTER id of the node's main control socket
+    spawned_at: float = 0.0
+    endpoint: str | None = None
+    state: ProcState = "new"
+    restarts: int = 0
+    restart_at: float = 0.0
+    last_heartbeat: float = 0.0
+    busy_secs: float = 0.0
+    cpu_secs: float = 0.0
+    exit_codes: list[int] = field(default_factory=list)
+    stats: dict[str, Any] = field(default_factory=dict)
+    stats_at: float = 0.0
+    stats_base: dict[str, Any] = field(default_factory=dict)
+    counts_published: dict[str, int] = field(default_factory=dict)
+    counts_received: dict[str, int] = field(default_factory=dict)
+
+
+def spawn(
+    proc: Proc,
+    popen: subprocess.Popen[bytes],
+    child_spec: dict[str, Any],
+    say: Callable[[str, str], None],
+) -> None:
+    """Make ``popen`` (a ``runtime.child.start`` process) ``proc``'s node: ``child_spec`` on
+    its stdin, its lines to ``say``."""
+    assert popen.stdin is not None and popen.stdout is not None
+    popen.stdin.write(json.dumps(child_spec).encode())
+    popen.stdin.close()
+    threading.Thread(target=_pump, args=(proc, popen.stdout, say), daemon=True).start()
+    proc.popen = popen
+    proc.rid = None
+    proc.state = "new"
+    proc.spawned_at = proc.last_heartbeat = time.monotonic()
+    proc.busy_secs = 0.0
+    proc.stats_base = add_stats(proc.stats_base, proc.stats)
+    proc.stats = {}
+
+
+def _pump(proc: Proc, stream: IO[bytes], say: Callable[[str, str], None]) -> None:
+    for raw in iter(stream.readline, b""):
+        line = raw.decode(errors="replace").rstrip("\n")
+        say(line, proc.spec.name)
+    stream.close()
+
+
+def reap(proc: Proc) -> int | None:
+    """``proc``'s exit code if its process has ended (its CPU time added), else None.
+
+    Whatever the node started and left behind is killed with it (the process group
+    outlives its leader).
+    """
+    assert proc.popen is not None
+    try:
+        pid, status, usage = os.wait4(proc.popen.pid, os.WNOHANG)
+    except ChildProcessError:
+        pid, status, usage = proc.popen.pid, 0, None
+    if pid == 0:
+        return None
+    if usage is not None:
+        proc.cpu_secs += usage.ru_utime + usage.ru_stime
+    code = os.waitstatus_to_exitcode(status)
+    proc.popen.returncode = code
+    try:
+        os.killpg(pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        pass
+    proc.exit_codes.append(code)
+    return code
+
+
+def signal_group(proc: Proc, signum: int) -> None:
+    """Signal a node's process group: the node and any process it started (a compiler)."""
+    if proc.popen is not None and proc.popen.returncode is None:
+        try:
+            os.killpg(proc.popen.pid, signum)
+        except (ProcessLookupError, PermissionError):
+            pass

@@ -1,0 +1,154 @@
+"""Check a graph document and run it: on this machine, or this host's part of it.
+
+A graph with a ``hosts:`` table runs as one launcher per host (``--host NAME``, see
+``runtime.hosts`` and docs/hosts.md). Without ``--host`` such a graph is not started:
+the command prints the command to run on each host. Recording and lockstep across hosts
+are refused (see :func:`multihost_refusals`).
+"""
+
+from __future__ import annotations
+
+import shlex
+import shutil
+import sys
+from pathlib import Path
+from typing import Any
+
+from messages.errors import GraphError
+from runtime import child
+from runtime.graph import Graph, check
+from runtime.isolation import make_rundir
+from runtime.launcher import Launcher
+from runtime.security import KeyPair, default_key_dir, load_key
+from runtime.taps import add_recorder
+
+
+def host_keys(graph: Graph, host: str, key_dir: Path | None) -> KeyPair | None:
+    """This host's CURVE key pair, if any host of the graph is off loopback; else None.
+
+    Raises:
+        GraphError: ``host`` is not in the table, or its key file is missing, readable by
+            others, malformed, or not the key pair whose public key the graph names.
+    """
+    table = graph.hosts.table
+    if host not in table:
+        raise GraphError(
+            f"{graph.source}: --host {host!r} is not a host of the graph's hosts table "
+            f"({', '.join(table)})"
+        )
+    if not graph.hosts.encrypted:
+        return None
+    spec = table[host]
+    path = Path(spec.key_file) if spec.key_file else (key_dir or default_key_dir()) / f"{host}.key"
+    if not path.exists():
+        raise GraphError(
+            f"{graph.source}: host {host!r} needs its secret key at {path} (make it there with "
+            f"`python launch.py keys make {host}`, or give --keys DIR or the host's key_file)"
+        )
+    keys = load_key(path)
+    if spec.public_key is not None and keys.public != spec.public_key:
+        raise GraphError(
+            f"{graph.source}: hosts.{host}.public_key is not the public key of {path} "
+            f"({keys.public})"
+        )
+    return keys
+
+
+def multihost_refusals(graph: Graph, *, record: bool, lockstep: bool) -> list[str]:
+    """What a graph on several hosts cannot do (yet), each said plainly."""
+    if not graph.hosts.table:
+        return []
+    refusals = []
+    if record:
+        refusals.append(
+            "--record with a hosts table: the recorder it adds would be known to this host's "
+            "launcher only, and the others' publishers would not wait for it (the first "
+            "messages would be lost); put a recorder node in the graph on the host that "
+            "records instead (docs/hosts.md)"
+        )
+    if lockstep:
+        refusals.append(
+            "--lockstep with a hosts table: the replay's idle barrier needs every node's "
+            "counts at one launcher, and each host's launcher knows only its own; replay "
+            "the bag on one host"
+        )
+    return refusals
+
+
+def host_commands(graph: Graph, argv: list[str]) -> str:
+    """What to run on each host of ``graph`` (``argv``: this command line, without --host)."""
+    placed = graph.hosts.placement({n: s.host for n, s in graph.nodes.items()})
+    lines = [
+        f"{graph.source} places its nodes on {len(graph.hosts.table)} hosts: run one launcher "
+        "on each (the order does not matter):"
+    ]
+    for name, spec in graph.hosts.table.items():
+        nodes = [n for n, h in placed.items() if h == name]
+        lines.append(f"  on {name} ({spec.address}, nodes {', '.join(nodes) or '-'}):")
+        lines.append(f"    {shlex.join([*argv, '--host', name])}")
+    return "\n".join(lines)
+
+
+def launch(
+    graph: dict[str, Any],
+    *,
+    source: str,
+    record: Path | None = None,
+    topics: str | None = None,
+    overwrite: bool = False,
+    lockstep: bool = False,
+    duration_secs: float | None = None,
+    log_level: str = "INFO",
+    command_line: str = "",
+    host: str | None = None,
+    key_dir: Path | None = None,
+) -> int:
+    """Check and run a graph document; returns the exit code (2 when the check fails)."""
+    try:
+        if record is not None:
+            graph = add_recorder(
+                graph,
+                record,
+                topics,
+                command_line or " ".join(sys.argv),
+                source,
+                overwrite=overwrite,
+            )
+    except GraphError as err:
+        print(f"graph check failed:\n{err}", file=sys.stderr)
+        return 2
+    # The node processes start now and import what every node shares while the graph is
+    # checked (the check imports the graph's node modules here, on one core).
+    nodes = graph.get("nodes")
+    rundir = make_rundir()
+    prestarted = [child.start(rundir) for _ in range(len(nodes) if isinstance(nodes, dict) else 0)]
+    launcher: Launcher | None = None
+    try:
+        checked = check(graph, source=source)
+        refusals = multihost_refusals(checked, record=record is not None, lockstep=lockstep)
+        if refusals:
+            raise GraphError("\n".join(f"{source}: {r}" for r in refusals))
+        if checked.hosts.table and host is None:
+            print(host_commands(checked, [sys.executable, *sys.argv]), file=sys.stderr)
+            return 2
+        if host is not None and not checked.hosts.table:
+            raise GraphError(f"{source}: --host {host!r}: the graph has no hosts table")
+        keys = host_keys(checked, host, key_dir) if host is not None else None
+        launcher = Launcher(
+            checked,
+            lockstep=lockstep,
+            duration_secs=duration_secs,
+            log_level=log_level,
+            host=host,
+            keys=keys,
+            rundir=rundir,
+            prestarted=prestarted,
+        )
+    except GraphError as err:
+        print(f"graph check failed:\n{err}", file=sys.stderr)
+        return 2
+    finally:
+        if launcher is None:  # not started (a failed check, or Ctrl-C during it)
+            child.release(prestarted)
+            shutil.rmtree(rundir, ignore_errors=True)
+    return launcher.run()

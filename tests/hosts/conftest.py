@@ -1,0 +1,111 @@
+"""Hosts for the multi-host tests: key folders, graph files, and launchers run inside
+network namespaces (``bench.netns``; skipped with the reason where they cannot be made)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from bench.netns import Namespace, namespaces, unavailable
+from runtime.security import make_key
+
+ROOT = Path(__file__).resolve().parents[2]
+SYNTHETIC = "tests.synthetic_nodes:Synthetic"
+
+
+def two_host_graph(keys: Path, *, policy: str = "stop", count: int = 60) -> dict[str, Any]:
+    """A source on host ``a`` (10.77.0.1), a sink on ``b`` (10.77.0.2), CURVE keys in ``keys``."""
+    return {
+        "hosts": host_table(keys, ["a", "b"]),
+        "on_host_lost": policy,
+        "host_timeout_secs": 1.5,
+        "nodes": {
+            "src": {"impl": f"{SYNTHETIC}Source", "host": "a", "params": {"count": count}},
+            "sink": {"impl": f"{SYNTHETIC}Sink", "host": "b", "inputs": {"tick": "src/tick"}},
+        },
+    }
+
+
+def host_table(keys: Path, names: list[str]) -> dict[str, Any]:
+    """Hosts ``names`` on 10.77.0.1, .2, ..., each with a new key pair in ``keys``."""
+    return {
+        name: {
+            "address": f"10.77.0.{i + 1}",
+            "ports": [24000, 24040],
+            "public_key": make_key(keys, name).public,
+        }
+        for i, name in enumerate(names)
+    }
+
+
+def write_graph(doc: dict[str, Any], path: Path) -> Path:
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+@pytest.fixture
+def netns() -> Iterator[list[Namespace]]:
+    """Three namespaces on one bridge: 10.77.0.1, .2 and .3; always deleted."""
+    reason = unavailable()
+    if reason is not None:
+        pytest.skip(f"no network namespaces here: {reason}")
+    with namespaces(3) as spaces:
+        yield spaces
+
+
+class Launched:
+    """A launcher started in a namespace, its output in a file."""
+
+    def __init__(self, ns: Namespace, graph: Path, host: str, keys: Path, log: Path) -> None:
+        self.log = log
+        env = dict(os.environ, PYTHONPATH=str(ROOT))
+        argv = [sys.executable, "launch.py", str(graph), "--host", host, "--keys", str(keys)]
+        with open(log, "w") as out:
+            self.proc = subprocess.Popen(
+                ns.command(argv), cwd=ROOT, stdout=out, stderr=subprocess.STDOUT, env=env
+            )
+
+    @property
+    def text(self) -> str:
+        return self.log.read_text()
+
+    def wait_for(self, needle: str, timeout: float = 60.0) -> float:
+        """Wait until the output has ``needle``; the time it was seen (``time.monotonic``)."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if needle in self.text:
+                return time.monotonic()
+            if self.proc.poll() is not None and needle not in self.text:
+                break
+            time.sleep(0.05)
+        raise AssertionError(f"{needle!r} not in the output:\n{self.text[-3000:]}")
+
+    def finish(self, timeout: float = 120.0) -> int:
+        try:
+            return self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            raise AssertionError(f"the launcher did not end:\n{self.text[-3000:]}") from None
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+
+@pytest.fixture
+def launched() -> Iterator[list[Launched]]:
+    """Launchers a test starts (append them): killed at the end if still running."""
+    started: list[Launched] = []
+    yield started
+    for item in started:
+        item.kill()
