@@ -77,7 +77,7 @@ class Sizes:
 
 
 QUICK = Sizes(frames_per_camera=90, repeats=1, live_secs=2.0, zstd=False)
-FULL = Sizes(frames_per_camera=450, repeats=3, live_secs=10.0, zstd=True)
+FULL = Sizes(frames_per_camera=240, repeats=3, live_secs=5.0, zstd=True)
 
 
 def camera_frames(count: int) -> list[tuple[str, list[Any]]]:

@@ -150,6 +150,47 @@ def plain_log_ticks(ax: Any, which: str) -> None:
         axis.set_minor_formatter(NullFormatter())
 
 
+def label_points(
+    ax: Any, points: Sequence[tuple[float, float]], labels: Sequence[str], fontsize: float = 7
+) -> None:
+    """Write ``labels`` beside ``points`` (data coordinates) of a matplotlib ``ax`` whose
+    limits and layout are final, each where it overlaps no label placed before it and no
+    other point: right and up by default, else below, left, or further out."""
+    ax.get_xlim(), ax.get_ylim()  # settles autoscaled limits before transforming
+    px = ax.figure.dpi / 72.0  # pixels per point
+    marker = 4.0 * px  # half the size of a marker
+    centres = [tuple(ax.transData.transform(p)) for p in points]
+    obstacles = [(x - marker, y - marker, x + marker, y + marker) for x, y in centres]
+    height = fontsize * px
+    for (x, y), label in zip(centres, labels, strict=True):
+        width = 0.62 * fontsize * px * len(label)
+        candidates = [
+            (dx * px + (-width if dx < 0 else 0.0), dy * px)
+            for dy in (3, -10, 10, -17, 17)
+            for dx in (4, -4)
+        ]
+        boxes = [(x + dx, y + dy, x + dx + width, y + dy + height) for dx, dy in candidates]
+        free = [
+            i
+            for i, (x0, y0, x1, y1) in enumerate(boxes)
+            if not any(
+                x0 < b[2] and b[0] < x1 and y0 < b[3] and b[1] < y1
+                for b in obstacles
+                if not (b[0] < x < b[2] and b[1] < y < b[3])  # its own point
+            )
+        ]
+        best = free[0] if free else 0
+        obstacles.append(boxes[best])
+        dx, dy = candidates[best]
+        ax.annotate(
+            label,
+            ax.transData.inverted().transform((x, y)),
+            textcoords="offset pixels",
+            xytext=(dx, dy),
+            fontsize=fontsize,
+        )
+
+
 def format_table(rows: Sequence[Row], columns: Sequence[str] | None = None) -> str:
     """A plain fixed-width table; floats to 4 significant digits."""
     if not rows:

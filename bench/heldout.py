@@ -7,7 +7,7 @@ scores the committed model on it. The grasp accuracy (a grasp is right when the 
 of its frames is) is stated with its size and a 95% Wilson score interval, so a page that
 quotes it says how much it can be trusted.
 
-    python -m bench.heldout [--grasps 200] [--workdir out/report]
+    python -m bench.heldout [--grasps 150] [--workdir out/report]
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ MODEL = "models/tactile_resnet18.pt"
 GRAPH = "graphs/autolabel.yaml"
 AUTOLABEL_SEED = 101
 NOISE_SEED = 102
-GRASPS = 200
+GRASPS = 150
 QUICK_GRASPS = 2
 Z_95 = 1.959963984540054
 

@@ -282,18 +282,18 @@ def run(quick: bool) -> list[Row]:
         rows += size_rows([5.0], 1, 1000)
         return rows + degenerate_rows(["lm"])
     kinds = list(OBJECTS)
-    rows = estimator_rows(kinds, ["lm", "ipopt"], [0.001], ["cold", "bad_seed", "track"], 8, 3000)
+    rows = estimator_rows(kinds, ["lm", "ipopt"], [0.001], ["cold", "bad_seed", "track"], 5, 3000)
     rows += estimator_rows(
         ["cylinder_r40", "box_edge"],
         ["lm", "ipopt"],
         [0.0005, 0.002, 0.003],
         ["cold", "bad_seed"],
-        10,
+        6,
         3000,
     )
     # Cold-start and tracking time at 10k points, by solver.
-    rows += estimator_rows(["cylinder_r40"], ["lm", "ipopt"], [0.001], ["cold", "track"], 10, 10000)
-    rows += size_rows([1.0, 2.0, 4.0, 8.0], 10, 3000)
+    rows += estimator_rows(["cylinder_r40"], ["lm", "ipopt"], [0.001], ["cold", "track"], 6, 10000)
+    rows += size_rows([1.0, 2.0, 4.0, 8.0], 6, 3000)
     return rows + degenerate_rows(["lm", "ipopt"])
 
 

@@ -42,7 +42,8 @@ ORDER = (
     "drivers",
     "startup",
 )
-NOT_SWEEPS = {"common", "report", "report_page", "heldout"}  # not sweeps: helpers
+# Not sweeps: helpers, and bench.pose_hard, whose rows bench.pose already carries.
+NOT_SWEEPS = {"common", "report", "report_page", "heldout", "pose_hard"}
 
 
 @dataclass

@@ -41,7 +41,16 @@ from pathlib import Path
 import numpy as np
 
 import sim
-from bench.common import Row, main, median, one_core, percentile, plain_log_ticks, progress
+from bench.common import (
+    Row,
+    label_points,
+    main,
+    median,
+    one_core,
+    percentile,
+    plain_log_ticks,
+    progress,
+)
 from geometry.camera import PinholeCamera
 from geometry.gripper import SIDES
 from messages.types import ToFImage
@@ -365,13 +374,12 @@ def plot(rows: list[Row], path: Path) -> None:
         (axes[0], "dir_err_deg_median", 2.0),
         (axes[1], "dir_err_deg_p95", 5.0),
     ):
-        for i, row in enumerate(rows, start=1):
+        for row in rows:
             x, y = row["ms_per_frame_median"], max(row[key], 0.01)
             color = "tab:blue" if row["method"] == "farneback" else "tab:orange"
             marker = "o" if row["warm_start"] else "s"
             face = color if row["scale"] < 1.0 else "none"
             ax.scatter([x], [y], marker=marker, edgecolors=color, facecolors=face, s=40)
-            ax.annotate(str(i), (x, y), textcoords="offset points", xytext=(4, 3), fontsize=7)
         ax.axvline(1000.0 / 300.0, color="grey", ls="--", lw=1)
         ax.axhline(target, color="grey", ls=":", lw=1)
         plain_log_ticks(ax, "xy")
@@ -386,6 +394,10 @@ def plot(rows: list[Row], path: Path) -> None:
         fontsize=9,
     )
     fig.tight_layout(rect=(0, 0, 0.79, 0.95))
+    numbers = [str(i) for i in range(1, len(rows) + 1)]
+    for ax, key in zip(axes, ("dir_err_deg_median", "dir_err_deg_p95"), strict=True):
+        points = [(r["ms_per_frame_median"], max(r[key], 0.01)) for r in rows]
+        label_points(ax, points, numbers)  # after the layout: placed clear of each other
     fig.savefig(path, dpi=120)
     plt.close(fig)
 

@@ -25,8 +25,13 @@ Latencies run from the recorder's receipt of a frame's world state (what the cam
 render) to its receipt of the estimate made from that frame (same stamp): the whole
 pipeline on one clock. The world runs in real time; on a loaded machine everything
 trails (the figures say by how much); ``--rate-scale 0.5`` runs every world at half
-real time (a loaded machine then keeps up; latencies stay wall-clock). ``--runs N`` sets the scenes per task (seeds
-0 .. N-1); ``--quick`` runs one stacking scene; ``--tasks a,b`` picks tasks.
+real time (a loaded machine then keeps up; latencies stay wall-clock).
+
+Scenes per task: ``RUNS`` by default (seeds 0 .. N-1), as many as fit in about four
+minutes of graphs (each graph costs its scene plus several seconds to start and stop):
+2 dish loading sinks (12 objects), 2 tracking scenes (4 graphs: LM and IPOPT), 3
+handovers (6 graphs: pull and still hold) and 4 stackings. ``--runs N`` sets every
+task's; ``--quick`` runs one stacking scene; ``--tasks a,b`` picks tasks.
 """
 
 from __future__ import annotations
@@ -43,10 +48,11 @@ from typing import Any
 import numpy as np
 import yaml
 
-from bench.common import Row, main, median, percentile
+from bench.common import Row, main, median, percentile, progress
 
 ROOT = Path(__file__).resolve().parents[1]
 TASKS = ("dish_loading", "antagonism", "handover", "stacking")
+RUNS = {"dish_loading": 2, "antagonism": 2, "handover": 3, "stacking": 4}
 TOPICS = (
     "^(supervisor/event|world/state|world/ground_truth|world/placement|pose/pose|shear/shear"
     "|classifier/probabilities)$"
@@ -67,7 +73,7 @@ def launch(graph: str, bag: Path, *args: str) -> tuple[int, str, dict[str, list]
         [
             *(sys.executable, "launch.py", graph, *args),
             *("--set", f"world.rate_scale={RATE_SCALE[0]}"),
-            *("--record", str(bag), "--topics", TOPICS),
+            *("--record", str(bag), "--record-topics", TOPICS),
         ],
         cwd=ROOT,
         capture_output=True,
@@ -328,18 +334,19 @@ def aggregate(task: str, seeds: list[int], runs: list[dict[str, Any]]) -> Row:
     return row
 
 
-def sweep(tasks: tuple[str, ...], n_runs: int) -> list[Row]:
-    rows: list[Row] = []
-    for task in tasks:
-        seeds = list(range(n_runs))
-        by_solver: dict[str, list[dict[str, Any]]] = {}
-        for seed in seeds:
-            with tempfile.TemporaryDirectory(prefix=f"bench-{task}-") as tmp:
-                for run in RUNNERS[task](seed, Path(tmp)):
-                    by_solver.setdefault(run.get("solver", ""), []).append(run)
-            print(f"[bench.tasks] {task} seed {seed} done", file=sys.stderr, flush=True)
-        rows += [aggregate(task, seeds, runs) for runs in by_solver.values()]
-    return rows
+def sweep(tasks: tuple[str, ...], n_runs: int | None) -> list[Row]:
+    """Every (task, seed) in turn; ``n_runs`` scenes per task, or ``RUNS``."""
+    points = [(t, seed) for t in tasks for seed in range(n_runs or RUNS[t])]
+    runs: dict[str, dict[str, list[dict[str, Any]]]] = {t: {} for t in tasks}
+    for task, seed in progress(points, "tasks", label=lambda p: f"{p[0]} seed {p[1]}"):
+        with tempfile.TemporaryDirectory(prefix=f"bench-{task}-") as tmp:
+            for run in RUNNERS[task](seed, Path(tmp)):
+                runs[task].setdefault(run.get("solver", ""), []).append(run)
+    return [
+        aggregate(task, list(range(n_runs or RUNS[task])), solver_runs)
+        for task in tasks
+        for solver_runs in runs[task].values()
+    ]
 
 
 COLUMNS = [
@@ -369,14 +376,14 @@ COLUMNS = [
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(add_help=False)
-    parser.add_argument("--runs", type=int, default=2, help="scenes per task (seeds 0..N-1)")
+    parser.add_argument("--runs", type=int, default=None, help="scenes per task (seeds 0..N-1)")
     parser.add_argument("--tasks", default=",".join(TASKS), help="comma-separated tasks")
     parser.add_argument("--rate-scale", type=float, default=1.0, help="world.rate_scale")
     extra, rest = parser.parse_known_args()
     RATE_SCALE[0] = extra.rate_scale
     chosen = tuple(t for t in extra.tasks.split(",") if t)
     unknown = sorted(set(chosen) - set(TASKS))
-    if unknown or extra.runs < 1 or not extra.rate_scale > 0:
+    if unknown or (extra.runs is not None and extra.runs < 1) or not extra.rate_scale > 0:
         sys.exit(f"bench.tasks: --tasks must name {TASKS} and --runs be >= 1, got {extra}")
     main(
         "tasks",

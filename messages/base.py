@@ -122,8 +122,14 @@ def _schema(cls: type[Message]) -> Schema:
         if spec is not None:
             arrays[field.name] = spec
     description = describe(cls)
-    digest = hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()
-    return Schema(array_fields=arrays, fingerprint=digest[:16], description=description)
+    return Schema(
+        array_fields=arrays, fingerprint=fingerprint_of(description), description=description
+    )
+
+
+def fingerprint_of(description: dict[str, Any]) -> str:
+    """The fingerprint of a type description (:func:`describe`): 16 hex digits of its hash."""
+    return hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def _array_spec(hint: Any) -> Array | None:
@@ -134,7 +140,8 @@ def _array_spec(hint: Any) -> Array | None:
     return None
 
 
-def _type_description(hint: Any) -> Any:
+def describe_type(hint: Any) -> Any:
+    """A field's type as JSON: a name, ``{"array": ...}``, ``{"struct": ...}`` or ``{"generic": ...}``."""
     spec = _array_spec(hint)
     if spec is not None:
         return {"array": {"dtype": np.dtype(spec.dtype).str, "shape": list(spec.shape)}}
@@ -143,14 +150,14 @@ def _type_description(hint: Any) -> Any:
         return {
             "struct": hint.__name__,
             "fields": [
-                [f.name, _type_description(hints[f.name])] for f in msgspec.structs.fields(hint)
+                [f.name, describe_type(hints[f.name])] for f in msgspec.structs.fields(hint)
             ],
         }
     origin = typing.get_origin(hint)
     if origin is not None:
         return {
             "generic": getattr(origin, "__name__", str(origin)),
-            "args": [_type_description(a) for a in typing.get_args(hint)],
+            "args": [describe_type(a) for a in typing.get_args(hint)],
         }
     return getattr(hint, "__name__", repr(hint))
 
@@ -164,7 +171,7 @@ def describe(cls: type[msgspec.Struct]) -> dict[str, Any]:
     hints = typing.get_type_hints(cls, include_extras=True)
     return {
         "type": cls.__name__,
-        "fields": [[f.name, _type_description(hints[f.name])] for f in msgspec.structs.fields(cls)],
+        "fields": [[f.name, describe_type(hints[f.name])] for f in msgspec.structs.fields(cls)],
     }
 
 

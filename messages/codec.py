@@ -32,7 +32,8 @@ import msgspec
 import numpy as np
 
 from messages.base import Array, Message
-from messages.errors import FingerprintMismatchError, FrameDecodeError
+from messages.errors import FingerprintMismatchError, FrameDecodeError, SchemaChangeError
+from messages.evolution import check_stored
 
 _encoder = msgspec.msgpack.Encoder()
 _header_decoder = msgspec.msgpack.Decoder()
@@ -243,16 +244,26 @@ def _received_array(
         raise FrameDecodeError(f"{topic}: {wire_type}.{name}: bad shape {shape}: {err}") from err
 
 
-def decode(frames: Sequence[Any], expect: type[Message] | None = None) -> tuple[str, Message]:
+def decode(
+    frames: Sequence[Any],
+    expect: type[Message] | None = None,
+    *,
+    stored: dict[str, Any] | None = None,
+) -> tuple[str, Message]:
     """Decode ``[topic, header, *buffers]`` (bytes or ``zmq.Frame``) into ``(topic, message)``.
 
     Args:
         frames: the multipart message as received.
         expect: if given, the frame must carry this type (and its fingerprint).
+        stored: the description of the frame's type as it was declared when the frame was
+            recorded (a bag stores it). A frame of another fingerprint then decodes if
+            that declaration evolves into today's (``messages.evolution``: fields added
+            with defaults are filled in); without it, another fingerprint is refused.
 
     Raises:
         FrameDecodeError: truncated, wrong buffer size, unknown type, bad dtype or fields.
-        FingerprintMismatchError: same type name, different schema.
+        FingerprintMismatchError: same type name, different schema (``SchemaChangeError``
+            when a stored description was given: it names the field).
     """
     if len(frames) < 2:
         raise FrameDecodeError(f"truncated message: {len(frames)} frame(s), need at least 2")
@@ -267,7 +278,12 @@ def decode(frames: Sequence[Any], expect: type[Message] | None = None) -> tuple[
     if expect is not None and cls is not expect:
         raise FrameDecodeError(f"{topic}: expected {expect.__name__}, got {wire.type}")
     plan = _plan(cls)
-    if wire.fp != plan.fingerprint:
+    if wire.fp != plan.fingerprint and stored is not None:
+        try:
+            check_stored(cls, wire.fp, stored)
+        except SchemaChangeError as err:
+            raise SchemaChangeError(f"{topic}: {err}") from None
+    elif wire.fp != plan.fingerprint:
         raise FingerprintMismatchError(
             f"{topic}: {wire.type} fingerprint {wire.fp} from the sender, "
             f"{plan.fingerprint} here: the two sides declare different fields"

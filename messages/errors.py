@@ -34,3 +34,7 @@ class DeviceError(SoftbubbleError):
 
 class BagError(SoftbubbleError):
     """A bag file could not be read or written."""
+
+
+class SchemaChangeError(FingerprintMismatchError):
+    """A stored message's declaration of its type cannot be read as today's declaration."""

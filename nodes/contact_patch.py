@@ -6,19 +6,28 @@ Ports:
         (N,), 0 left / 1 right; header frame_id ``tool``, stamp of the newer image),
         ``mask`` (MaskImage, one per bubble per patch, 255 = contact; ``sensor`` says which).
 
-A patch is published once both bubbles have sent a new frame since the last one
-(the newest frame of each). Each frame's points go to the tool frame by the camera pose
+A patch is made of one frame of each bubble taken at the same instant: stamps at most
+``max_skew_secs`` apart (the simulator stamps both with its world's instant; two
+free-running cameras are up to half a frame apart). A frame waits (the last
+``PAIR_HISTORY`` of each bubble are kept) until its partner arrives; then the pair is
+published and older frames are dropped. Pairing the newest frame of each instead would,
+on a loaded machine where one camera lags, put the two bubbles' views of a moving object
+from different instants into one cloud: a pose where the object never was. Each frame's points go to the tool frame by the camera pose
 the frame carries (``ToFImage.tool_from_sensor``): the gripper geometry of the data's own
 scene or calibration. A frame without it is refused, with a warning naming the field. The free-bubble reference is (re)captured whenever the
 gripper is open (``width_m >= reference_min_width_m``) and still (speed under
 ``reference_max_speed_m_per_s``): on entering that state the old reference is dropped
-and the next ``reference_frames`` frames of each bubble are averaged into a new one.
+and the next ``reference_frames`` frames of each bubble are averaged into a new one. A
+frame counts as free by the gripper's state at the frame's stamp, not by the newest
+state received: on a loaded machine the small gripper messages overtake the images, and
+the free frames taken before a grasp would otherwise arrive after it began and be lost.
 Until a bubble has a reference it contributes no points. The logic lives in
 :mod:`perception.contact`.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,6 +38,9 @@ from messages.types import ContactPatch, GripperState, MaskImage, ToFImage, pose
 from perception.contact import ContactParams, ContactPatcher
 from runtime.node import Node
 from runtime.registry import register
+
+PAIR_HISTORY = 8  # frames of each bubble kept while waiting for the other's
+GRIPPER_HISTORY = 64  # gripper states kept to tell whether a frame was taken open and still
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -41,12 +53,14 @@ class ContactPatchParams:
         reference_min_width_m: the gripper counts as open from this opening on.
         reference_max_speed_m_per_s: ... and as still below this finger speed.
         reference_frames: free frames averaged into each bubble's reference.
+        max_skew_secs: the most two frames' stamps may differ to make one patch.
     """
 
     contact: ContactParams = field(default_factory=ContactParams)
     reference_min_width_m: float = 0.1
     reference_max_speed_m_per_s: float = 0.001
     reference_frames: int = 5
+    max_skew_secs: float = 0.02
 
     def __post_init__(self) -> None:
         if not (self.reference_min_width_m >= 0.0):
@@ -59,6 +73,8 @@ class ContactPatchParams:
             )
         if self.reference_frames < 1:
             raise ValueError(f"reference_frames must be >= 1, got {self.reference_frames}")
+        if not (self.max_skew_secs >= 0.0):
+            raise ValueError(f"max_skew_secs must be >= 0, got {self.max_skew_secs}")
 
 
 @register("contact_patch")
@@ -71,11 +87,13 @@ class ContactPatchNode(Node):
 
     def setup(self) -> None:
         self.patcher = ContactPatcher(self.params.contact)
-        self.latest: dict[str, ToFImage] = {}
-        self.fresh: dict[str, bool] = {"left": False, "right": False}
+        self.waiting: dict[str, deque[ToFImage]] = {
+            s: deque(maxlen=PAIR_HISTORY) for s in ("left", "right")
+        }
         self.gripper_seen = False
         self.warned_mount: set[str] = set()
         self.open_still = False
+        self.gripper_states: deque[tuple[int, bool]] = deque(maxlen=GRIPPER_HISTORY)
         self.ref_frames = {"left": 0, "right": 0}
 
     def on_gripper(self, msg: GripperState) -> None:
@@ -89,6 +107,17 @@ class ContactPatchNode(Node):
             self.patcher.clear_reference()
             self.ref_frames = {"left": 0, "right": 0}
         self.open_still = open_still
+        self.gripper_states.append((msg.header.stamp_nanos, open_still))
+
+    def _open_still_at(self, stamp_nanos: int) -> bool:
+        """Whether the gripper was open and still at a frame's stamp: its last state
+        stamped at or before it (the newest state when none is that old)."""
+        state = self.open_still
+        for stamp, open_still in self.gripper_states:
+            if stamp > stamp_nanos:
+                break
+            state = open_still
+        return state
 
     def on_left(self, msg: ToFImage) -> None:
         self._image("left", msg)
@@ -107,22 +136,32 @@ class ContactPatchNode(Node):
                 )
                 self.warned_mount.add(side)
             return
-        if self.open_still and self.ref_frames[side] < self.params.reference_frames:
+        if (
+            self._open_still_at(msg.header.stamp_nanos)
+            and self.ref_frames[side] < self.params.reference_frames
+        ):
             self.patcher.update_reference(side, msg.depth_m)
             self.ref_frames[side] += 1
-        self.latest[side] = msg
-        self.fresh[side] = True
-        if all(self.fresh.values()) and self.gripper_seen:
-            self._publish()
+        other = "right" if side == "left" else "left"
+        skew = self.params.max_skew_secs * 1e9
+        stamp = msg.header.stamp_nanos
+        partners = [m for m in self.waiting[other] if abs(m.header.stamp_nanos - stamp) <= skew]
+        if not partners or not self.gripper_seen:
+            self.waiting[side].append(msg)
+            return
+        partner = min(partners, key=lambda m: abs(m.header.stamp_nanos - stamp))
+        self.waiting[side].clear()
+        pair_stamp = partner.header.stamp_nanos
+        kept = [m for m in self.waiting[other] if m.header.stamp_nanos > pair_stamp]
+        self.waiting[other] = deque(kept, maxlen=PAIR_HISTORY)
+        self._publish({side: msg, other: partner})
 
-    def _publish(self) -> None:
-        self.fresh = {"left": False, "right": False}
+    def _publish(self, pair: dict[str, ToFImage]) -> None:
         frames = {
-            s: (m.depth_m, PinholeCamera.from_frame(m), m.tool_from_sensor)
-            for s, m in self.latest.items()
+            s: (m.depth_m, PinholeCamera.from_frame(m), m.tool_from_sensor) for s, m in pair.items()
         }
         cloud = self.patcher.extract(frames)
-        stamp = max(m.header.stamp_nanos for m in self.latest.values())
+        stamp = max(m.header.stamp_nanos for m in pair.values())
         self.io.publish(
             "patch",
             ContactPatch(

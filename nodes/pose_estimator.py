@@ -1,8 +1,7 @@
 """``pose_estimator.ipopt``, ``.lm`` and ``.icp``: the in-hand object pose from the grasp cloud.
 
 Ports:
-    inputs: ``patch`` (ContactPatch), ``grasp`` (GraspState, optional: a release or a
-        lost stable grasp drops the tracking state, so the next patch starts cold).
+    inputs: ``patch`` (ContactPatch), ``grasp`` (GraspState, optional: see Tracking).
     outputs: ``pose`` (PoseEstimate: ``tool_from_object``, residual RMS, cost,
         iterations, status and the reason in ``message``, solve time, points used,
         solver, the noise measured from the patch, ``observable`` per
@@ -19,6 +18,18 @@ keeps the newest patch (counting the ones it replaces), and a short timer solves
 patches that arrived during a solve are skipped in favour of the newest. Statuses are
 those of :class:`perception.pose.estimator.PoseEstimator` (``ok``, ``recovered``,
 ``suspect``, ``no_patch``, ``failed``); bad input never raises and never gives a NaN pose.
+
+Tracking: each estimate is warm-started from the last accepted one, and the estimator
+searches its seeds again when the residual says it lost track. With ``grasp``
+connected, no track is kept until the grasp is first stable (the partial patch of
+closing jaws can fit a wrong minimum within the acceptance); from then on the track is
+kept through any grasp state (a jolt can make the grasp monitor report a release for
+a moment) until the object was released: the grasp is not stable and the patch is
+empty. The next grasp then starts cold again.
+
+Setup: the solver is built (IPOPT: compiled, or loaded from the disk cache) and one
+estimate of a synthetic grasp of the object is made and forgotten, so the first patch
+pays for no first call (IPOPT's libraries, the noise estimate's neighbour search).
 """
 
 from __future__ import annotations
@@ -35,6 +46,7 @@ from perception.pose.estimator import EstimatorParams, PoseEstimator
 from perception.pose.icp import IcpParams, IcpSolver
 from perception.pose.ipopt import IpoptParams, IpoptSolver
 from perception.pose.lm import LMParams, LMSolver
+from perception.pose.synthetic import grasp_cloud, random_grasp_pose
 from runtime.node import Node
 from runtime.registry import register
 
@@ -117,7 +129,7 @@ class _PoseNode(Node):
 
     def setup(self) -> None:
         prm = self.params
-        _, fld = fit_field(prm.object, prm.body_only)
+        model, fld = fit_field(prm.object, prm.body_only)
         self.solver = self.make_solver(fld)
         self.estimator = PoseEstimator(
             self.solver,
@@ -131,6 +143,20 @@ class _PoseNode(Node):
         )
         self.pending: ContactPatch | None = None
         self.skipped = 0
+        # "free": no grasp state seen (track always); "closing": not yet stable (keep no
+        # track); "held": stable once (keep the track until the object is released).
+        self.grasp_phase = "free"
+        self.stable = False
+        rng = np.random.default_rng(0)
+        points, bubble = grasp_cloud(
+            model,
+            random_grasp_pose(model, rng),
+            n_points=prm.estimator.max_points,
+            noise_m=0.0005,
+            rng=rng,
+        )
+        self.estimator.estimate(points, bubble)
+        self.estimator.reset()
         self.io.add_timer(prm.poll_secs, self._solve_pending)
 
     def on_patch(self, msg: ContactPatch) -> None:
@@ -139,7 +165,11 @@ class _PoseNode(Node):
         self.pending = msg
 
     def on_grasp(self, msg: GraspState) -> None:
-        if msg.event == "released" or not msg.stable:
+        self.stable = msg.stable
+        if msg.stable:
+            self.grasp_phase = "held"
+        elif self.grasp_phase != "held":
+            self.grasp_phase = "closing"
             self.estimator.reset()
 
     def _solve_pending(self) -> None:
@@ -148,6 +178,11 @@ class _PoseNode(Node):
             return
         seed = self.seed if self.estimator.last_object_from_tool is None else None
         result = self.estimator.estimate(msg.points_in_tool, msg.bubble, seed_tool_from_object=seed)
+        released = self.grasp_phase == "held" and not self.stable and result.status == "no_patch"
+        if released:
+            self.grasp_phase = "closing"
+        if self.grasp_phase == "closing":
+            self.estimator.reset()
         self.io.publish(
             "pose",
             PoseEstimate(

@@ -4,12 +4,16 @@ Ports:
     inputs: none (a source).
     outputs: one per selected bag topic, named by the full topic (``left_camera/image``), so
         the graph's references to ``left_camera/image`` resolve to this node. The message
-        type of each is the bag's schema, which must match today's declaration (same
-        fingerprint); a topic whose fields changed since the recording is refused with an
-        error naming the file, the topic and the offset (leave it out with ``topics``).
+        type of each is the bag's schema, which must decode as today's declaration: the
+        same fingerprint, or an older declaration that today's only extends with fields
+        that have defaults (``messages.evolution``). A topic whose type changed otherwise
+        is refused with an error naming the file, the topic, the offset, the type and the
+        field (leave it out with ``topics``).
 
 Frames are published verbatim, as recorded (``header.seq`` and ``stamp_nanos`` included),
-so downstream nodes that use message stamps behave exactly as they did live. Pacing:
+so downstream nodes that use message stamps behave exactly as they did live; a message of
+an older declaration goes out re-encoded as today's type, its new fields at their
+defaults. Pacing:
 
 - ``rate`` (default 1.0): the recorded receive times, scaled (2.0 = twice as fast);
 - ``fast``: as fast as the graph takes them: at most ``window`` (256) messages in flight,
@@ -41,8 +45,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from messages.base import Message
-from messages.codec import decode
-from messages.errors import BagError, FrameDecodeError, NodeError
+from messages.codec import decode, encode
+from messages.errors import BagError, FrameDecodeError, NodeError, SchemaChangeError
 from runtime.bag import BagMessage, BagReader, topic_filter
 from runtime.node import Node
 from runtime.registry import register
@@ -94,21 +98,14 @@ def replay_topics(params: ReplayParams) -> dict[str, tuple[str, type[Message]]]:
         if not chosen(topic):
             continue
         published = params.remap.get(topic, topic)
-        schema = channel.schema
-        cls = schema.current_class()
-        if cls is None:
-            today = Message.registry.get(schema.type_name)
-            why = (
-                f"its fields changed since the recording (fingerprint {schema.fingerprint} in "
-                f"the bag, {today.schema().fingerprint} today)"
-                if today is not None
-                else "that type is not declared today"
-            )
+        try:
+            cls = channel.schema.current_class()
+        except SchemaChangeError as err:
             raise ValueError(
-                f"{params.path}: topic {topic}: channel at offset {channel.offset} carries "
-                f"{schema.type_name}, and {why}; the graph cannot accept it "
-                "(leave the topic out with topics/--replay-topics, or read it with `bag echo`)"
-            )
+                f"{params.path}: topic {topic}: channel at offset {channel.offset}: {err}; "
+                "the graph cannot accept it (leave the topic out with topics/--replay-topics, "
+                "or read it with `bag echo`)"
+            ) from err
         if published in out:
             raise ValueError(
                 f"{params.path}: topics {out[published][0]!r} and {topic!r} both replay as {published!r}"
@@ -204,10 +201,13 @@ class Replay(Node):
 
     def _decodable(self, msg: BagMessage, topic: str) -> list[Any] | None:
         """The message's frames if they decode into its type; else skip it (or stop: strict)."""
+        schema = msg.channel.schema
         try:
             frames = msg.wire_frames(topic)
-            decode(frames, expect=self.kinds[msg.topic])
-            return frames
+            _, typed = decode(frames, expect=self.kinds[msg.topic], stored=schema.description)
+            if schema.fingerprint == typed.schema().fingerprint:
+                return frames
+            return encode(topic, typed)  # an older declaration goes out as today's
         except BagError as err:
             problem = str(err)
         except FrameDecodeError as err:

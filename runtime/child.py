@@ -8,7 +8,14 @@ which also carries the run's control secret). In order:
    "stop cleanly";
 2. ask the kernel to send SIGTERM when the launcher dies (``PR_SET_PDEATHSIG``), then
    check the launcher is still the parent (it may have died before the request);
-3. read the spec, import ``runtime.process`` and run the node.
+3. import ``runtime.process`` (numpy, ZeroMQ, the codec), then read the spec and run the
+   node. The launcher starts these processes (:func:`start`) while it still checks the
+   graph, so the imports every node shares overlap the check; a closed stdin with no
+   spec (the check failed) ends the process quietly.
+
+A node runs numpy's BLAS on one thread unless ``OPENBLAS_NUM_THREADS`` says otherwise: a
+graph is a dozen processes on a few cores, so a BLAS thread pool per process only
+oversubscribes them, and starting it costs each node about 60 ms of CPU at import.
 
 Each node leads its own process group, and ends the rest of it on its way out (the
 launcher also signals the whole group, and kills what is left of it once the node is
@@ -24,12 +31,14 @@ import json
 import os
 import shutil
 import signal
+import subprocess
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
 PR_SET_PDEATHSIG = 1
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
 PARENT_ENV = "SBG_LAUNCHER_PID"
 RUNDIR_ENV = "SBG_RUNDIR"
 
@@ -77,6 +86,40 @@ def die_with_parent(parent_pid: int) -> None:
         sys.exit(0)
 
 
+def start(rundir: Path) -> subprocess.Popen[bytes]:
+    """A node process of this launcher, importing while it waits for its spec on stdin.
+
+    It leads its own process group: a Ctrl-C at the terminal reaches the launcher only,
+    which stops the nodes in order.
+    """
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(PROJECT_ROOT), env.get("PYTHONPATH")]))
+    env["PYTHONUNBUFFERED"] = "1"
+    env[PARENT_ENV] = str(os.getpid())
+    env[RUNDIR_ENV] = str(rundir)
+    return subprocess.Popen(
+        [sys.executable, "-m", "runtime.child"],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        cwd=os.getcwd(),
+        env=env,
+        process_group=0,
+    )
+
+
+def release(prestarted: list[subprocess.Popen[bytes]]) -> None:
+    """End node processes that were started but given no node to run."""
+    for popen in prestarted:
+        popen.terminate()  # they are still importing: SIGTERM ends that at once
+    while prestarted:
+        popen = prestarted.pop()
+        assert popen.stdin is not None and popen.stdout is not None
+        popen.stdin.close()
+        popen.stdout.close()
+        popen.wait()
+
+
 def main() -> int:
     # The launcher's pid and the run folder come in the environment (neither is a secret),
     # so that even a child whose launcher died before writing its spec cleans up.
@@ -86,13 +129,13 @@ def main() -> int:
     signal.signal(signal.SIGINT, _end_now)
     try:
         die_with_parent(parent)
-        text = sys.stdin.read()
-        if not text and os.getppid() != parent:
-            return 0  # the launcher died before it wrote the spec
-        spec = json.loads(text)
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
         from runtime.process import main as run_node
 
-        return run_node(spec)
+        text = sys.stdin.read()
+        if not text:
+            return 0  # no spec: the graph check failed, or the launcher died first
+        return run_node(json.loads(text))
     finally:
         # Leave nothing behind: what this node started (its own process group) ends with
         # it, and if the launcher is gone, so does the run folder.

@@ -134,10 +134,10 @@ def node_details(impl: str) -> str:
 
     cls = resolve(impl)
     ins, outs = _ports(cls)
-    doc = (cls.__doc__ or "").strip().splitlines()
+    summary = " ".join((cls.__doc__ or "").strip().split("\n\n")[0].split())  # 1st paragraph
     lines = [f"{impl}  ({class_path(cls)})"]
-    if doc:
-        lines.append(f"  {doc[0]}")
+    if summary:
+        lines.append(f"  {summary}")
     lines += [f"  inputs:  {ins}", f"  outputs: {outs}", ""]
     params = describe(cls.Params)
     if not params:

@@ -1,13 +1,13 @@
 """Start a checked graph as OS processes, supervise them, stop them, report.
 
-One process per node (``python -m runtime.process``), a control ROUTER socket for
+One process per node (``python -m runtime.child``), a control ROUTER socket for
 the handshake, heartbeats, lockstep counters and stop requests (see
 ``runtime.protocol``). Supervision: a node that exits with an error, or whose
 heartbeat stops, or that stays busy in one handler longer than its
 ``hang_timeout_secs``, is handled by its restart policy (``never``, or
 ``on-failure`` with exponential back-off and a cap); when a node marked
-``required`` fails for good, the graph stops with a non-zero exit and that node's
-last log lines. A node that is starting (first start or restart) has
+``required`` fails for good, the graph stops with a non-zero exit (the node's own
+lines, printed as they came with its name, are not repeated). A node that is starting (first start or restart) has
 ``STARTUP_TIMEOUT_SECS`` to say ready; the heartbeat rule applies once it runs.
 Stopping (Ctrl-C, SIGTERM, ``--duration``, a node's request): every node is asked to
 stop, then terminated after a grace period, then killed; after a signal the whole
@@ -22,6 +22,7 @@ from __future__ import annotations
 import os
 import shutil
 import signal
+import subprocess
 import sys
 import threading
 import time
@@ -31,7 +32,7 @@ from typing import IO, Any
 
 import zmq
 
-from runtime import protocol
+from runtime import child, protocol
 from runtime.counters import add_stats, delivered, table
 from runtime.graph import Graph, ipc_path
 from runtime.hostlink import HostLink, judge
@@ -64,6 +65,8 @@ class Launcher:
         out: IO[str] | None = None,
         host: str | None = None,
         keys: KeyPair | None = None,
+        rundir: Path | None = None,
+        prestarted: list[subprocess.Popen[bytes]] | None = None,
     ) -> None:
         self.graph = graph
         # With a hosts table: only this host's nodes, every publisher at its fixed endpoint.
@@ -99,13 +102,14 @@ class Launcher:
         self._print_lock = threading.Lock()
         self._signals: list[int] = []
         self.secret = protocol.new_secret()
-        self.rundir: Path | None = None
+        self.rundir = rundir
+        self.prestarted = list(prestarted or [])  # started by ``launch`` during the check
         self.ctx: zmq.Context[Any] | None = None
         self.link: HostLink | None = None
 
     def _open(self) -> None:
         """The run folder (for ``ipc://`` endpoints) and the control socket."""
-        self.rundir = make_rundir()
+        self.rundir = self.rundir or make_rundir()
         self.ctx = zmq.Context()
         self.control_endpoint = f"ipc://{self.rundir}/control"
         self.control = ControlServer(self.ctx, self.control_endpoint, self.secret, self.say)
@@ -114,6 +118,7 @@ class Launcher:
             self.link.start()
 
     def _close(self) -> None:
+        child.release(self.prestarted)  # a stop before every node was spawned
         if self.link is not None:
             self.link.close()
         if self.ctx is not None:
@@ -173,7 +178,8 @@ class Launcher:
                 "servers": self.servers,
             }
         assert self.rundir is not None
-        spawn(proc, child_spec, self.rundir, self.say)
+        popen = self.prestarted.pop(0) if self.prestarted else child.start(self.rundir)
+        spawn(proc, popen, child_spec, self.say)
 
     def _reap(self) -> None:
         for proc in self.procs.values():
@@ -205,10 +211,8 @@ class Launcher:
             return
         proc.state = "failed"
         if proc.spec.required:
-            tail = "\n".join(f"    {line}" for line in proc.tail) or "    (no output)"
-            self.say(
-                f"required node {name!r} failed ({reason}); stopping the graph. Its last lines:\n{tail}"
-            )
+            # Its output was printed as it came, marked with its name: not repeated here.
+            self.say(f"required node {name!r} failed ({reason}); stopping the graph")
             self.exit_code = 1
             self._request_stop(f"required node {name!r} failed")
         else:
@@ -319,6 +323,7 @@ class Launcher:
             if self.stop_reason is not None:
                 return False
             self._spawn(proc)
+        child.release(self.prestarted)  # more than this host's nodes: not needed
         deadline = time.monotonic() + STARTUP_TIMEOUT_SECS
         connected = False
         said: list[str] = []
@@ -331,10 +336,7 @@ class Launcher:
                     for n, p in self.procs.items()
                     if p.state in ("failed", "waiting_restart", "exited")
                 ]
-                self.say(f"node(s) {bad} died during start-up")
-                for name in bad:
-                    tail = "\n".join(f"    {line}" for line in self.procs[name].tail)
-                    self.say(f"last lines of {name!r}:\n{tail}")
+                self.say(f"node(s) {bad} died during start-up (their output is above)")
                 self.exit_code = 1
                 return False
             if not connected and all(p.state in ("hello", "ready") for p in self.procs.values()):

@@ -4,8 +4,7 @@ signalling them.
 A node runs as ``python -m runtime.child`` in its own process group (a Ctrl-C at the
 terminal reaches the launcher only, which stops the nodes in order), its JSON spec on
 stdin (the run's secret with it: never on a command line or in the environment), its
-output read line by line by a thread that keeps the last lines for the end-of-run
-report.
+output read line by line by a thread and printed with the node's name.
 """
 
 from __future__ import annotations
@@ -14,21 +13,15 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import IO, Any, Literal
 
-from runtime import child
 from runtime.counters import add_stats
 from runtime.graph import NodeSpec
 
-PROJECT_ROOT = Path(__file__).resolve().parent.parent
-LOG_TAIL_LINES = 20
 # A node process's life, as the launcher sees it (mypy checks every assignment).
 ProcState = Literal["new", "hello", "ready", "running", "exited", "waiting_restart", "failed"]
 
@@ -47,7 +40,6 @@ class Proc:
     busy_secs: float = 0.0
     cpu_secs: float = 0.0
     exit_codes: list[int] = field(default_factory=list)
-    tail: deque[str] = field(default_factory=lambda: deque(maxlen=LOG_TAIL_LINES))
     stats: dict[str, Any] = field(default_factory=dict)
     stats_at: float = 0.0
     stats_base: dict[str, Any] = field(default_factory=dict)
@@ -56,23 +48,13 @@ class Proc:
 
 
 def spawn(
-    proc: Proc, child_spec: dict[str, Any], rundir: Path, say: Callable[[str, str], None]
+    proc: Proc,
+    popen: subprocess.Popen[bytes],
+    child_spec: dict[str, Any],
+    say: Callable[[str, str], None],
 ) -> None:
-    """Start ``proc``'s node with ``child_spec`` on its stdin; its lines go to ``say``."""
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(PROJECT_ROOT), env.get("PYTHONPATH")]))
-    env["PYTHONUNBUFFERED"] = "1"
-    env[child.PARENT_ENV] = str(os.getpid())
-    env[child.RUNDIR_ENV] = str(rundir)
-    popen = subprocess.Popen(
-        [sys.executable, "-m", "runtime.child"],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        cwd=os.getcwd(),
-        env=env,
-        process_group=0,
-    )
+    """Make ``popen`` (a ``runtime.child.start`` process) ``proc``'s node: ``child_spec`` on
+    its stdin, its lines to ``say``."""
     assert popen.stdin is not None and popen.stdout is not None
     popen.stdin.write(json.dumps(child_spec).encode())
     popen.stdin.close()
@@ -89,7 +71,6 @@ def spawn(
 def _pump(proc: Proc, stream: IO[bytes], say: Callable[[str, str], None]) -> None:
     for raw in iter(stream.readline, b""):
         line = raw.decode(errors="replace").rstrip("\n")
-        proc.tail.append(line)
         say(line, proc.spec.name)
     stream.close()
 

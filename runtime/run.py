@@ -9,12 +9,15 @@ are refused (see :func:`multihost_refusals`).
 from __future__ import annotations
 
 import shlex
+import shutil
 import sys
 from pathlib import Path
 from typing import Any
 
 from messages.errors import GraphError
+from runtime import child
 from runtime.graph import Graph, check
+from runtime.isolation import make_rundir
 from runtime.launcher import Launcher
 from runtime.security import KeyPair, default_key_dir, load_key
 from runtime.taps import add_recorder
@@ -111,6 +114,16 @@ def launch(
                 source,
                 overwrite=overwrite,
             )
+    except GraphError as err:
+        print(f"graph check failed:\n{err}", file=sys.stderr)
+        return 2
+    # The node processes start now and import what every node shares while the graph is
+    # checked (the check imports the graph's node modules here, on one core).
+    nodes = graph.get("nodes")
+    rundir = make_rundir()
+    prestarted = [child.start(rundir) for _ in range(len(nodes) if isinstance(nodes, dict) else 0)]
+    launcher: Launcher | None = None
+    try:
         checked = check(graph, source=source)
         refusals = multihost_refusals(checked, record=record is not None, lockstep=lockstep)
         if refusals:
@@ -128,8 +141,14 @@ def launch(
             log_level=log_level,
             host=host,
             keys=keys,
+            rundir=rundir,
+            prestarted=prestarted,
         )
     except GraphError as err:
         print(f"graph check failed:\n{err}", file=sys.stderr)
         return 2
+    finally:
+        if launcher is None:  # not started (a failed check, or Ctrl-C during it)
+            child.release(prestarted)
+            shutil.rmtree(rundir, ignore_errors=True)
     return launcher.run()

@@ -17,7 +17,7 @@ the ``GroundTruth`` (when ``ground_truth`` is on), all with one stamp.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -26,7 +26,9 @@ from messages.base import Header
 from messages.types import GripperState, GroundTruth, MaskImage, Pressure, ToFImage
 from sim.effects import ALL_EFFECTS, MINIMAL_EFFECTS, resolve
 from sim.scene import ObjectSpec, Scene, SceneError, load_scene, scene_from_dict
-from sim.tof import BubbleRenderer, renderer
+
+if TYPE_CHECKING:
+    from sim.tof import BubbleRenderer
 from sim.world import World, WorldSnapshot
 
 __all__ = [
@@ -46,6 +48,16 @@ __all__ = [
     "scene_from_dict",
     "stamp_of",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """The renderer (OpenCV and the membrane model) loads on first use, so a node that
+    only steps the world (gripper, pressure, world) starts without it."""
+    if name in ("BubbleRenderer", "renderer"):
+        from sim import tof
+
+        return getattr(tof, name)
+    raise AttributeError(f"module 'sim' has no attribute {name!r}")
 
 
 def stamp_of(snap: WorldSnapshot, start_nanos: int = 0) -> int:
@@ -115,6 +127,8 @@ class Simulator:
         self.world = World(scene)
         # Cached renderers are shared between simulators of the same scene (their
         # ``calls`` counters too); fresh ones cost the precomputation again.
+        from sim.tof import BubbleRenderer, renderer
+
         make = renderer if cached else BubbleRenderer
         self.renderers = {side: make(scene, side) for side in SIDES}
         self.start_nanos = start_nanos

@@ -16,7 +16,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from sim.scene import GRIPPER_COMMANDS, GripperSpec
+from sim.rig import GRIPPER_COMMANDS, GripperSpec
 
 
 @dataclass

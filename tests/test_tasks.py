@@ -59,12 +59,15 @@ def test_dish_loading_fails_when_an_object_goes_to_a_wrong_bin() -> None:
 
 
 def test_tracking_error_stays_bounded_through_the_perturbations() -> None:
-    # Half real time: on a loaded machine a patch of two bubbles seen at different
-    # instants (the cameras lag differently) shows a moving mug where it never was.
-    proc = launch("graphs/antagonism.yaml", "--set", "world.rate_scale=0.5")
+    # Real time. The node tracks (warm-started, `ok`) rather than searching every frame
+    # (`suspect`: the patch does not fit the mug, as in a grasp squeezed too hard).
+    proc = launch("graphs/antagonism.yaml")
     assert proc.returncode == 0, proc.stdout[-3000:]
     (summary,) = [json.loads(d) for d in events(proc.stdout, "antagonism", "summary")]
     assert summary["estimates"] >= 10, summary
+    statuses = summary["statuses"]
+    tracked = statuses.get("ok", 0) + statuses.get("recovered", 0)
+    assert tracked >= 0.8 * summary["estimates"], summary
     assert summary["axis_deg"]["p95"] < 5.0 and summary["offaxis_mm"]["p95"] < 3.0, summary
     (jolt,) = summary["jolts"]
     assert jolt["reacquire_secs"] is not None and jolt["reacquire_secs"] < 3.0, summary
@@ -133,8 +136,9 @@ def test_stacking_releases_within_a_few_millimetres_of_contact(tmp_path: Path) -
             "grasp_monitor/grasp|classifier/probabilities|world/ground_truth",
             ("--set", "supervisor.objects=2"),
         ),
+        ("graphs/antagonism.yaml", "grasp_monitor/grasp|pose/pose|world/ground_truth", ()),
     ],
-    ids=["stacking", "dish_loading"],
+    ids=["stacking", "dish_loading", "antagonism"],
 )
 def test_a_task_records_and_replays_deterministically_in_lockstep(
     tmp_path: Path, graph: str, inputs: str, args: tuple[str, ...]

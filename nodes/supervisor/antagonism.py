@@ -114,7 +114,9 @@ class AntagonismSupervisor(SingleGraspTask):
 
     def on_stable(self) -> None:
         self.stable_nanos = self.now_nanos
-        self.event("tracking", f"for {self.params.track_secs:g} s")
+        # No pose in these events: which estimate is the newest when a grasp state or a
+        # truth arrives depends on the order of two topics, which a replay need not keep.
+        self.event("tracking", f"for {self.params.track_secs:g} s", with_pose=False)
 
     def advance(self, elapsed_secs: float) -> None:
         super().advance(elapsed_secs)
@@ -132,7 +134,8 @@ class AntagonismSupervisor(SingleGraspTask):
             turned_deg = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
             if moved_mm > self.params.jolt_mm or turned_deg > self.params.jolt_deg:
                 self.jolts.append(Jolt(msg.header.stamp_nanos, moved_mm, turned_deg))
-                self.event("jolt", f"{moved_mm:.1f} mm, {turned_deg:.1f} deg in one frame")
+                detail = f"{moved_mm:.1f} mm, {turned_deg:.1f} deg in one frame"
+                self.event("jolt", detail, with_pose=False)
         self.last_truth = pose
         self.truths[msg.header.stamp_nanos] = pose
         while len(self.truths) > TRUTH_KEPT:

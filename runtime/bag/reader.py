@@ -15,6 +15,7 @@ import json
 import logging
 import mmap
 import os
+import sys
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -121,14 +122,18 @@ class BagMessage:
         return out
 
     def decode(self) -> TypedMessage:
-        """Decode into today's message class (fingerprint checked).
+        """Decode into today's message class.
+
+        A message recorded under an older declaration of its type decodes when today's
+        only adds fields with defaults (filled in; ``messages.evolution``).
 
         Raises:
-            BagError: the type is unknown today or its fields changed since the recording
-                (use :meth:`decode_plain`), or the message is malformed.
+            BagError: the type is unknown today or changed otherwise since the recording
+                (the message names the type and the field; use :meth:`decode_plain`), or
+                the message is malformed.
         """
         try:
-            return decode(self.wire_frames())[1]
+            return decode(self.wire_frames(), stored=self.channel.schema.description)[1]
         except FrameDecodeError as err:
             raise BagError(f"{self.where()}: {err}") from err
 
@@ -200,9 +205,17 @@ class BagReader:
         self._schemas = {}
         try:
             self._view.release()
-            self._mm.close()
         except BufferError:
-            pass  # a BagMessage payload still points into the map; the GC unmaps it later
+            return  # a view of it is still exported; the map goes with the last view
+        # An array decoded by the codec holds the map object itself as its base (numpy
+        # keeps the object, not a buffer export), so mmap.close() would not refuse and
+        # would leave that array dangling. Close only when nothing but this reader (and
+        # getrefcount's argument) refers to the map; else the last array unmaps it.
+        if sys.getrefcount(self._mm) <= 2:
+            try:
+                self._mm.close()
+            except BufferError:
+                pass  # a BagMessage payload still points into the map
 
     def __enter__(self) -> BagReader:
         return self

@@ -22,6 +22,8 @@ from typing import Any
 import numpy as np
 
 from messages.base import Message
+from messages.errors import SchemaChangeError
+from messages.evolution import check_stored
 from runtime.bag.packing import PACKING
 
 SCHEMA_ENCODING = "softbubble.description+json"
@@ -217,11 +219,20 @@ class TopicSchema:
             and "array" in item[1]
         }
 
-    def current_class(self) -> type[Message] | None:
-        """Today's class of this type if its fingerprint still matches, else ``None``."""
+    def current_class(self) -> type[Message]:
+        """Today's class of this type, into which the stored messages decode.
+
+        The same fingerprint, or an older declaration whose every difference is a field
+        today's class added with a default (``messages.evolution``).
+
+        Raises:
+            SchemaChangeError: the type is not declared today, or its declaration changed
+                in a way the rule refuses (the message names the type and the field).
+        """
         cls = Message.registry.get(self.type_name)
-        if cls is None or cls.schema().fingerprint != self.fingerprint:
-            return None
+        if cls is None:
+            raise SchemaChangeError(f"{self.type_name} is not declared today")
+        check_stored(cls, self.fingerprint, self.description)
         return cls
 
 

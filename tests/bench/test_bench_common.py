@@ -5,7 +5,7 @@ from __future__ import annotations
 import io
 import re
 
-from bench.common import progress
+from bench.common import label_points, progress
 
 
 def test_progress_prints_one_line_per_point_with_the_time_left() -> None:
@@ -25,3 +25,26 @@ def test_progress_of_an_empty_sweep_prints_nothing() -> None:
     out = io.StringIO()
     assert list(progress([], "bench.x", stream=out)) == []
     assert out.getvalue() == ""
+
+
+def test_point_labels_do_not_overlap_where_points_cluster() -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(4, 3))
+    # Two points on top of each other, two close neighbours, and one alone.
+    points = [(3.2, 0.78), (3.3, 0.78), (3.9, 0.78), (4.3, 0.98), (4.8, 0.98), (20.0, 2.0)]
+    ax.scatter(*zip(*points, strict=True))
+    ax.set_xscale("log")
+    fig.tight_layout()
+    labels = [str(i) for i in range(11, 11 + len(points))]
+    label_points(ax, points, labels)
+    renderer = fig.canvas.get_renderer()
+    boxes = [text.get_window_extent(renderer) for text in ax.texts]
+    assert [text.get_text() for text in ax.texts] == labels
+    for i, a in enumerate(boxes):
+        for b in boxes[i + 1 :]:
+            assert not a.overlaps(b), (a, b)
+    plt.close(fig)

@@ -37,6 +37,7 @@ from messages import (
     encode,
 )
 from messages.codec import pack_single, unpack_single
+from tests.messages.declare import declare
 
 FAST = settings(
     max_examples=100,
@@ -344,23 +345,6 @@ BASE_FIELDS: list[tuple[str, Any]] = [
 ]
 
 
-@pytest.fixture
-def scratch_registry(monkeypatch: pytest.MonkeyPatch) -> dict[str, type[Message]]:
-    """A copy of the registry for the test, so throwaway types never leak."""
-    registry = dict(Message.registry)
-    monkeypatch.setattr(Message, "registry", registry)
-    return registry
-
-
-def _declare(name: str, fields: list[tuple[str, Any]], *, keep: bool = False) -> type[Message]:
-    """Declare a message type; unless ``keep``, take it back out of the registry so the
-    same name can be declared again with other fields."""
-    cls = msgspec.defstruct(name, fields, bases=(Message,), kw_only=True, module=__name__)
-    if not keep:
-        del Message.registry[name]
-    return cls
-
-
 def _replace(fields: list[tuple[str, Any]], old: str, new: tuple[str, Any]) -> list:
     return [new if name == old else (name, hint) for name, hint in fields]
 
@@ -390,8 +374,8 @@ VARIANTS: dict[str, list[tuple[str, Any]]] = {
 
 
 def test_fingerprint_depends_only_on_the_declaration(scratch_registry: dict) -> None:
-    first = _declare("FpProbe", BASE_FIELDS)
-    again = _declare("FpProbe", list(BASE_FIELDS))
+    first = declare("FpProbe", BASE_FIELDS)
+    again = declare("FpProbe", list(BASE_FIELDS))
     assert first is not again
     assert first.schema().fingerprint == again.schema().fingerprint
     assert len(first.schema().fingerprint) == 16
@@ -400,14 +384,14 @@ def test_fingerprint_depends_only_on_the_declaration(scratch_registry: dict) -> 
 
 @pytest.mark.parametrize("variant", sorted(VARIANTS))
 def test_fingerprint_changes_with_the_fields(variant: str, scratch_registry: dict) -> None:
-    base = _declare("FpProbe", BASE_FIELDS)
-    changed = _declare("FpProbe", VARIANTS[variant])
+    base = declare("FpProbe", BASE_FIELDS)
+    changed = declare("FpProbe", VARIANTS[variant])
     assert base.schema().fingerprint != changed.schema().fingerprint
 
 
 def test_fingerprint_changes_with_the_type_name(scratch_registry: dict) -> None:
-    one = _declare("FpProbeOne", BASE_FIELDS)
-    two = _declare("FpProbeTwo", BASE_FIELDS)
+    one = declare("FpProbeOne", BASE_FIELDS)
+    two = declare("FpProbeTwo", BASE_FIELDS)
     assert one.schema().fingerprint != two.schema().fingerprint
 
 
@@ -428,8 +412,8 @@ def test_registry_refuses_a_second_type_of_the_same_name() -> None:
 
 @pytest.mark.parametrize("variant", sorted(VARIANTS))
 def test_receiver_refuses_another_fingerprint(variant: str, scratch_registry: dict) -> None:
-    sender_cls = _declare("FpProbe", VARIANTS[variant])
-    receiver_cls = _declare("FpProbe", BASE_FIELDS, keep=True)
+    sender_cls = declare("FpProbe", VARIANTS[variant])
+    receiver_cls = declare("FpProbe", BASE_FIELDS, keep=True)
     values: dict[str, Any] = {
         "header": msgspec.convert({"seq": 3}, dict(VARIANTS[variant])["header"]),
         "width_m": 0.05,

@@ -68,3 +68,46 @@ def test_frames_without_a_mount_are_refused() -> None:
     unknown = np.zeros((4, 4))
     published, node = _patch_points({"left": unknown, "right": unknown})
     assert "patch" not in published
+
+
+def test_a_patch_pairs_frames_of_one_instant_when_a_camera_lags() -> None:
+    """The right camera lags two frames: each patch waits for the right frame of the
+    left one's instant, never mixing the bubbles' views of different instants."""
+    node, io = make_node(ContactPatchNode, {"contact": {"min_component_px": 20}})
+    poses = {s: tool_from_sensor(s, 0.07) for s in ("left", "right")}
+    feed(node, "gripper", GripperState(header=Header(), width_m=0.07, speed_m_per_s=0.0, force_n=0))
+    period = 33_333_333
+    depth = np.full(CAM.shape, 0.08, np.float32)
+    for k in range(3):
+        feed(node, "left", tof_image("left", depth, k * period, poses["left"]))
+    assert "patch" not in io.published
+    for k in range(3):
+        feed(node, "right", tof_image("right", depth, k * period + 1_000_000, poses["right"]))
+    stamps = [p.header.stamp_nanos for p in io.published["patch"]]
+    assert stamps == [k * period + 1_000_000 for k in range(3)]
+    # Frames further apart than max_skew_secs never make a patch.
+    feed(node, "left", tof_image("left", depth, 10 * period, poses["left"]))
+    feed(node, "right", tof_image("right", depth, 11 * period, poses["right"]))
+    assert len(io.published["patch"]) == 3
+
+
+def test_free_frames_that_arrive_after_the_grasp_began_still_make_the_reference() -> None:
+    """On a loaded machine the gripper's state overtakes the images: frames taken open
+    and still, received after the fingers started closing, are still free frames."""
+    node, io = make_node(
+        ContactPatchNode, {"contact": {"min_component_px": 20}, "reference_frames": 1}
+    )
+    poses = {s: tool_from_sensor(s, 0.07) for s in ("left", "right")}
+    free = np.full(CAM.shape, 0.08, np.float32)
+    pressed = free.copy()
+    pressed[10:30, 10:30] = 0.07
+    for stamp, width, speed in ((0, 0.11, 0.0), (100, 0.1, 0.05), (200, 0.07, 0.0)):
+        state = GripperState(
+            header=Header(stamp_nanos=stamp), width_m=width, speed_m_per_s=speed, force_n=0
+        )
+        feed(node, "gripper", state)
+    for stamp, depth in ((10, free), (300, pressed)):
+        for side in ("left", "right"):
+            feed(node, side, tof_image(side, depth, stamp, poses[side]))
+    patch = io.published["patch"][-1]
+    assert patch.header.stamp_nanos == 300 and len(patch.points_in_tool) == 2 * 400

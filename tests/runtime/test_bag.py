@@ -18,10 +18,11 @@ from hypothesis import strategies as st
 
 from messages.base import Array, Header, Message
 from messages.codec import encode
-from messages.errors import BagError
+from messages.errors import BagError, SchemaChangeError
 from messages.types import Tick, ToFImage
 from runtime.bag import PACKING, BagReader, BagWriter
 from runtime.bag.packing import unpack_multipart
+from tests.messages.declare import declare
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -102,6 +103,40 @@ def test_arrays_are_stored_as_received(tmp_path: Path) -> None:
         (m,) = r.messages()
         stored = m.frames()
     assert [bytes(f) for f in stored] == [bytes(memoryview(f).cast("B")) for f in frames[1:]]
+
+
+_OUTLIVES_READER = """
+import sys
+import numpy as np
+from runtime.bag import BagReader
+with BagReader(sys.argv[1]) as r:
+    (m,) = r.messages()
+    depth = m.decode().depth_m
+    del m
+print(np.nansum(depth))
+with BagReader(sys.argv[1]) as r:
+    depth = next(iter(r.messages())).decode_plain()["depth_m"]
+print(np.nansum(depth))
+"""
+
+
+def test_decoded_arrays_outlive_the_reader(tmp_path: Path) -> None:
+    """A typed array is a view on the mapped file; closing the reader must not unmap it
+    under the array (run in a child: a dangling view is a segmentation fault)."""
+    path = tmp_path / "a.mcap"
+    msg = tof(1)
+    with BagWriter(path) as w:
+        w.write_message("c/image", msg, log_time_nanos=1)
+    done = subprocess.run(
+        [sys.executable, "-c", _OUTLIVES_READER, str(path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=Path(__file__).parents[2],
+    )
+    assert done.returncode == 0, done.stderr
+    typed, plain = (float(x) for x in done.stdout.split())
+    assert typed == plain == pytest.approx(float(np.nansum(msg.depth_m)))
 
 
 _THIRD_PARTY_READER = """
@@ -218,7 +253,8 @@ def test_old_bag_decodes_without_todays_class(tmp_path: Path) -> None:
                 "temperature_k",
                 "samples",
             ]
-            assert schema.current_class() is None
+            with pytest.raises(SchemaChangeError, match="BagTestOldTick is not declared today"):
+                schema.current_class()
             (m,) = r.messages()
             plain = m.decode_plain()
             assert plain["temperature_k"] == 300.5
@@ -229,6 +265,32 @@ def test_old_bag_decodes_without_todays_class(tmp_path: Path) -> None:
                 m.decode()
     finally:
         Message.registry["BagTestOldTick"] = BagTestOldTick
+
+
+def test_a_field_removed_since_the_recording_is_refused_by_name(
+    tmp_path: Path, scratch_registry: dict
+) -> None:
+    """The other side of schema evolution (``messages.evolution``): a bag whose type lost a
+    field since is refused by the typed decode and by replay, naming type and field."""
+    from nodes.replay import ReplayParams, replay_topics
+
+    path = tmp_path / "old.mcap"
+    fields = [("header", Header), ("value", float), ("gain", float, 1.0)]
+    old = declare("BagTestEvolving", fields, keep=True)
+    with BagWriter(path) as w:
+        w.write_message("probe/evolving", old(header=Header(seq=1), value=2.0), log_time_nanos=1)
+    del scratch_registry["BagTestEvolving"]
+    declare("BagTestEvolving", fields[:2], keep=True)  # today: "gain" is gone
+    with BagReader(path) as r:
+        (m,) = r.messages()
+        assert m.decode_plain()["gain"] == 1.0  # the plain read still has it all
+        why = r"BagTestEvolving\.gain: stored, but today's BagTestEvolving has no such field"
+        with pytest.raises(SchemaChangeError, match=why):
+            r.topics()["probe/evolving"].current_class()
+        with pytest.raises(BagError, match=r"old\.mcap: topic probe/evolving: .*" + why):
+            m.decode()
+    with pytest.raises(ValueError, match=r"old\.mcap: topic probe/evolving: channel at .*" + why):
+        replay_topics(ReplayParams(path=str(path)))
 
 
 def test_not_mcap_is_a_clear_error(tmp_path: Path) -> None:

@@ -182,6 +182,7 @@ def test_cli_full_disk_is_one_line_not_a_traceback(graph_run: GraphRun, tiny_dis
     assert code != 0, text
     assert "Traceback" not in text, text
     errors = [line for line in text.splitlines() if "the disk is full" in line]
-    assert errors and str(out) in errors[0]
+    assert len(errors) == 1, text  # said once: the launcher does not echo it again
+    assert str(out) in errors[0]
     with BagReader(out, warn=lambda _: None) as r:
         assert len(list(r.messages())) > 0

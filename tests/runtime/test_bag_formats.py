@@ -7,14 +7,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from mcap.reader import make_reader
 
 import messages
+import nodes.recorder  # noqa: F401  (registers the implementations the replay graph names)
+import nodes.replay  # noqa: F401
 from messages.base import Header, Message
-from messages.errors import BagError
 from messages.types import ContactPatch, OverlayImage, Pressure, Tick, ToFImage
 from runtime.bag import PACKING, PACKING_V1, BagReader, BagWriter
 from runtime.bag.schema import NOTES, reader_guide, unit_of
+from runtime.launcher import launch
+from runtime.replaytool import ReplayOptions, build_replay_graph
 
 V1_BAG = Path(__file__).parent / "data" / "bag_v1_multipart.mcap"
 T0 = 1_763_900_000_000_000_000
@@ -77,14 +81,32 @@ def test_a_bag_of_the_multipart_packing_still_reads() -> None:
                 "seq": header.seq,
                 "frame_id": header.frame_id,
             }
-            # Into today's class where its fields are still those of the recording; a type
-            # that changed since is refused, naming file, topic and offset.
-            if m.channel.schema.current_class() is not None:
-                typed = m.decode()
-                assert type(typed) is type(want) and typed.header == header  # type: ignore[attr-defined]
-            else:
-                with pytest.raises(BagError, match=r"bag_v1_multipart\.mcap: topic .* fingerprint"):
-                    m.decode()
+            # Into today's class: ToFImage has gained tool_from_sensor (with a default,
+            # zeros: unknown) since this bag was recorded, so its messages decode too.
+            typed = m.decode()
+            assert type(typed) is type(want) and typed.header == header  # type: ignore[attr-defined]
+            if isinstance(typed, ToFImage):
+                assert m.channel.schema.fingerprint != ToFImage.schema().fingerprint
+                assert not typed.tool_from_sensor.any()
+                np.testing.assert_array_equal(typed.depth_m, want.depth_m)  # type: ignore[attr-defined]
+
+
+def test_an_old_bag_replays_as_todays_types(tmp_path: Path) -> None:
+    """Replay publishes the old ToFImage as today's (tool_from_sensor at its default), so
+    every receiver decodes it; the recording of the replay holds today's fingerprint."""
+    with BagReader(V1_BAG) as r:
+        graph = yaml.safe_load(r.run_info()["graph_yaml"])
+    out = tmp_path / "again.mcap"
+    replay = build_replay_graph(graph, V1_BAG, {}, ReplayOptions(lockstep=True))
+    assert launch(replay, source="replay", record=out, lockstep=True, log_level="WARNING") == 0
+    expected = [want for topic, want in v1_expected() if topic == "left_camera/image"]
+    with BagReader(out) as r:
+        assert r.topics()["left_camera/image"].fingerprint == ToFImage.schema().fingerprint
+        got = [m.decode() for m in r.messages(["left_camera/image"])]
+        assert [m.header for m in got] == [w.header for w in expected]  # type: ignore[attr-defined]
+        for m, want in zip(got, expected, strict=True):
+            np.testing.assert_array_equal(m.depth_m, want.depth_m)  # type: ignore[attr-defined]
+            assert not m.tool_from_sensor.any()  # type: ignore[attr-defined]
 
 
 def test_recover_turns_an_old_bag_into_todays_packing(tmp_path: Path) -> None:

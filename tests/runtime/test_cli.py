@@ -52,6 +52,9 @@ def test_nodes_impl_shows_params_with_defaults_units_and_limits(
     (model,) = [line for line in text.splitlines() if line.strip().startswith("model ")]
     assert "path of an existing file" in model
     assert "  tol: a solver tolerance." in text
+    # The docstring's first paragraph, whole, even where it wraps over several lines.
+    summary = node_details("pose_estimator.ipopt").splitlines()[1]
+    assert summary.endswith("or loaded from the per-user disk cache).")
 
 
 def test_nodes_with_an_unknown_impl_lists_the_valid_ones(
