@@ -44,7 +44,7 @@ from messages.base import Message
 from messages.errors import GraphError
 from runtime.graphfile import apply_overrides, load_document, parse_yaml
 from runtime.hosts import TOP_KEYS as HOSTS_TOP_KEYS
-from runtime.hosts import Hosts, check_hosts, check_placement
+from runtime.hosts import Hosts, check_hosts, check_mapping, check_placement
 from runtime.node import Node
 from runtime.params import ParamError, build_params
 from runtime.registry import resolve
@@ -332,11 +332,8 @@ def _check_node(
 ) -> NodeSpec | None:
     """One node's own checks; its spec, or None when its ports cannot be known."""
     where = f"{source}: node {name!r}"
-    if not isinstance(body, Mapping):
-        errors.append(f"{where}: must be a mapping with 'impl', got {body!r}")
+    if not check_mapping(body, where, NODE_KEYS, "'impl'", errors):
         return None
-    for key in sorted(set(body) - NODE_KEYS, key=str):
-        errors.append(f"{where}: unknown key {key!r} (valid: {sorted(NODE_KEYS)})")
     impl = body.get("impl")
     if not isinstance(impl, str):
         errors.append(f"{where}.impl: required, a registered name or module:Class")

@@ -15,7 +15,8 @@ hello was sent before the connection was up) sends its own hello asking for a re
 What the launcher learns comes out of :meth:`HostLink.events` as tuples:
 ``("joined", host)``, ``("back", host)`` (a lost host speaks again; ``restarted`` says
 whether it is a new launcher), ``("lost", host, silent_secs)`` after
-``host_timeout_secs`` without a message, ``("clock", host, offset_secs, round_trip_secs)``
+``host_timeout_secs`` without a message (heartbeats also say whether the sender's nodes
+are ready, see :meth:`HostLink.waiting_for`), ``("clock", host, offset_secs, round_trip_secs)``
 once per incarnation (the NTP four-timestamp exchange, the sample with the shortest round
 trip of ``CLOCK_SAMPLES``), and ``("stop", host, reason, exit_code)``.
 """
@@ -48,6 +49,7 @@ class _Peer:
     spec: HostSpec
     dealer: zmq.Socket[Any]
     secret: bytes | None = None
+    ready: bool = False  # its nodes are ready or running (its heartbeats say)
     last_seen: float = 0.0
     lost: bool = False
     asked_at: float = 0.0
@@ -75,6 +77,8 @@ class HostLink:
         self._events: deque[tuple[Any, ...]] = deque()
         self._outbox: deque[list[bytes]] = deque()
         self._stopping = threading.Event()
+        self._ready = False
+        self._beat_now = threading.Event()
         own = hosts.table[me]
         authorized = {h.public_key: h.name for h in hosts.table.values() if h.public_key}
         self.curve = keys is not None and not own.loopback
@@ -112,6 +116,17 @@ class HostLink:
         while self._events:
             out.append(self._events.popleft())
         return out
+
+    def set_ready(self) -> None:
+        """This host's nodes are ready: say so at once (and in every heartbeat after)."""
+        if not self._ready:
+            self._ready = True
+            self._beat_now.set()
+
+    def waiting_for(self) -> list[str]:
+        """The other hosts not yet ready: a host starts its nodes when this is empty, so
+        the graph starts on every host at once."""
+        return [name for name, peer in self.peers.items() if not peer.ready]
 
     def send_stop(self, reason: str, exit_code: int) -> None:
         """Tell every other host the graph stops (sent by the link's thread)."""
@@ -151,9 +166,10 @@ class HostLink:
             if stopping:
                 return
             now = time.monotonic()
-            if now >= next_beat:
+            if now >= next_beat or self._beat_now.is_set():
+                self._beat_now.clear()
                 next_beat = now + protocol.HEARTBEAT_SECS
-                beat = self._pack("link_beat")
+                beat = self._pack("link_beat", ready=int(self._ready))
                 for peer in self.peers.values():
                     self._send(peer, beat)
             for peer in self.peers.values():
@@ -236,6 +252,7 @@ class HostLink:
             if secret != peer.secret:
                 first = peer.secret is None and not peer.last_seen
                 peer.secret = secret
+                peer.ready = False
                 peer.samples = []
                 peer.ping_t1 = None
                 if first:
@@ -253,6 +270,8 @@ class HostLink:
             if len(peer.samples) == CLOCK_SAMPLES:
                 offset, rtt = min(peer.samples, key=lambda s: s[1])
                 self._events.append(("clock", name, offset, rtt))
+        elif kind == "link_beat":
+            peer.ready = bool(msg["ready"])
         elif kind == "link_stop":
             self._events.append(("stop", name, msg["reason"], msg["exit_code"]))
         peer.last_seen = time.monotonic()

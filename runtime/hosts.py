@@ -111,15 +111,23 @@ def _port_range(value: Any, where: str, errors: list[str]) -> tuple[int, int] | 
     return value[0], value[1]
 
 
-def _row(name: Any, body: Any, where: str, errors: list[str]) -> HostSpec | None:
+def check_mapping(body: Any, where: str, valid: set[str], needs: str, errors: list[str]) -> bool:
+    """Whether ``body`` is a mapping (else an error saying it ``needs``); its keys not in
+    ``valid`` are errors too."""
     if not isinstance(body, Mapping):
-        errors.append(f"{where}: must be a mapping with address and ports, got {body!r}")
+        errors.append(f"{where}: must be a mapping with {needs}, got {body!r}")
+        return False
+    for key in sorted(set(body) - valid, key=str):
+        errors.append(f"{where}: unknown key {key!r} (valid: {sorted(valid)})")
+    return True
+
+
+def _row(name: Any, body: Any, where: str, errors: list[str]) -> HostSpec | None:
+    if not check_mapping(body, where, HOST_KEYS, "address and ports", errors):
         return None
-    for key in sorted(set(body) - HOST_KEYS, key=str):
-        errors.append(f"{where}: unknown key {key!r} (valid: {sorted(HOST_KEYS)})")
     address = body.get("address")
     try:
-        loopback = ipaddress.ip_address(address).is_loopback  # type: ignore[arg-type]
+        loopback = ipaddress.ip_address(address).is_loopback
     except ValueError:
         errors.append(f"{where}.address: must be an IP address, got {address!r}")
         return None

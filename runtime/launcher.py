@@ -326,6 +326,7 @@ class Launcher:
         child.release(self.prestarted)  # more than this host's nodes: not needed
         deadline = time.monotonic() + STARTUP_TIMEOUT_SECS
         connected = False
+        said: list[str] = []
         while self.stop_reason is None:
             self._serve(100)
             self._reap()
@@ -343,13 +344,20 @@ class Launcher:
                 for name in self.procs:
                     self._send(name, "connect", endpoints=endpoints)
                 connected = True
-            if connected and all(p.state == "ready" for p in self.procs.values()):
+            ready = connected and all(p.state == "ready" for p in self.procs.values())
+            if ready and self.link is not None:  # every host starts its nodes at once
+                self.link.set_ready()
+                waiting = self.link.waiting_for()
+                if waiting and waiting != said:
+                    self.say(f"ready; waiting for host(s) {waiting}")
+                said, ready = waiting, not waiting
+            if ready:
                 for name, proc in self.procs.items():
                     self._send(name, "start")
                     proc.state = "running"
                 return True
             if time.monotonic() > deadline:
-                waiting = [n for n, p in self.procs.items() if p.state != "ready"]
+                waiting = [n for n, p in self.procs.items() if p.state != "ready"] + said
                 self.say(
                     f"start-up timed out after {STARTUP_TIMEOUT_SECS:.0f} s waiting for {waiting}"
                 )

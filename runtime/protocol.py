@@ -27,7 +27,8 @@ launcher -> node
 launcher <-> launcher (one per host, ``runtime.hostlink``; CURVE-encrypted tcp)
     link_hello {host, run_secret, reply}         this run's link secret (the tag: with it);
                                                  reply=1: "yours is unknown here: hello?"
-    link_beat  {host}                            every ``HEARTBEAT_SECS``
+    link_beat  {host, ready}                     every ``HEARTBEAT_SECS``; ready=1: its
+                                                 nodes are ready (or running)
     link_ping  {host, t1} / link_pong {host, t1, t2, t3}   clock offset (NTP-style)
     link_stop  {host, reason, exit_code}         the graph stops
 """
@@ -68,7 +69,7 @@ _FIELDS: dict[str, dict[str, type | tuple[type, ...]]] = {
     "stop": {},
     # between the launchers of a graph's hosts (runtime.hostlink), over CURVE
     "link_hello": {"host": str, "run_secret": str, "reply": int},
-    "link_beat": {"host": str},
+    "link_beat": {"host": str, "ready": int},
     "link_ping": {"host": str, "t1": int},
     "link_pong": {"host": str, "t1": int, "t2": int, "t3": int},
     "link_stop": {"host": str, "reason": str, "exit_code": int},

@@ -18,10 +18,12 @@ socket). Every refusal is logged with the peer's address and, for CURVE, its key
 from __future__ import annotations
 
 import ipaddress
+import math
 import os
 import socket
 import stat
 import threading
+import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,6 +49,7 @@ _MONITOR_EVENTS = zmq.EVENT_ACCEPTED | zmq.EVENT_DISCONNECTED | _HANDSHAKE_ENDS
 # A refused peer usually retries: the first refusal of each (address, reason) is logged,
 # then every 100th.
 REFUSED_LOG_EVERY = 100
+CLOSED_KEEP_SECS = 1.0
 
 
 def default_key_dir() -> Path:
@@ -204,7 +207,9 @@ class Guard:
             poller.register(mon, zmq.POLLIN)
         # Accepted connections whose handshake has not ended, oldest first: a handshake
         # event names no connection, and they end in the order they began.
-        pending: dict[int, str] = {}
+        # A connection may be reported closed just before its failed handshake: kept
+        # (with the time it closed) for CLOSED_KEEP_SECS.
+        pending: dict[int, tuple[str, float]] = {}
         while not self.stopping.is_set():
             try:
                 ready = poller.poll(200)
@@ -217,12 +222,18 @@ class Guard:
                 event = zmq.utils.monitor.recv_monitor_message(sock)
                 kind, value = event["event"], event["value"]
                 if kind == zmq.EVENT_ACCEPTED:
-                    pending[value] = _peer_of(value)
+                    pending.pop(value, None)  # a number the OS gave again: now the newest
+                    pending[value] = (_peer_of(value), math.inf)
                 elif kind == zmq.EVENT_DISCONNECTED:
-                    pending.pop(value, None)
+                    if value in pending:
+                        pending[value] = (pending[value][0], time.monotonic())
+                    now = time.monotonic()
+                    for old in [f for f, (_, at) in pending.items() if now - at > CLOSED_KEEP_SECS]:
+                        del pending[old]
                 elif kind & _HANDSHAKE_ENDS:
-                    fd = next(iter(pending), None)
-                    peer = "?" if fd is None else pending.pop(fd).rpartition(":")[0]
+                    first = next(iter(pending), None)
+                    peer = "an unknown address" if first is None else pending.pop(first)[0]
+                    peer = peer.rpartition(":")[0] or peer
                     if kind == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL:
                         self._refuse(peer, _handshake_error(value))
                     elif kind == zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL:  # ZAP logs a bad key
@@ -255,7 +266,7 @@ def _peer_of(fd: int) -> str:
             host, port = s.getpeername()[:2]
             return f"{host}:{port}"
     except OSError:
-        return "?:?"
+        return "an unknown address"
 
 
 def _handshake_error(code: int) -> str:

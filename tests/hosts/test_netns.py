@@ -144,3 +144,30 @@ def test_with_on_host_lost_wait_a_host_that_comes_back_is_resubscribed(
     received = int(re.search(r"received (\d+) ticks", b.text).group(1))
     assert received > 40, b.text[-2000:]  # before the kill, and all 40 of the new source
     assert b.text.count("[launch] starting 1 node(s)") == 1  # the sink was not restarted
+
+
+def test_a_recorder_node_in_the_graph_records_another_hosts_topic_whole(
+    netns, launched, tmp_path: Path
+) -> None:
+    doc = two_host_graph(tmp_path, count=40)
+    doc["nodes"]["recorder"] = {
+        "impl": "recorder",
+        "host": "b",
+        "params": {"path": str(tmp_path / "run.mcap")},
+        "inputs": {"t0": "src/tick"},
+    }
+    graph = write_graph(doc, tmp_path / "g.yaml")
+    a = Launched(netns[0], graph, "a", tmp_path, tmp_path / "a.log")
+    b = Launched(netns[1], graph, "b", tmp_path, tmp_path / "b.log")
+    launched += [a, b]
+    assert a.finish() == 0, a.text[-3000:]
+    assert b.finish() == 0, b.text[-3000:]
+    info = subprocess.run(
+        [sys.executable, "launch.py", "bag", "info", str(tmp_path / "run.mcap")],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    row = next(line for line in info.stdout.splitlines() if line.startswith("src/tick "))
+    assert row.split()[2] == "40", info.stdout  # published on a, all of them in b's bag

@@ -17,8 +17,8 @@ from messages.base import Header, Message
 from messages.types import ContactPatch, OverlayImage, Pressure, Tick, ToFImage
 from runtime.bag import PACKING, PACKING_V1, BagReader, BagWriter
 from runtime.bag.schema import NOTES, reader_guide, unit_of
-from runtime.run import launch
 from runtime.replaytool import ReplayOptions, build_replay_graph
+from runtime.run import launch
 
 V1_BAG = Path(__file__).parent / "data" / "bag_v1_multipart.mcap"
 T0 = 1_763_900_000_000_000_000

@@ -1,0 +1,116 @@
+"""The launchers' link (``runtime.hostlink``): what the launcher does about each event,
+and the link itself over CURVE in a namespace: joining, the clock, forged messages
+refused, stops passed on, a silent host reported lost."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from runtime.hostlink import Act, judge
+from runtime.hosts import Hosts
+from tests.hosts.conftest import ROOT, host_table, write_graph
+
+HOSTS = Hosts({}, on_host_lost="stop", host_timeout_secs=1.0, max_clock_offset_secs=0.005)
+
+
+def test_judge_applies_the_policies() -> None:
+    lost = judge(("lost", "robot", 1.2), HOSTS)
+    assert lost.stop == "host 'robot' lost" and lost.exit_code == 1 and not lost.echo
+    assert "no heartbeat for 1.2 s; on_host_lost: stop" in lost.lines[0]
+    waiting = judge(("lost", "robot", 1.2), Hosts({}, on_host_lost="wait"))
+    assert waiting.stop is None and "on_host_lost: wait" in waiting.lines[0]
+    far = judge(("clock", "robot", 0.020, 0.002), HOSTS)  # 20 ms, measured within 1 ms
+    assert far.stop == "clock offset to host 'robot'" and far.exit_code == 1
+    assert "clock offset to host 'robot': +20.000 ms (round trip 2.000 ms" in far.lines[0]
+    unsure = judge(("clock", "robot", 0.006, 0.004), HOSTS)  # above 5 ms, by less than 2
+    assert unsure.stop is None and "warning" in unsure.lines[1]
+    assert judge(("clock", "robot", -0.0001, 0.0005), HOSTS) == Act(
+        ["clock offset to host 'robot': -0.100 ms (round trip 0.500 ms, limit 5 ms)"]
+    )
+    stop = judge(("stop", "robot", "supervisor: done", 3), HOSTS)
+    assert stop.stop == "host 'robot' stops: supervisor: done"
+    assert stop.verdict_code == 3 and not stop.echo
+    assert judge(("back", "robot", True), HOSTS).lines == ["host 'robot' is back (a new launcher)"]
+
+
+# Two links (hosts a and b on the namespace's own address), and a forger: a DEALER with
+# a's key that claims to be b, then one with b's key whose tags are not b's secret.
+LINKS = """
+import json, sys, time, zmq
+from pathlib import Path
+from runtime import protocol
+from runtime.graph import load_document
+from runtime.hostlink import HostLink
+from runtime.hosts import check_hosts
+from runtime.security import connect_to, load_key
+
+keys, graph = Path(sys.argv[1]), sys.argv[2]
+hosts = check_hosts(load_document(graph), graph, [])
+log = []
+links = {
+    h: HostLink(zmq.Context(), hosts, h, load_key(keys / f"{h}.key"), lambda t, h=h: log.append([h, t]))
+    for h in ("a", "b")
+}
+events = []
+
+def collect(secs):
+    end = time.monotonic() + secs
+    while time.monotonic() < end:
+        for h, link in links.items():
+            events.extend([h, *e] for e in link.events())
+        time.sleep(0.02)
+
+for link in links.values():
+    link.start()
+collect(2.0)
+ctx = zmq.Context()
+for key, secret in (("a", b"x" * 32), ("b", b"y" * 32)):
+    forger = ctx.socket(zmq.DEALER)
+    connect_to(forger, load_key(keys / f"{key}.key"), hosts.table["a"].public_key)
+    forger.connect(hosts.table["a"].link)
+    forger.send_multipart(protocol.pack(secret, "link_stop", host="b", reason="forged", exit_code=9))
+    collect(0.5)
+    forger.close(linger=0)
+links["b"].send_stop("supervisor: done", 0)
+collect(0.5)
+links["b"].close()
+collect(2.0)
+links["a"].close()
+print(json.dumps({"events": events, "log": log}))
+"""
+
+
+def test_the_link_joins_measures_refuses_forgeries_passes_stops_and_sees_a_loss(
+    netns, tmp_path: Path
+) -> None:
+    table = host_table(tmp_path, ["a", "b"])
+    table["b"]["address"] = table["a"]["address"]  # both in the first namespace
+    table["b"]["ports"] = [24100, 24140]
+    graph = write_graph(
+        {"hosts": table, "host_timeout_secs": 1.0, "nodes": {"n": {"impl": "synthetic.source"}}},
+        tmp_path / "g.yaml",
+    )
+    done = subprocess.run(
+        netns[0].command([sys.executable, "-c", LINKS, str(tmp_path), str(graph)]),
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    out = json.loads(done.stdout)
+    events = [tuple(e[:3]) for e in out["events"]]
+    assert ("a", "joined", "b") in events and ("b", "joined", "a") in events
+    clocks = [e for e in out["events"] if e[1] == "clock"]
+    assert {e[0] for e in clocks} == {"a", "b"}
+    assert all(abs(e[3]) < 0.005 and 0 < e[4] < 0.5 for e in clocks)  # one machine's clock
+    log = "\n".join(text for _, text in out["log"])
+    assert "link: refused message #1: claims to be host 'b', but its key is 'a''s" in log
+    assert "link: refused message #2: from host 'b': tag does not match" in log
+    stops = [e for e in out["events"] if e[1] == "stop"]
+    assert stops == [["a", "stop", "b", "supervisor: done", 0]]  # only b's own, not forged
+    assert ("a", "lost", "b") in events
