@@ -24,8 +24,8 @@ searches its seeds again when the residual says it lost track. With ``grasp``
 connected, no track is kept until the grasp is first stable (the partial patch of
 closing jaws can fit a wrong minimum within the acceptance); from then on the track is
 kept through any grasp state (a jolt can make the grasp monitor report a release for
-a moment) until the object was released: the grasp is not stable and the patch is
-empty. The next grasp then starts cold again.
+a moment) until the object was released: the grasp is not stable and the patch has no
+usable points (``no_patch``). The next grasp then starts cold again.
 
 Setup: the solver is built (IPOPT: compiled, or loaded from the disk cache) and one
 estimate of a synthetic grasp of the object is made and forgotten, so the first patch
@@ -147,11 +147,13 @@ class _PoseNode(Node):
         # track); "held": stable once (keep the track until the object is released).
         self.grasp_phase = "free"
         self.stable = False
+        # The warm-up (module docstring): a small synthetic grasp, estimated and forgotten
+        # (small: the first calls are what it is for, and a graph waits for the setup).
         rng = np.random.default_rng(0)
         points, bubble = grasp_cloud(
             model,
             random_grasp_pose(model, rng),
-            n_points=prm.estimator.max_points,
+            n_points=min(prm.estimator.screen_points, prm.estimator.max_points),
             noise_m=0.0005,
             rng=rng,
         )
