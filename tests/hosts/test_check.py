@@ -112,6 +112,15 @@ def test_a_key_file_others_can_read_or_not_the_graphs_key_is_refused(tmp_path: P
         host_keys(graph, "c", tmp_path)
 
 
+def test_a_hosts_key_file_is_read_from_where_the_table_says(tmp_path: Path) -> None:
+    doc = two_host_graph(tmp_path)
+    elsewhere = tmp_path / "etc"
+    doc["hosts"]["b"]["public_key"] = make_key(elsewhere, "workstation").public
+    doc["hosts"]["b"]["key_file"] = str(elsewhere / "workstation.key")
+    keys = host_keys(check(doc), "b", tmp_path / "nokeys")  # not KEYDIR/b.key
+    assert keys is not None and keys.public == doc["hosts"]["b"]["public_key"]
+
+
 def test_without_host_it_says_what_to_run_on_each_host(tmp_path: Path) -> None:
     graph = write_graph(two_host_graph(tmp_path), tmp_path / "g.yaml")
     checked = launch(graph, "--check", "--host", "a", "--keys", tmp_path)
