@@ -125,6 +125,18 @@ def test_a_killed_host_is_reported_within_the_timeout_and_stops_the_graph(
     netns, launched, tmp_path: Path
 ) -> None:
     graph = write_graph(two_host_graph(tmp_path, count=100000), tmp_path / "g.yaml")
+    argv = [
+        sys.executable,
+        "launch.py",
+        str(graph),
+        "--check",
+        "--host",
+        "a",
+        "--keys",
+        str(tmp_path),
+    ]
+    checked = subprocess.run(netns[0].command(argv), cwd=ROOT, capture_output=True, text=True)
+    assert "OK, 2 nodes, 1 edges; host a, its key matches" in checked.stdout, checked.stderr
     a = Launched(netns[0], graph, "a", tmp_path, tmp_path / "a.log")
     b = Launched(netns[1], graph, "b", tmp_path, tmp_path / "b.log")
     launched += [a, b]
