@@ -7,8 +7,9 @@ Ports:
         ``mask`` (MaskImage, one per bubble per patch, 255 = contact; ``sensor`` says which).
 
 A patch is made of one frame of each bubble taken at the same instant: stamps at most
-``max_skew_secs`` apart (the simulator stamps both with its world's instant; two
-free-running cameras are up to half a frame apart). A frame waits (the last
+half a frame period apart (the shortest interval seen between a camera's frames, of the
+slower camera), or ``max_skew_secs`` when set. The simulator stamps both with its
+world's instant; two free-running cameras at one rate are up to half a frame apart. A frame waits (the last
 ``PAIR_HISTORY`` of each bubble are kept) until its partner arrives; then the pair is
 published and older frames are dropped. Pairing the newest frame of each instead would,
 on a loaded machine where one camera lags, put the two bubbles' views of a moving object
@@ -53,14 +54,15 @@ class ContactPatchParams:
         reference_min_width_m: the gripper counts as open from this opening on.
         reference_max_speed_m_per_s: ... and as still below this finger speed.
         reference_frames: free frames averaged into each bubble's reference.
-        max_skew_secs: the most two frames' stamps may differ to make one patch.
+        max_skew_secs: the most two frames' stamps may differ to make one patch; 0:
+            half the slower camera's frame period, measured from the stamps.
     """
 
     contact: ContactParams = field(default_factory=ContactParams)
     reference_min_width_m: float = 0.1
     reference_max_speed_m_per_s: float = 0.001
     reference_frames: int = 5
-    max_skew_secs: float = 0.02
+    max_skew_secs: float = 0.0
 
     def __post_init__(self) -> None:
         if not (self.reference_min_width_m >= 0.0):
@@ -90,6 +92,8 @@ class ContactPatchNode(Node):
         self.waiting: dict[str, deque[ToFImage]] = {
             s: deque(maxlen=PAIR_HISTORY) for s in ("left", "right")
         }
+        self.last_stamp: dict[str, int] = {}
+        self.period_nanos = {"left": 0, "right": 0}  # shortest interval seen; 0: none yet
         self.gripper_seen = False
         self.warned_mount: set[str] = set()
         self.open_still = False
@@ -143,8 +147,12 @@ class ContactPatchNode(Node):
             self.patcher.update_reference(side, msg.depth_m)
             self.ref_frames[side] += 1
         other = "right" if side == "left" else "left"
-        skew = self.params.max_skew_secs * 1e9
         stamp = msg.header.stamp_nanos
+        step = stamp - self.last_stamp.get(side, stamp)
+        if step > 0 and (self.period_nanos[side] == 0 or step < self.period_nanos[side]):
+            self.period_nanos[side] = step
+        self.last_stamp[side] = stamp
+        skew = self.params.max_skew_secs * 1e9 or 0.5 * max(self.period_nanos.values())
         partners = [m for m in self.waiting[other] if abs(m.header.stamp_nanos - stamp) <= skew]
         if not partners or not self.gripper_seen:
             self.waiting[side].append(msg)

@@ -84,7 +84,7 @@ def recorded(
         *args,
         "--record",
         str(bag),
-        "--topics",
+        "--record-topics",
         "^(supervisor/event|world/.*truth|world/placement)$",
     )
     topics: dict[str, list] = {}

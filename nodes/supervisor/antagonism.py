@@ -109,7 +109,8 @@ class AntagonismSupervisor(SingleGraspTask):
         self.axis_deg: list[float] = []
         self.offaxis_mm: list[float] = []
         self.statuses: dict[str, int] = {}
-        self.unmatched = 0
+        self.waiting: dict[int, PoseEstimate] = {}  # estimates whose truth has not come
+        self.end_stamp: int | None = None  # the first estimate's after the window
         self.jolts: list[Jolt] = []
 
     def on_stable(self) -> None:
@@ -137,9 +138,13 @@ class AntagonismSupervisor(SingleGraspTask):
                 detail = f"{moved_mm:.1f} mm, {turned_deg:.1f} deg in one frame"
                 self.event("jolt", detail, with_pose=False)
         self.last_truth = pose
-        self.truths[msg.header.stamp_nanos] = pose
+        stamp = msg.header.stamp_nanos
+        self.truths[stamp] = pose
         while len(self.truths) > TRUTH_KEPT:
             self.truths.popitem(last=False)
+        if stamp in self.waiting:
+            self._compare(self.waiting.pop(stamp), pose)
+        self._end_when_judged()
 
     def on_pose(self, msg: PoseEstimate) -> None:
         super().on_pose(msg)
@@ -147,12 +152,30 @@ class AntagonismSupervisor(SingleGraspTask):
         if self.state != "holding" or stamp < self.stable_nanos:
             return
         if stamp > self.stable_nanos + self.params.track_secs * 1e9:
-            self._summary()
+            if self.end_stamp is None:
+                self.end_stamp = stamp
+            self._end_when_judged()
             return
+        # An estimate and the truth of its frame come on two topics, in either order.
         truth = self.truths.get(stamp)
         if truth is None:
-            self.unmatched += 1
-            return
+            self.waiting[stamp] = msg
+        else:
+            self._compare(msg, truth)
+
+    def _end_when_judged(self) -> None:
+        """Summarize once an estimate after the window came and the truths up to its
+        frame did: every estimate of the window has then met its truth, if it has one."""
+        if (
+            self.state == "holding"
+            and self.end_stamp is not None
+            and self.truths
+            and next(reversed(self.truths)) >= self.end_stamp
+        ):
+            self._summary()
+
+    def _compare(self, msg: PoseEstimate, truth: np.ndarray) -> None:
+        stamp = msg.header.stamp_nanos
         self.statuses[msg.status] = self.statuses.get(msg.status, 0) + 1
         est = np.asarray(msg.tool_from_object, dtype=np.float64)
         axis = axis_error_deg(est, truth, flip_symmetric=self.params.flip_symmetric)
@@ -176,7 +199,7 @@ class AntagonismSupervisor(SingleGraspTask):
         )
         summary = {
             "estimates": len(self.axis_deg),
-            "unmatched": self.unmatched,
+            "unmatched": len(self.waiting),
             "axis_deg": axis,
             "offaxis_mm": off,
             "statuses": dict(sorted(self.statuses.items())),

@@ -85,10 +85,13 @@ def test_a_patch_pairs_frames_of_one_instant_when_a_camera_lags() -> None:
         feed(node, "right", tof_image("right", depth, k * period + 1_000_000, poses["right"]))
     stamps = [p.header.stamp_nanos for p in io.published["patch"]]
     assert stamps == [k * period + 1_000_000 for k in range(3)]
-    # Frames further apart than max_skew_secs never make a patch.
+    # Frames more than half a frame period apart never make a patch; within it they do
+    # (two free-running cameras).
     feed(node, "left", tof_image("left", depth, 10 * period, poses["left"]))
     feed(node, "right", tof_image("right", depth, 11 * period, poses["right"]))
     assert len(io.published["patch"]) == 3
+    feed(node, "left", tof_image("left", depth, 11 * period + period // 3, poses["left"]))
+    assert io.published["patch"][-1].header.stamp_nanos == 11 * period + period // 3
 
 
 def test_free_frames_that_arrive_after_the_grasp_began_still_make_the_reference() -> None:

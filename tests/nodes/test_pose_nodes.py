@@ -41,9 +41,9 @@ def test_contact_patch_node_reference_then_patch() -> None:
     pressed[10:30, 10:30] = 0.07
     feed(node, "left", _tof("left", pressed, 10))
     assert len(io.published["patch"]) == 2  # waits for the right bubble
-    feed(node, "right", _tof("right", pressed, 11))
+    feed(node, "right", _tof("right", pressed, 10))
     patch = io.published["patch"][-1]
-    assert patch.header.stamp_nanos == 11 and patch.header.frame_id == "tool"
+    assert patch.header.stamp_nanos == 10 and patch.header.frame_id == "tool"
     assert len(patch.points_in_tool) == 2 * 400
     assert set(np.unique(patch.bubble)) == {0, 1}
     masks = io.published["mask"][-2:]

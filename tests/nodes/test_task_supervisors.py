@@ -59,17 +59,22 @@ def estimate(t_secs: float, pose: np.ndarray) -> PoseEstimate:
     )
 
 
-def run_antagonism(lag_frames: int) -> tuple[dict, object]:
-    """Estimates that follow the truth ``lag_frames`` late after the tap (then exact)."""
+def run_antagonism(lag_frames: int, pose_first: bool = False) -> tuple[dict, object]:
+    """Estimates that follow the truth ``lag_frames`` late after the tap (then exact);
+    ``pose_first``: each estimate comes before the truth of its frame."""
     node, io = make_node(AntagonismSupervisor, {"track_secs": 4.0, "start_delay_secs": 0.0})
     feed(node, "grasp", grasp(-0.5))
     feed(node, "grasp", grasp(0.0, "stable"))
     for k in range(1, 30 * 5):
         t = k / 30
-        feed(node, "truth", truth(t))
-        feed(node, "grasp", grasp(t, stable=True))
         behind = 3.0 <= t < 3.0 + lag_frames / 30
-        feed(node, "pose", estimate(t, pose_at(2.99) if behind else pose_at(t)))
+        messages = [
+            ("truth", truth(t)),
+            ("pose", estimate(t, pose_at(2.99) if behind else pose_at(t))),
+        ]
+        feed(node, "grasp", grasp(t, stable=True))
+        for port, msg in messages[::-1] if pose_first else messages:
+            feed(node, port, msg)
         if io.stop_reason:
             break
     (summary,) = [json.loads(e.detail) for e in io.published["event"] if e.event == "summary"]
@@ -84,6 +89,13 @@ def test_antagonism_reports_errors_and_the_time_to_reacquire_a_jolt() -> None:
     assert abs(jolt["reacquire_secs"] - 0.2) < 1e-6  # six frames behind
     assert summary["success"] and io.stop_exit_code == 0
     assert io.published["command"][-1].command == "release"
+
+
+def test_antagonism_judges_the_same_whichever_of_estimate_and_truth_comes_first() -> None:
+    truth_first, _ = run_antagonism(lag_frames=6)
+    pose_first, _ = run_antagonism(lag_frames=6, pose_first=True)
+    assert pose_first == truth_first and pose_first["unmatched"] == 0
+    assert pose_first["estimates"] == 4 * 30
 
 
 def test_antagonism_fails_when_an_estimate_never_comes_back() -> None:
