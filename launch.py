@@ -115,10 +115,11 @@ def run_main(argv: list[str]) -> int:
         return 2
     if args.check:
         if args.host is not None:
-            from runtime.run import host_keys
+            from runtime.run import check_here, host_keys
 
             try:
                 keys = host_keys(checked, args.host, args.keys)
+                check_here(checked, args.host)
             except GraphError as err:
                 print(f"graph check failed:\n{err}", file=sys.stderr)
                 return 2

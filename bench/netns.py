@@ -3,7 +3,7 @@
 ``namespaces(n)`` makes ``n`` namespaces, each with its loopback and one veth interface
 on ``10.77.0.(i+1)/24``, the veths' other ends on a bridge in a hub namespace of their
 own (nothing is added to this machine's own network), and deletes them all on the way
-out, whatever happened. Needs root and ``ip`` (iproute2); :func:`unavailable` says why
+out, whatever happened (and, first, those of a process killed before it could). Needs root and ``ip`` (iproute2); :func:`unavailable` says why
 not when it cannot work here.
 """
 
@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ctypes
 import os
+import re
 import shutil
 import subprocess
 from collections.abc import Iterator, Sequence
@@ -21,6 +22,7 @@ from runtime.security import KeyPair
 
 SUBNET = "10.77.0"
 CLONE_NEWNET = 0x40000000
+STALE = re.compile(r"sb(\d+)(?:hub|h\d+)")  # the names namespaces() gives
 
 
 @dataclass(frozen=True)
@@ -35,6 +37,22 @@ class Namespace:
 
 def _ip(*args: str) -> None:
     subprocess.run(["ip", *args], check=True, capture_output=True, text=True, timeout=30)
+
+
+def _remove_stale() -> None:
+    """Delete namespaces this module made in a process that is gone (one killed before it
+    could clean up): their names carry the pid that made them."""
+    listed = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True, timeout=30)
+    for line in listed.stdout.splitlines():
+        found = STALE.fullmatch(line.split(" ")[0])
+        if found is None:
+            continue
+        try:
+            os.kill(int(found.group(1)), 0)
+        except ProcessLookupError:
+            subprocess.run(["ip", "netns", "del", found.group(0)], capture_output=True, timeout=30)
+        except PermissionError:
+            pass  # alive, another user's
 
 
 def unavailable() -> str | None:
@@ -55,7 +73,8 @@ def unavailable() -> str | None:
 @contextmanager
 def namespaces(count: int) -> Iterator[list[Namespace]]:
     """``count`` namespaces on one bridge (see the module's docstring)."""
-    tag = f"sb{os.getpid() % 100000}"
+    _remove_stale()
+    tag = f"sb{os.getpid()}"
     hub = f"{tag}hub"
     made: list[str] = []
     try:

@@ -13,7 +13,8 @@ secret and checked. A peer that hears a message it cannot check (it restarted, o
 hello was sent before the connection was up) sends its own hello asking for a reply.
 
 What the launcher learns comes out of :meth:`HostLink.events` as tuples:
-``("joined", host)``, ``("back", host)`` (a lost host speaks again; ``restarted`` says
+``("joined", host)``, ``("graph_differs", host, its digest, ours)`` (its hello names
+another graph: it is not let in), ``("back", host)`` (a lost host speaks again; ``restarted`` says
 whether it is a new launcher), ``("lost", host, silent_secs)`` after
 ``host_timeout_secs`` without a message (heartbeats also say whether the sender's nodes
 are ready, see :meth:`HostLink.waiting_for`), ``("clock", host, offset_secs, round_trip_secs)``
@@ -23,10 +24,12 @@ trip of ``CLOCK_SAMPLES``), and ``("stop", host, reason, exit_code)``.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -50,6 +53,7 @@ class _Peer:
     dealer: zmq.Socket[Any]
     secret: bytes | None = None
     ready: bool = False  # its nodes are ready or running (its heartbeats say)
+    differs: bytes | None = None  # the secret of its hello that named another graph
     last_seen: float = 0.0
     lost: bool = False
     asked_at: float = 0.0
@@ -68,8 +72,12 @@ class HostLink:
         me: str,
         keys: KeyPair | None,
         log: Callable[[str], None],
+        document: Mapping[str, Any],
     ) -> None:
         self.me = me
+        # Every host must run the same graph (the same nodes on the same ports): a digest.
+        text = json.dumps(document, sort_keys=True, default=str).encode()
+        self.graph = hashlib.sha256(text).hexdigest()
         self.timeout = hosts.host_timeout_secs
         self.secret = protocol.new_secret()
         self.refused = 0
@@ -147,7 +155,7 @@ class HostLink:
         return protocol.pack(self.secret, kind, host=self.me, **body)
 
     def _hello(self, reply: int) -> list[bytes]:
-        return self._pack("link_hello", run_secret=self.secret.hex(), reply=reply)
+        return self._pack("link_hello", run_secret=self.secret.hex(), reply=reply, graph=self.graph)
 
     def _send(self, peer: _Peer, frames: list[bytes]) -> None:
         try:
@@ -247,6 +255,11 @@ class HostLink:
         kind = msg["kind"]
         if kind == "link_hello":
             secret = bytes.fromhex(msg["run_secret"])
+            if msg["graph"] != self.graph:  # its endpoints and nodes are not ours
+                if secret != peer.differs:
+                    peer.differs = secret
+                    self._events.append(("graph_differs", name, msg["graph"], self.graph))
+                return
             if msg["reply"]:
                 self._send(peer, self._hello(reply=0))
             if secret != peer.secret:
@@ -297,6 +310,16 @@ def judge(event: tuple[Any, ...], hosts: Hosts) -> Act:
     kind, host, *args = event
     if kind == "joined":
         return Act([f"host {host!r} joined"])
+    if kind == "graph_differs":
+        theirs, ours = args
+        return Act(
+            [
+                f"host {host!r} runs another graph (sha256 {theirs[:12]}, here {ours[:12]}): "
+                "give every host the same graph file and the same --set/--swap/--only/--view"
+            ],
+            f"host {host!r} runs another graph",
+            exit_code=2,
+        )
     if kind == "back":
         return Act([f"host {host!r} is back{' (a new launcher)' if args[0] else ''}"])
     if kind == "lost":

@@ -114,7 +114,8 @@ class Launcher:
         self.control_endpoint = f"ipc://{self.rundir}/control"
         self.control = ControlServer(self.ctx, self.control_endpoint, self.secret, self.say)
         if self.host is not None:
-            self.link = HostLink(self.ctx, self.graph.hosts, self.host, self.keys, self.say)
+            graph, hosts = self.graph, self.graph.hosts
+            self.link = HostLink(self.ctx, hosts, self.host, self.keys, self.say, graph.document)
             self.link.start()
 
     def _close(self) -> None:

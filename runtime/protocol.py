@@ -25,8 +25,9 @@ launcher -> node
     idle       {}                                answer to wait_idle
     stop       {}                                stop cleanly now
 launcher <-> launcher (one per host, ``runtime.hostlink``; CURVE-encrypted tcp)
-    link_hello {host, run_secret, reply}         this run's link secret (the tag: with it);
-                                                 reply=1: "yours is unknown here: hello?"
+    link_hello {host, run_secret, reply, graph}  this run's link secret (the tag: with it);
+                                                 reply=1: "yours is unknown here: hello?";
+                                                 graph: its digest (must be the same)
     link_beat  {host, ready}                     every ``HEARTBEAT_SECS``; ready=1: its
                                                  nodes are ready (or running)
     link_ping  {host, t1} / link_pong {host, t1, t2, t3}   clock offset (NTP-style)
@@ -68,7 +69,7 @@ _FIELDS: dict[str, dict[str, type | tuple[type, ...]]] = {
     "idle": {},
     "stop": {},
     # between the launchers of a graph's hosts (runtime.hostlink), over CURVE
-    "link_hello": {"host": str, "run_secret": str, "reply": int},
+    "link_hello": {"host": str, "run_secret": str, "reply": int, "graph": str},
     "link_beat": {"host": str, "ready": int},
     "link_ping": {"host": str, "t1": int},
     "link_pong": {"host": str, "t1": int, "t2": int, "t3": int},

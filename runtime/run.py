@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import shlex
 import shutil
+import socket
 import sys
 from pathlib import Path
 from typing import Any
@@ -52,6 +53,30 @@ def host_keys(graph: Graph, host: str, key_dir: Path | None) -> KeyPair | None:
             f"({keys.public})"
         )
     return keys
+
+
+def check_here(graph: Graph, host: str) -> None:
+    """Whether this machine can be ``host``: its link port binds here, now.
+
+    Raises:
+        GraphError: the address is not this machine's, or the port is taken (a launcher
+            for that host runs already, or another program holds it).
+    """
+    spec = graph.hosts.table[host]
+    family = socket.AF_INET6 if ":" in spec.address else socket.AF_INET
+    # A plain socket, closed at once (a ZeroMQ socket's close is asynchronous, and the
+    # launcher binds the port right after), with ZeroMQ's SO_REUSEADDR.
+    with socket.socket(family, socket.SOCK_STREAM) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            sock.bind((spec.address, spec.first_port))
+            sock.listen()
+        except OSError as err:
+            raise GraphError(
+                f"{graph.source}: --host {host}: cannot listen on {spec.link} here "
+                f"({err.strerror}): is this machine {host} ({spec.address}), and is no "
+                f"launcher for {host} running?"
+            ) from err
 
 
 def multihost_refusals(graph: Graph, *, record: bool, lockstep: bool) -> list[str]:
@@ -134,6 +159,8 @@ def launch(
         if host is not None and not checked.hosts.table:
             raise GraphError(f"{source}: --host {host!r}: the graph has no hosts table")
         keys = host_keys(checked, host, key_dir) if host is not None else None
+        if host is not None:
+            check_here(checked, host)
         launcher = Launcher(
             checked,
             lockstep=lockstep,

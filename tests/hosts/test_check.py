@@ -112,11 +112,21 @@ def test_a_key_file_others_can_read_or_not_the_graphs_key_is_refused(tmp_path: P
         host_keys(graph, "c", tmp_path)
 
 
+def test_a_hosts_key_file_is_read_from_where_the_table_says(tmp_path: Path) -> None:
+    doc = two_host_graph(tmp_path)
+    elsewhere = tmp_path / "etc"
+    doc["hosts"]["b"]["public_key"] = make_key(elsewhere, "workstation").public
+    doc["hosts"]["b"]["key_file"] = str(elsewhere / "workstation.key")
+    keys = host_keys(check(doc), "b", tmp_path / "nokeys")  # not KEYDIR/b.key
+    assert keys is not None and keys.public == doc["hosts"]["b"]["public_key"]
+
+
 def test_without_host_it_says_what_to_run_on_each_host(tmp_path: Path) -> None:
     graph = write_graph(two_host_graph(tmp_path), tmp_path / "g.yaml")
-    checked = launch(graph, "--check", "--host", "a", "--keys", tmp_path)
-    assert checked.returncode == 0, checked.stderr
-    assert "OK, 2 nodes, 1 edges; host a, its key matches" in checked.stdout
+    elsewhere = launch(graph, "--check", "--host", "a", "--keys", tmp_path)
+    assert elsewhere.returncode == 2  # 10.77.0.1 is not this machine's (see test_netns)
+    assert "--host a: cannot listen on tcp://10.77.0.1:24000 here" in elsewhere.stderr
+    assert "is this machine a (10.77.0.1)" in elsewhere.stderr
     run = launch(graph, "--keys", tmp_path)
     assert run.returncode == 2
     assert "places its nodes on 2 hosts" in run.stderr

@@ -34,10 +34,14 @@ def test_judge_applies_the_policies() -> None:
     assert stop.stop == "host 'robot' stops: supervisor: done"
     assert stop.verdict_code == 3 and not stop.echo
     assert judge(("back", "robot", True), HOSTS).lines == ["host 'robot' is back (a new launcher)"]
+    other = judge(("graph_differs", "robot", "ab" * 32, "cd" * 32), HOSTS)
+    assert other.stop == "host 'robot' runs another graph" and other.exit_code == 2
+    assert "sha256 abababababab, here cdcdcdcdcdcd" in other.lines[0]
 
 
 # Two links (hosts a and b on the namespace's own address), and a forger: a DEALER with
-# a's key that claims to be b, then one with b's key whose tags are not b's secret.
+# a's key that claims to be b, then one with b's key whose tags are not b's secret; then b
+# stops, and comes back with another graph.
 LINKS = """
 import json, sys, time, zmq
 from pathlib import Path
@@ -51,7 +55,7 @@ keys, graph = Path(sys.argv[1]), sys.argv[2]
 hosts = check_hosts(load_document(graph), graph, [])
 log = []
 links = {
-    h: HostLink(zmq.Context(), hosts, h, load_key(keys / f"{h}.key"), lambda t, h=h: log.append([h, t]))
+    h: HostLink(zmq.Context(), hosts, h, load_key(keys / f"{h}.key"), lambda t, h=h: log.append([h, t]), {"g": 1})
     for h in ("a", "b")
 }
 events = []
@@ -78,6 +82,11 @@ links["b"].send_stop("supervisor: done", 0)
 collect(0.5)
 links["b"].close()
 collect(2.0)
+# b's launcher again, with another graph: a does not let it in.
+other = HostLink(zmq.Context(), hosts, "b", load_key(keys / "b.key"), print, {"g": 2})
+other.start()
+collect(1.5)
+other.close()
 links["a"].close()
 print(json.dumps({"events": events, "log": log}))
 """
@@ -114,3 +123,5 @@ def test_the_link_joins_measures_refuses_forgeries_passes_stops_and_sees_a_loss(
     stops = [e for e in out["events"] if e[1] == "stop"]
     assert stops == [["a", "stop", "b", "supervisor: done", 0]]  # only b's own, not forged
     assert ("a", "lost", "b") in events
+    assert ("a", "graph_differs", "b") in events
+    assert ("a", "back", "b") not in events
