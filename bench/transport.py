@@ -95,7 +95,7 @@ class Sizes:
 
 
 QUICK = Sizes(latency_frames=300, throughput_frames=1000, repeats=1)
-FULL = Sizes(latency_frames=2000, throughput_frames=5000, repeats=7)
+FULL = Sizes(latency_frames=1000, throughput_frames=5000, repeats=3)
 
 
 @dataclass
