@@ -11,7 +11,7 @@ One run builds one set of cases and every row uses the same ones:
   free-bubble reference (``perception.contact``). Skipped, and said so, if ``sim`` is
   missing.
 
-Each cloud is subsampled to the kept point count (1k, 3k, 10k, 30k). ``warm`` starts
+Each cloud is subsampled to the kept point count (1k, 3k, 10k, 20k). ``warm`` starts
 from the truth tilted 3 degrees and moved 2 mm, given as a seed (an unverified prior: the
 estimator searches its turns too; the tracking path is ``bench.pose_hard``'s ``track``
 rows); ``cold`` has no prior (data
@@ -289,9 +289,9 @@ def run(quick: bool) -> list[Row]:
         rows += basin_rows(cases, [0.0, 45.0, 90.0], 1000, ["lm"], use_jit=False)
     else:
         # Sized so that ``python -m bench.report`` (every sweep) ends in 20 minutes on two
-        # cores: 10 poses x (synthetic + simulated) clouds per point of the sweep.
-        cases, note = make_cases(10, 30000, with_sim=True)
-        points = [1000, 3000, 10000, 30000]
+        # cores: 8 poses x (synthetic + simulated) clouds per point of the sweep.
+        cases, note = make_cases(8, 20000, with_sim=True)
+        points = [1000, 3000, 10000, 20000]
         tols = {10000: ["tight", "loose"]}
         rows = accuracy_rows(cases, points, tols, ["lm", "ipopt"], use_jit)
         # ICP is slow (k-d tree queries, many iterations): cold only on small clouds.
@@ -300,9 +300,9 @@ def run(quick: bool) -> list[Row]:
         # The exact Hessian, for the cost the Gauss-Newton one saves.
         rows += accuracy_rows(cases, [10000], {}, ["ipopt_exact"], use_jit, starts=("warm",))
         tilts = [0.0, 15.0, 30.0, 45.0, 60.0, 75.0, 90.0]
-        basin_cases = make_cases(40, 3000, with_sim=False)[0]
+        basin_cases = make_cases(25, 3000, with_sim=False)[0]
         rows += basin_rows(basin_cases, tilts, 3000, ["lm", "ipopt"], use_jit)
-        rows += basin_rows(basin_cases[:20], tilts, 3000, ["icp"], use_jit)
+        rows += basin_rows(basin_cases[:12], tilts, 3000, ["icp"], use_jit)
     for row in rows:
         row["note"] = f"{note}; ipopt jit: {'on' if use_jit and not quick else 'off'}"
     # Shapes, sizes, noise, bad starts, size mismatch and degenerate clouds.
@@ -315,7 +315,7 @@ def plot(rows: list[Row], path: Path) -> None:
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.6))
     colors = {"lm": "C0", "ipopt": "C1", "icp": "C2", "ipopt_exact": "C3"}
-    sizes = {1000: 20, 3000: 40, 10000: 70, 30000: 110}  # marker area by point count
+    sizes = {1000: 20, 3000: 40, 10000: 70, 20000: 110}  # marker area by point count
     for row in rows:
         if row["kind"] != "accuracy" or row["tol"] != "tight":
             continue
@@ -342,7 +342,7 @@ def plot(rows: list[Row], path: Path) -> None:
         Line2D([], [], marker="s", ls="", color="gray", label="cold start (no seed)"),
         Line2D([], [], marker="o", ls="", color="gray", mfc="none", label="simulated cloud"),
         Line2D([], [], marker="o", ls="", color="gray", label="synthetic cloud"),
-        Line2D([], [], ls="", label="marker size: points 1k-30k"),
+        Line2D([], [], ls="", label="marker size: points 1k-20k"),
     ]
     ax1.legend(handles=handles, fontsize=7, loc="best")
     basin_points = sorted({r["points"] for r in rows if r["kind"] == "basin"})

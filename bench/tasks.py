@@ -349,6 +349,11 @@ def sweep(tasks: tuple[str, ...], n_runs: int | None) -> list[Row]:
     ]
 
 
+def run(quick: bool, tasks: tuple[str, ...] = TASKS, n_runs: int | None = None) -> list[Row]:
+    """The sweep: one stacking scene with ``quick``, else ``n_runs`` (or ``RUNS``) per task."""
+    return sweep(("stacking",), 1) if quick else sweep(tasks, n_runs)
+
+
 COLUMNS = [
     "task",
     "solver",
@@ -387,7 +392,7 @@ if __name__ == "__main__":
         sys.exit(f"bench.tasks: --tasks must name {TASKS} and --runs be >= 1, got {extra}")
     main(
         "tasks",
-        lambda quick: sweep(("stacking",), 1) if quick else sweep(chosen, extra.runs),
+        lambda quick: run(quick, chosen, extra.runs),
         columns=COLUMNS,
         argv=rest,
     )

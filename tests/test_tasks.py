@@ -127,6 +127,13 @@ def test_stacking_releases_within_a_few_millimetres_of_contact(tmp_path: Path) -
     assert summary["outcome"] == "placed"
 
 
+POSE_NOTE = re.compile(r" \| pose xyz_mm=\([^)]*\)")
+
+
+def without_pose(events: list[tuple[str, str]]) -> list[tuple[str, str]]:
+    return [(event, POSE_NOTE.sub("", detail)) for event, detail in events]
+
+
 @pytest.mark.parametrize(
     ("graph", "inputs", "args"),
     [
@@ -137,8 +144,9 @@ def test_stacking_releases_within_a_few_millimetres_of_contact(tmp_path: Path) -
             ("--set", "supervisor.objects=2"),
         ),
         ("graphs/antagonism.yaml", "grasp_monitor/grasp|pose/pose|world/ground_truth", ()),
+        ("graph.yaml", "grasp_monitor/grasp|shear/shear|pose/pose", ()),
     ],
-    ids=["stacking", "dish_loading", "antagonism"],
+    ids=["stacking", "dish_loading", "antagonism", "handover"],
 )
 def test_a_task_records_and_replays_deterministically_in_lockstep(
     tmp_path: Path, graph: str, inputs: str, args: tuple[str, ...]
@@ -176,8 +184,12 @@ def test_a_task_records_and_replays_deterministically_in_lockstep(
     # The task decides in the replay what it decided live (its clock is its data's). The
     # summary's task time may end one grasp message apart: live, the last message before
     # the stop can still be in flight when the graph stops; the replay delivers every one.
+    # The pose a handover event carries for information is the newest estimate the
+    # supervisor had: live, which one depends on how the pose and grasp topics interleaved
+    # on their way; a replay plays the recorded order, the same each time (the replays
+    # above are identical, pose included). The decisions match the live run's.
     replayed, replay_secs = decisions(replays[0])
     lived, live_secs = decisions(live)
-    assert replayed == lived
+    assert without_pose(replayed) == without_pose(lived)
     if live_secs is not None:
         assert replay_secs is not None and abs(replay_secs - live_secs) <= 0.1
