@@ -27,9 +27,11 @@ kept through any grasp state (a jolt can make the grasp monitor report a release
 a moment) until the object was released: the grasp is not stable and the patch has no
 usable points (``no_patch``). The next grasp then starts cold again.
 
-Setup: the solver is built (IPOPT: compiled, or loaded from the disk cache) and one
-estimate of a synthetic grasp of the object is made and forgotten, so the first patch
-pays for no first call (IPOPT's libraries, the noise estimate's neighbour search).
+Setup: the solver is built (IPOPT: compiled, or loaded from the disk cache). On its
+first poll, once the node has said ready, one estimate of a synthetic grasp of the
+object is made and forgotten, so the first patch pays for no first call (IPOPT's
+libraries, the noise estimate's neighbour search) and the graph's start does not wait
+for it (about 0.5 s).
 """
 
 from __future__ import annotations
@@ -147,19 +149,25 @@ class _PoseNode(Node):
         # track); "held": stable once (keep the track until the object is released).
         self.grasp_phase = "free"
         self.stable = False
-        # The warm-up (module docstring): a small synthetic grasp, estimated and forgotten
-        # (small: the first calls are what it is for, and a graph waits for the setup).
+        self.model = model
+        self.warmed_up = False
+        self.io.add_timer(prm.poll_secs, self._solve_pending)
+
+    def _warm_up(self) -> None:
+        """The warm-up (module docstring): a small synthetic grasp, estimated and forgotten
+        (small: the first calls are what it is for). It runs on the first poll, once the
+        node has said ready, so the graph's start does not wait for it."""
         rng = np.random.default_rng(0)
         points, bubble = grasp_cloud(
-            model,
-            random_grasp_pose(model, rng),
-            n_points=min(prm.estimator.screen_points, prm.estimator.max_points),
+            self.model,
+            random_grasp_pose(self.model, rng),
+            n_points=min(self.params.estimator.screen_points, self.params.estimator.max_points),
             noise_m=0.0005,
             rng=rng,
         )
         self.estimator.estimate(points, bubble)
         self.estimator.reset()
-        self.io.add_timer(prm.poll_secs, self._solve_pending)
+        self.warmed_up = True
 
     def on_patch(self, msg: ContactPatch) -> None:
         if self.pending is not None:
@@ -175,6 +183,8 @@ class _PoseNode(Node):
             self.estimator.reset()
 
     def _solve_pending(self) -> None:
+        if not self.warmed_up:
+            self._warm_up()
         msg, self.pending = self.pending, None
         if msg is None:
             return

@@ -30,7 +30,6 @@ from pathlib import Path
 from typing import Any
 
 import zmq
-import zmq.utils.monitor
 import zmq.utils.z85
 
 from messages.errors import GraphError
@@ -210,6 +209,9 @@ class Guard:
         # A connection may be reported closed just before its failed handshake: kept
         # (with the time it closed) for CLOSED_KEEP_SECS.
         pending: dict[int, tuple[str, float]] = {}
+        # Here, not at the top: it imports asyncio (30 ms of every node's start).
+        from zmq.utils.monitor import recv_monitor_message
+
         while not self.stopping.is_set():
             try:
                 ready = poller.poll(200)
@@ -219,7 +221,7 @@ class Guard:
                 if sock is self.zap:
                     self._answer(self.zap.recv_multipart())
                     continue
-                event = zmq.utils.monitor.recv_monitor_message(sock)
+                event = recv_monitor_message(sock)
                 kind, value = event["event"], event["value"]
                 if kind == zmq.EVENT_ACCEPTED:
                     pending.pop(value, None)  # a number the OS gave again: now the newest

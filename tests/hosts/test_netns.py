@@ -71,6 +71,15 @@ def test_the_handover_split_across_hosts_runs_end_to_end_records_and_refuses_int
     workstation = Launched(ws_ns, graph, "workstation", tmp_path, tmp_path / "ws.log")
     launched += [robot, workstation]
     robot.wait_for("all nodes ready; running")
+    # Checked at once, while the graph surely runs (it ends by itself within seconds).
+    # Traffic only on the namespaces' own addresses: every tcp socket there is 10.77.0.x.
+    for ns in (robot_ns, ws_ns):
+        sockets = tcp_sockets(ns.command([]))
+        assert sockets, "no tcp socket in the namespace"
+        assert any(state == "ESTAB" for state, _, _ in sockets)
+        for state, local, peer in sockets:
+            assert local.startswith("10.77.0."), (state, local, peer)
+            assert state == "LISTEN" or peer.startswith("10.77.0."), (state, local, peer)
 
     hosts = check_hosts(doc, "handover.yaml", [])
     world = hosts.endpoints({n: body["host"] for n, body in doc["nodes"].items()})["world"]
@@ -84,14 +93,6 @@ def test_the_handover_split_across_hosts_runs_end_to_end_records_and_refuses_int
         timeout=60,
     )
     assert intruder.stdout.split() == ["0", "0"], intruder.stderr  # nothing, encrypted or not
-    # Traffic only on the namespaces' own addresses: every tcp socket there is 10.77.0.x.
-    for ns in (robot_ns, ws_ns):
-        sockets = tcp_sockets(ns.command([]))
-        assert sockets, "no tcp socket in the namespace"
-        assert any(state == "ESTAB" for state, _, _ in sockets)
-        for state, local, peer in sockets:
-            assert local.startswith("10.77.0."), (state, local, peer)
-            assert state == "LISTEN" or peer.startswith("10.77.0."), (state, local, peer)
 
     assert workstation.finish() == 0, workstation.text[-3000:]
     assert robot.finish() == 0, robot.text[-3000:]
