@@ -288,3 +288,20 @@ def test_a_command_shown_failing_on_purpose_passes_unless_it_crashes() -> None:
     assert command[-2:] == ["||", "true"] and "--check" in command
     assert allowed_exit_codes(command) is None
     assert allowed_exit_codes(small(("python", "launch.py", "nodes"))) == {0}
+
+
+FIGURES = re.compile(r"<!-- figures: (\S+) -->\n(.*?)<!-- end figures -->", re.S)
+NUMBER = re.compile(r"(?<![\w.])\d+(?:\.\d+)?(?![\w.])")
+
+
+def test_readme_quotes_its_figures_from_the_performance_page() -> None:
+    """Every number in the README's figures block is on the page it names, so the
+    README's headline figures are copied from a measurement, not remembered."""
+    blocks = FIGURES.findall((ROOT / "README.md").read_text())
+    assert blocks, "README.md has no <!-- figures: PAGE --> block"
+    for page, text in blocks:
+        on_page = set(NUMBER.findall((ROOT / page).read_text()))
+        quoted = NUMBER.findall(text)
+        assert quoted, f"the figures block for {page} quotes no number"
+        missing = [n for n in quoted if n not in on_page]
+        assert not missing, f"README.md quotes {missing}, which {page} does not say"
