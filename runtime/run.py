@@ -11,6 +11,7 @@ from __future__ import annotations
 import shlex
 import shutil
 import socket
+import subprocess
 import sys
 from pathlib import Path
 from typing import Any
@@ -129,6 +130,9 @@ def launch(
     key_dir: Path | None = None,
 ) -> int:
     """Check and run a graph document; returns the exit code (2 when the check fails)."""
+    rundir = make_rundir()
+    prestarted: list[subprocess.Popen[bytes]] = []
+    launcher: Launcher | None = None
     try:
         if record is not None:
             graph = add_recorder(
@@ -139,16 +143,11 @@ def launch(
                 source,
                 overwrite=overwrite,
             )
-    except GraphError as err:
-        print(f"graph check failed:\n{err}", file=sys.stderr)
-        return 2
-    # The node processes start now and import what every node shares while the graph is
-    # checked (the check imports the graph's node modules here, on one core).
-    nodes = graph.get("nodes")
-    rundir = make_rundir()
-    prestarted = [child.start(rundir) for _ in range(len(nodes) if isinstance(nodes, dict) else 0)]
-    launcher: Launcher | None = None
-    try:
+        # The node processes start now and import what every node shares while the graph
+        # is checked (the check imports the graph's node modules here, on one core).
+        nodes = graph.get("nodes")
+        count = len(nodes) if isinstance(nodes, dict) else 0
+        prestarted = [child.start(rundir) for _ in range(count)]
         checked = check(graph, source=source)
         refusals = multihost_refusals(checked, record=record is not None, lockstep=lockstep)
         if refusals:
