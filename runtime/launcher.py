@@ -437,7 +437,9 @@ class Launcher:
             (signal.SIGKILL, 5.0),
         ):
             live = [
-                p for p in self.procs.values() if p.process is not None and p.process.returncode is None
+                p
+                for p in self.procs.values()
+                if p.process is not None and p.process.returncode is None
             ]
             if not live:
                 break
