@@ -13,7 +13,8 @@ the launcher waits for its nodes, reads their exit codes and CPU time and signal
 process groups as it would its own children. A node is running in a few milliseconds,
 sharing the server's memory until it writes to it. If the fork server dies, the next
 start spawns a fresh one (``python -m runtime.child FD PID DIR``), which imports what every node
-shares and lets each node import its own module.
+shares and lets each node import its own module; ``SBG_NODE_START=spawn`` starts with
+such a server (for a library that cannot live through a fork, and for comparison).
 
 A node process, in order:
 
@@ -57,6 +58,9 @@ PR_SET_PDEATHSIG = 1
 PR_SET_NAME = 15
 PR_SET_CHILD_SUBREAPER = 36
 SERVER_NAME = "sbg-fork-server"  # what ps and /proc/PID/comm call the fork server
+# SBG_NODE_START=spawn: the fork server is a fresh Python from the start, so each node
+# imports its own module (for a library that misbehaves after a fork; bench.startup).
+START_ENV = "SBG_NODE_START"
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 GONE_WAIT_SECS = 0.2
 SERVER_END_SECS = 0.5
@@ -134,6 +138,13 @@ class Starter:
             raise OSError("PR_SET_CHILD_SUBREAPER failed: the launcher needs Linux")
         self.rundir = rundir
         self.launcher = os.getpid()
+        self.server = 0
+        if os.environ.get(START_ENV, "fork") == "spawn":
+            self._spawn_server()
+        else:
+            self._fork_server()
+
+    def _fork_server(self) -> None:
         self.sock, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         sys.stdout.flush()
         sys.stderr.flush()
@@ -142,12 +153,25 @@ class Starter:
             self.sock.close()
             code = 0
             try:
-                serve(theirs, self.launcher, str(rundir))
+                serve(theirs, self.launcher, str(self.rundir))
             except BaseException:  # noqa: BLE001 - never back into the launcher's code
                 code = 1
             os._exit(code)
         theirs.close()
         self.server = pid
+
+    def _spawn_server(self) -> None:
+        self.sock, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join(
+            filter(None, [str(PROJECT_ROOT), env.get("PYTHONPATH")])
+        )
+        theirs.set_inheritable(True)
+        args = [str(theirs.fileno()), str(self.launcher), str(self.rundir)]
+        self.server = os.posix_spawn(
+            sys.executable, [sys.executable, "-m", "runtime.child", *args], env, setpgroup=0
+        )
+        theirs.close()
 
     def start(self) -> NodeProcess:
         """A new node process, waiting for its spec on ``stdin``.
@@ -182,17 +206,7 @@ class Starter:
 
     def _respawn(self) -> None:
         self._end_server()
-        self.sock, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
-        env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join(
-            filter(None, [str(PROJECT_ROOT), env.get("PYTHONPATH")])
-        )
-        theirs.set_inheritable(True)
-        args = [str(theirs.fileno()), str(self.launcher), str(self.rundir)]
-        self.server = os.posix_spawn(
-            sys.executable, [sys.executable, "-m", "runtime.child", *args], env, setpgroup=0
-        )
-        theirs.close()
+        self._spawn_server()
 
     def _end_server(self) -> None:
         """Close its socket (it exits when it reads the end); kill it if it does not (a
