@@ -118,7 +118,10 @@ def _free_port() -> int:
 @pytest.mark.parametrize(
     ("graph", "expected"),
     [
-        ("graph.yaml", ["handover: stable", "RELEASE done: E_SUCCESS"]),
+        # The task ends when the object is let go, while the jaws still open: whether the
+        # driver reports the release's end before the graph stops is a race (the
+        # release's completion over the protocol is tested in test_wsg50.py and above).
+        ("graph.yaml", ["handover: stable", "handover: release", "handover: done grasp released"]),
         ("graphs/sort.yaml", ["sort: classified pet_bottle", "placed in recycling"]),
     ],
 )
