@@ -77,6 +77,18 @@ def delivered(
     return True
 
 
+def balanced(edges: Iterable[tuple[str, str, str]], stats: Mapping[str, dict[str, Any]]) -> bool:
+    """Whether, by the nodes' heartbeat ``stats``, each edge between two of them received
+    everything published on it (an edge to a node without stats is not counted)."""
+    published = {t: n for st in stats.values() for t, n in st.get("published", {}).items()}
+
+    def received(node: str, port: str) -> int | None:
+        st = stats.get(node)
+        return None if st is None else st.get("inputs", {}).get(port, {}).get("received", 0)
+
+    return delivered(edges, published, received)
+
+
 def add_stats(base: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
     """Sum two stats snapshots (of two incarnations of one node)."""
     if not base:

@@ -33,11 +33,11 @@ from typing import IO, Any
 import zmq
 
 from runtime import child, protocol
-from runtime.counters import add_stats, delivered, table
+from runtime.counters import balanced, delivered
 from runtime.graph import Graph, ipc_path
 from runtime.hostlink import HostLink, judge
 from runtime.isolation import make_rundir
-from runtime.procs import Proc, reap, signal_group, spawn
+from runtime.procs import Proc, procs_table, reap, signal_group, spawn
 from runtime.protocol import ControlServer
 from runtime.registry import class_path
 from runtime.security import KeyPair
@@ -67,8 +67,10 @@ class Launcher:
         keys: KeyPair | None = None,
         rundir: Path | None = None,
         prestarted: list[subprocess.Popen[bytes]] | None = None,
+        argv: str = "",
     ) -> None:
         self.graph = graph
+        self.argv = argv  # the command line, for the other hosts to say which flags differ
         # With a hosts table: only this host's nodes, every publisher at its fixed endpoint.
         self.host, self.keys = host, keys
         placed = graph.hosts.placement({n: s.host for n, s in graph.nodes.items()})
@@ -86,7 +88,7 @@ class Launcher:
         # Subscriptions each publisher waits for: one per input, but in lockstep a node
         # reads each publisher through one socket, subscribed once per topic.
         self.expected: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
-        edges = graph.edges()
+        self.edges = edges = graph.edges()
         subscriptions = {(t, n) for t, n, _ in edges} if lockstep else [(t, n) for t, n, _ in edges]
         for topic, _ in subscriptions:
             self.expected[self.providers[topic]][topic] += 1
@@ -114,9 +116,15 @@ class Launcher:
         self.control_endpoint = f"ipc://{self.rundir}/control"
         self.control = ControlServer(self.ctx, self.control_endpoint, self.secret, self.say)
         if self.host is not None:
-            graph, hosts = self.graph, self.graph.hosts
-            self.link = HostLink(self.ctx, hosts, self.host, self.keys, self.say, graph.document)
+            hosts = self.graph.hosts
+            run = {"graph": self.graph.document, "lockstep": self.lockstep}  # must agree
+            self.link = HostLink(self.ctx, hosts, self.host, self.keys, self.say, run, self.argv)
             self.link.start()
+        self.poller = zmq.Poller()
+        self.poller.register(self.control.socket, zmq.POLLIN)
+        if self.link is not None:
+            self.poller.register(self.link.fileno(), zmq.POLLIN)
+        self.counts_changed = False
 
     def _close(self) -> None:
         child.release(self.prestarted)  # a stop before every node was spawned
@@ -253,6 +261,7 @@ class Launcher:
         elif kind == "counts":
             proc.counts_published = msg["published"]
             proc.counts_received = msg["received"]
+            self.counts_changed = True
         elif kind == "wait_idle":
             self.idle_waiters.append(rid)
         elif kind == "stop_request":
@@ -275,16 +284,26 @@ class Launcher:
     def _endpoints(self) -> dict[str, str]:
         return self.fixed | {name: p.endpoint for name, p in self.procs.items() if p.endpoint}
 
+    def _counts(self) -> tuple[dict[str, int], dict[str, int]]:
+        """This host's nodes' newest counts: published per topic, received per node/port."""
+        procs = self.procs.items()
+        published = {t: n for _, p in procs for t, n in p.counts_published.items()}
+        received = {f"{x}/{port}": n for x, p in procs for port, n in p.counts_received.items()}
+        return published, received
+
     def _graph_idle(self) -> bool:
-        published = {t: n for p in self.procs.values() for t, n in p.counts_published.items()}
-        return delivered(
-            self.local_edges,
-            published,
-            lambda node, port: self.procs[node].counts_received.get(port, 0),
-        )
+        """Whether every edge received all published on it (other hosts' counts from the
+        link: stale ones only make the graph look busy, see docs/hosts.md)."""
+        published, received = self._counts()
+        if self.link is not None:
+            theirs, got = self.link.remote_counts()
+            published, received = theirs | published, got | received
+        return delivered(self.edges, published, lambda n, port: received.get(f"{n}/{port}", 0))
 
     def _serve(self, timeout_ms: int) -> None:
-        for rid, msg in self.control.receive(timeout_ms):
+        # Wakes for a node's message or for the link's (an event, or another host's counts).
+        self.poller.poll(timeout_ms)
+        for rid, msg in self.control.receive(0):
             proc = self.procs.get(msg["node"])
             if proc is None:
                 self.control.refuse(f"signed, but names no node of the graph: {msg['node']!r:.40}")
@@ -299,6 +318,9 @@ class Launcher:
                     self.exit_code = self.exit_code or act.exit_code
                     self.verdict_code = self.verdict_code or act.verdict_code
                     self._request_stop(act.stop, echo=act.echo)
+        if self.counts_changed and self.link is not None:  # lockstep across hosts
+            self.counts_changed = False
+            self.link.send_counts(*self._counts())
         if self.idle_waiters and self._graph_idle():
             for rid in self.idle_waiters:
                 self.control.send(rid, "idle")
@@ -407,20 +429,9 @@ class Launcher:
             self._serve(50)
             self._reap()
             running = [p for p in self.procs.values() if p.state == "running"]
-            if all(p.stats_at > asked for p in running) and self._stats_balanced():
+            stats = {n: p.stats for n, p in self.procs.items() if p.state == "running"}
+            if all(p.stats_at > asked for p in running) and balanced(self.local_edges, stats):
                 return
-
-    def _stats_balanced(self) -> bool:
-        running = {n: p.stats for n, p in self.procs.items() if p.state == "running"}
-        published = {t: n for st in running.values() for t, n in st.get("published", {}).items()}
-
-        def received(node: str, port: str) -> int | None:
-            stats = running.get(node)
-            return (
-                None if stats is None else stats.get("inputs", {}).get(port, {}).get("received", 0)
-            )
-
-        return delivered(self.local_edges, published, received)
 
     def _shutdown(self) -> None:
         live = [
@@ -480,16 +491,7 @@ class Launcher:
     def report(self) -> str:
         """Per topic (messages, rate, dropped, superseded, bad, non-finite) and per node."""
         elapsed = (self.stopped_at or time.monotonic()) - (self.started_at or time.monotonic())
-        stats = {name: add_stats(p.stats_base, p.stats) for name, p in self.procs.items()}
-        nodes = {
-            name: {
-                "restarts": p.restarts,
-                "cpu_secs": p.cpu_secs,
-                "exit": p.exit_codes[-1] if p.exit_codes else None,
-            }
-            for name, p in self.procs.items()
-        }
-        text = table(stats, nodes, elapsed)
+        text = procs_table(self.procs, elapsed)
         if self.control.refused:
             text += (
                 f"\ncontrol: refused {self.control.refused} message(s) (malformed or not signed)"

@@ -15,11 +15,11 @@ import signal
 import subprocess
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import IO, Any, Literal
 
-from runtime.counters import add_stats
+from runtime.counters import add_stats, table
 from runtime.graph import NodeSpec
 
 # A node process's life, as the launcher sees it (mypy checks every assignment).
@@ -107,3 +107,17 @@ def signal_group(proc: Proc, signum: int) -> None:
             os.killpg(proc.popen.pid, signum)
         except (ProcessLookupError, PermissionError):
             pass
+
+
+def procs_table(procs: Mapping[str, Proc], elapsed_secs: float) -> str:
+    """The end-of-run table of these nodes (every incarnation's counts summed)."""
+    stats = {name: add_stats(p.stats_base, p.stats) for name, p in procs.items()}
+    nodes = {
+        name: {
+            "restarts": p.restarts,
+            "cpu_secs": p.cpu_secs,
+            "exit": p.exit_codes[-1] if p.exit_codes else None,
+        }
+        for name, p in procs.items()
+    }
+    return table(stats, nodes, elapsed_secs)

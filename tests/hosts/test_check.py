@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from messages.errors import GraphError
-from runtime.graph import check, load
+from runtime.graph import check
 from runtime.run import host_keys
 from runtime.security import load_key, make_key
 from tests.hosts.conftest import ROOT, two_host_graph, write_graph
@@ -132,16 +132,3 @@ def test_without_host_it_says_what_to_run_on_each_host(tmp_path: Path) -> None:
     assert "places its nodes on 2 hosts" in run.stderr
     assert f"launch.py {graph} --keys {tmp_path} --host a" in run.stderr
     assert "on b (10.77.0.2, nodes sink):" in run.stderr
-
-
-def test_recording_and_lockstep_across_hosts_are_refused_with_why(tmp_path: Path) -> None:
-    graph = write_graph(two_host_graph(tmp_path), tmp_path / "g.yaml")
-    record = launch(graph, "--host", "a", "--keys", tmp_path, "--record", tmp_path / "o.mcap")
-    assert record.returncode == 2
-    assert "--record with a hosts table" in record.stderr
-    assert "put a recorder node in the graph" in record.stderr
-    lockstep = launch(graph, "--host", "a", "--keys", tmp_path, "--lockstep")
-    assert lockstep.returncode == 2
-    assert "--lockstep with a hosts table" in lockstep.stderr
-    assert not (tmp_path / "o.mcap").exists()
-    assert load(graph).hosts.on_host_lost == "stop"

@@ -34,9 +34,16 @@ def test_judge_applies_the_policies() -> None:
     assert stop.stop == "host 'robot' stops: supervisor: done"
     assert stop.verdict_code == 3 and not stop.echo
     assert judge(("back", "robot", True), HOSTS).lines == ["host 'robot' is back (a new launcher)"]
-    other = judge(("graph_differs", "robot", "ab" * 32, "cd" * 32), HOSTS)
+    theirs, ours = "python launch.py g.yaml --lockstep --record o.mcap", "python launch.py g.yaml"
+    other = judge(("graph_differs", "robot", "ab" * 32, "cd" * 32, theirs, ours), HOSTS)
     assert other.stop == "host 'robot' runs another graph" and other.exit_code == 2
     assert "sha256 abababababab, here cdcdcdcdcdcd" in other.lines[0]
+    assert other.lines[1] == (
+        "host 'robot' was started with --lockstep --record o.mcap that this host was not, "
+        "and this host with nothing that it was not"
+    )
+    same = judge(("graph_differs", "robot", "ab" * 32, "cd" * 32, ours, ours), HOSTS)
+    assert len(same.lines) == 1  # the same options: another graph file
 
 
 # Two links (hosts a and b on the namespace's own address), and a forger: a DEALER with

@@ -67,8 +67,8 @@ def test_the_handover_split_across_hosts_runs_end_to_end_records_and_refuses_int
     }
     graph = write_graph(doc, tmp_path / "handover.yaml")
     robot_ns, ws_ns, outside = netns
-    robot = Launched(robot_ns, graph, "robot", tmp_path, tmp_path / "robot.log")
-    workstation = Launched(ws_ns, graph, "workstation", tmp_path, tmp_path / "ws.log")
+    robot = Launched.host(robot_ns, graph, "robot", tmp_path, tmp_path / "robot.log")
+    workstation = Launched.host(ws_ns, graph, "workstation", tmp_path, tmp_path / "ws.log")
     launched += [robot, workstation]
     robot.wait_for("all nodes ready; running")
     # Checked at once, while the graph surely runs (it ends by itself within seconds).
@@ -138,8 +138,8 @@ def test_a_killed_host_is_reported_within_the_timeout_and_stops_the_graph(
     ]
     checked = subprocess.run(netns[0].command(argv), cwd=ROOT, capture_output=True, text=True)
     assert "OK, 2 nodes, 1 edges; host a, its key matches" in checked.stdout, checked.stderr
-    a = Launched(netns[0], graph, "a", tmp_path, tmp_path / "a.log")
-    b = Launched(netns[1], graph, "b", tmp_path, tmp_path / "b.log")
+    a = Launched.host(netns[0], graph, "a", tmp_path, tmp_path / "a.log")
+    b = Launched.host(netns[1], graph, "b", tmp_path, tmp_path / "b.log")
     launched += [a, b]
     b.wait_for("all nodes ready; running")
     b.wait_for("clock offset to host 'a'")
@@ -156,15 +156,15 @@ def test_with_on_host_lost_wait_a_host_that_comes_back_is_resubscribed(
     netns, launched, tmp_path: Path
 ) -> None:
     graph = write_graph(two_host_graph(tmp_path, policy="wait", count=40), tmp_path / "g.yaml")
-    a = Launched(netns[0], graph, "a", tmp_path, tmp_path / "a.log")
-    b = Launched(netns[1], graph, "b", tmp_path, tmp_path / "b.log")
+    a = Launched.host(netns[0], graph, "a", tmp_path, tmp_path / "a.log")
+    b = Launched.host(netns[1], graph, "b", tmp_path, tmp_path / "b.log")
     launched += [a, b]
     a.wait_for("all nodes ready; running")
     time.sleep(0.5)
     a.kill()
     b.wait_for("host 'a' lost", timeout=30)
     assert b.proc.poll() is None  # the sink's host goes on
-    again = Launched(netns[0], graph, "a", tmp_path, tmp_path / "a2.log")
+    again = Launched.host(netns[0], graph, "a", tmp_path, tmp_path / "a2.log")
     launched.append(again)
     b.wait_for("host 'a' is back (a new launcher)")
     # The new source waits for the sink, whose socket reconnects and subscribes again,
