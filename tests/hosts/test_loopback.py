@@ -134,3 +134,16 @@ def test_a_host_started_without_lockstep_is_refused_naming_the_flag(tmp_path: Pa
     assert "host 'b' was started with nothing that this host was not" in a.text
     assert "and this host with --lockstep that it was not" in a.text
     assert "host 'a' was started with --lockstep that this host was not" in b.text
+
+
+def test_a_replay_across_hosts_without_host_says_what_to_run_on_each(
+    recorded: tuple[Path, list[Launched]], tmp_path: Path
+) -> None:
+    bag, _ = recorded
+    run = Launched(["replay", bag, "--swap", "relay"], tmp_path / "r.log")
+    assert run.finish() == 2
+    assert "places its nodes on 2 hosts" in run.text
+    assert f"launch.py replay {bag} --swap relay --host a" in run.text
+    assert "on a (127.0.0.1, nodes sink, replay):" in run.text  # the replay on the first host
+    both = Launched(["replay", bag, "--no-hosts", "--host", "a"], tmp_path / "b.log")
+    assert both.finish() == 2 and "--no-hosts and --host: give one of them" in both.text
