@@ -10,6 +10,8 @@ import sys
 import time
 from pathlib import Path
 
+from runtime.bag import BagReader
+from runtime.bagtool import diff_bags
 from runtime.graph import load_document
 from runtime.hosts import check_hosts
 from tests.hosts.conftest import ROOT, Launched, host_table, two_host_graph, write_graph
@@ -174,3 +176,43 @@ def test_with_on_host_lost_wait_a_host_that_comes_back_is_resubscribed(
     received = int(re.search(r"received (\d+) ticks", b.text).group(1))
     assert received > 40, b.text[-2000:]  # before the kill, and all 40 of the new source
     assert b.text.count("[launch] starting 1 node(s)") == 1  # the sink was not restarted
+
+
+def test_the_handover_recorded_across_hosts_replays_in_lockstep_across_them_as_on_one(
+    netns, launched, tmp_path: Path
+) -> None:
+    doc = load_document(ROOT / "graph.yaml")
+    doc["hosts"] = host_table(tmp_path, ["robot", "workstation"])
+    for name, node in doc["nodes"].items():
+        node["host"] = "robot" if name in ROBOT else "workstation"
+    graph = write_graph(doc, tmp_path / "handover.yaml")
+    bag, keys = tmp_path / "run.mcap", ["--keys", tmp_path]
+    # --record on both hosts: the recorder runs on the first (robot), over CURVE from the other.
+    on = [(netns[0], "robot"), (netns[1], "workstation")]
+    record = [graph, "--record", bag, "--log-level", "WARNING", *keys]
+    launched += [Launched([*record, "--host", h], tmp_path / f"rec-{h}.log", ns) for ns, h in on]
+    assert [item.finish() for item in launched] == [0, 0], launched[1].text[-3000:]
+    with BagReader(bag) as reader:
+        counts = {t: s.messages for t, s in reader.stats().items()}
+    assert counts["world/state"] == topic_count(launched[0].text, "world/state")
+    assert counts["shear/shear"] > 0 and counts["pose/pose"] > 0  # from the workstation
+
+    # The shear tracker rerun in lockstep: the replay (robot) feeds it on the workstation,
+    # whose counts come back over the link before every barrier; then on one host.
+    replay = ["replay", bag, "--swap", "shear", "--lockstep", "--log-level", "WARNING"]
+    split, alone = tmp_path / "split.mcap", tmp_path / "alone.mcap"
+    runs = [
+        Launched([*replay, "--record", split, *keys, "--host", h], tmp_path / f"{h}.log", ns)
+        for ns, h in on
+    ]
+    launched += runs
+    assert [item.finish() for item in runs] == [0, 0], runs[1].text[-3000:]
+    one = Launched([*replay, "--record", alone, "--no-hosts"], tmp_path / "alone.log")
+    launched.append(one)
+    assert one.finish() == 0, one.text[-3000:]
+    assert diff_bags(alone, split, ["shear/shear"]) == []
+    shear = []
+    for path in (alone, split):
+        with BagReader(path) as reader:
+            shear.append(reader.stats()["shear/shear"].messages)
+    assert shear[0] == shear[1] > 0
