@@ -77,10 +77,16 @@ def delivered(
     return True
 
 
-def balanced(edges: Iterable[tuple[str, str, str]], stats: Mapping[str, dict[str, Any]]) -> bool:
-    """Whether, by the nodes' heartbeat ``stats``, each edge between two of them received
-    everything published on it (an edge to a node without stats is not counted)."""
-    published = {t: n for st in stats.values() for t, n in st.get("published", {}).items()}
+def balanced(
+    edges: Iterable[tuple[str, str, str]],
+    stats: Mapping[str, dict[str, Any]],
+    published: Mapping[str, int] | None = None,
+) -> bool:
+    """Whether, by the nodes' heartbeat ``stats``, each edge to one of them received
+    everything published on it (by ``published``, default: by the publishers among them;
+    an edge to a node without stats is not counted)."""
+    if published is None:
+        published = {t: n for st in stats.values() for t, n in st.get("published", {}).items()}
 
     def received(node: str, port: str) -> int | None:
         st = stats.get(node)

@@ -46,7 +46,9 @@ import msgpack
 import zmq
 
 from runtime import protocol
+from runtime.counters import balanced
 from runtime.hosts import Hosts, HostSpec
+from runtime.procs import Proc
 from runtime.protocol import ControlError
 from runtime.security import Guard, KeyPair, connect_to, serve
 
@@ -71,6 +73,7 @@ class _Peer:
     samples: list[tuple[float, float]] = field(default_factory=list)
     # Its nodes' newest counts (lockstep): published per topic, received per "node/port".
     counts: tuple[dict[str, int], dict[str, int]] = ({}, {})
+    final: dict[str, int] | None = None  # what its nodes published in all, once stopped
 
 
 class HostLink:
@@ -179,6 +182,18 @@ class HostLink:
             published.update(theirs[0])
             received.update(theirs[1])
         return published, received
+
+    def send_final(self, published: dict[str, int]) -> None:
+        """This host's nodes have stopped (but for listeners): all they published, per topic."""
+        self._queue(self._pack("link_final", published=published))
+
+    def finals(self) -> dict[str, int] | None:
+        """All the other hosts' nodes published, per topic, once every host that is not
+        lost has sent :meth:`send_final`; None until then."""
+        peers = [p for p in self.peers.values() if not p.lost]
+        if any(p.final is None for p in peers):
+            return None
+        return {t: n for p in peers for t, n in (p.final or {}).items()}
 
     def _queue(self, frames: list[bytes]) -> None:
         self._outbox.append(frames)
@@ -334,6 +349,7 @@ class HostLink:
                 peer.samples = []
                 peer.ping_t1 = None
                 peer.counts = ({}, {})
+                peer.final = None
                 if first:
                     self._event(("joined", name))
                 elif not peer.lost:  # restarted within the timeout
@@ -351,8 +367,11 @@ class HostLink:
                 self._event(("clock", name, offset, rtt))
         elif kind == "link_beat":
             peer.ready = bool(msg["ready"])
-        elif kind == "link_counts":
-            peer.counts = (msg["published"], msg["received"])
+        elif kind in ("link_counts", "link_final"):
+            if kind == "link_counts":
+                peer.counts = (msg["published"], msg["received"])
+            else:
+                peer.final = msg["published"]
             _poke(self._note_w)
         elif kind == "link_stop":
             self._event(("stop", name, msg["reason"], msg["exit_code"]))
@@ -375,6 +394,30 @@ def _drain_pipe(fd: int) -> None:
             pass
     except (BlockingIOError, OSError):
         pass
+
+
+def wait_for_finals(
+    link: HostLink,
+    edges: list[tuple[str, str, str]],
+    published: dict[str, int],
+    listeners: list[Proc],
+    step: Callable[[], bool],
+    secs: float = 8.0,
+) -> None:
+    """Stopping: wait until every other host has stopped its nodes (:meth:`HostLink.finals`)
+    and each of this host's ``listeners``, by its heartbeat after that, received all that
+    was published on each of its ``edges`` (here: ``published``). ``step`` serves the
+    launcher once and says whether to go on; at most ``secs``."""
+    end = time.monotonic() + secs
+    complete = 0.0  # when the last host's final counts came
+    while time.monotonic() < end and step():
+        finals = link.finals()
+        if finals is None:
+            continue
+        complete = complete or time.monotonic()
+        stats = {p.spec.name: p.stats for p in listeners if p.stats_at > complete}
+        if len(stats) == len(listeners) and balanced(edges, stats, published | finals):
+            return
 
 
 @dataclass

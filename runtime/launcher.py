@@ -35,9 +35,9 @@ import zmq
 from runtime import child, protocol
 from runtime.counters import balanced, delivered
 from runtime.graph import Graph, ipc_path
-from runtime.hostlink import HostLink, judge
+from runtime.hostlink import HostLink, judge, wait_for_finals
 from runtime.isolation import make_rundir
-from runtime.procs import Proc, procs_table, reap, signal_group, spawn
+from runtime.procs import Proc, counts, reap, signal_group, spawn, stop, table, totals
 from runtime.protocol import ControlServer
 from runtime.registry import class_path
 from runtime.security import KeyPair
@@ -94,11 +94,15 @@ class Launcher:
             self.expected[self.providers[topic]][topic] += 1
         # The edges this launcher sees both ends of (all of them on one host).
         self.local_edges = [e for e in edges if {e[1], self.providers[e[0]]} <= local]
+        # Listeners (a recorder) fed from another host: stopped last (see ``_shutdown``).
+        remote = {n for t, n, _ in edges if n in local and self.providers[t] not in local}
+        self.held = {n for n in remote if graph.nodes[n].cls.raw_input}
         self.barrier_topics = graph.barrier_topics() if lockstep else set()
         self.stop_reason: str | None = None
         self.exit_code = 0
         self.verdict_code = 0  # a node's verdict on the run (stop_request's exit_code)
         self.idle_waiters: list[bytes] = []
+        self.counts_changed = False  # lockstep across hosts: to send to the other hosts
         self.started_at = 0.0
         self.stopped_at = 0.0
         self._print_lock = threading.Lock()
@@ -124,7 +128,6 @@ class Launcher:
         self.poller.register(self.control.socket, zmq.POLLIN)
         if self.link is not None:
             self.poller.register(self.link.fileno(), zmq.POLLIN)
-        self.counts_changed = False
 
     def _close(self) -> None:
         child.release(self.prestarted)  # a stop before every node was spawned
@@ -284,17 +287,10 @@ class Launcher:
     def _endpoints(self) -> dict[str, str]:
         return self.fixed | {name: p.endpoint for name, p in self.procs.items() if p.endpoint}
 
-    def _counts(self) -> tuple[dict[str, int], dict[str, int]]:
-        """This host's nodes' newest counts: published per topic, received per node/port."""
-        procs = self.procs.items()
-        published = {t: n for _, p in procs for t, n in p.counts_published.items()}
-        received = {f"{x}/{port}": n for x, p in procs for port, n in p.counts_received.items()}
-        return published, received
-
     def _graph_idle(self) -> bool:
         """Whether every edge received all published on it (other hosts' counts from the
         link: stale ones only make the graph look busy, see docs/hosts.md)."""
-        published, received = self._counts()
+        published, received = counts(self.procs)
         if self.link is not None:
             theirs, got = self.link.remote_counts()
             published, received = theirs | published, got | received
@@ -318,9 +314,9 @@ class Launcher:
                     self.exit_code = self.exit_code or act.exit_code
                     self.verdict_code = self.verdict_code or act.verdict_code
                     self._request_stop(act.stop, echo=act.echo)
-        if self.counts_changed and self.link is not None:  # lockstep across hosts
+        if self.counts_changed and self.link is not None:
             self.counts_changed = False
-            self.link.send_counts(*self._counts())
+            self.link.send_counts(*counts(self.procs))
         if self.idle_waiters and self._graph_idle():
             for rid in self.idle_waiters:
                 self.control.send(rid, "idle")
@@ -418,49 +414,42 @@ class Launcher:
                 self._request_stop(f"duration of {self.duration_secs:g} s reached")
 
     def _drain(self) -> None:
-        """Before a requested stop, let messages in flight reach their subscribers.
-
-        Waits (at most ``DRAIN_SECS``) for a heartbeat of every running node taken after
-        the request that shows each edge received everything published on it.
-        """
+        """Before a requested stop, let messages in flight reach their subscribers: wait (at
+        most ``DRAIN_SECS``) for a heartbeat of every running node taken after the request
+        that shows each edge between them received everything published on it."""
         asked = time.monotonic()
         end = asked + DRAIN_SECS
-        while time.monotonic() < end and not self._signals:
-            self._serve(50)
-            self._reap()
+        while time.monotonic() < end and self._step():
             running = [p for p in self.procs.values() if p.state == "running"]
             stats = {n: p.stats for n, p in self.procs.items() if p.state == "running"}
             if all(p.stats_at > asked for p in running) and balanced(self.local_edges, stats):
                 return
 
     def _shutdown(self) -> None:
-        live = [
-            p for p in self.procs.values() if p.popen is not None and p.popen.returncode is None
-        ]
-        for proc in live:
-            if proc.rid is None:  # still importing: it cannot hear "stop" yet
-                signal_group(proc, signal.SIGTERM)
-            else:
-                self._send(proc.spec.name, "stop")
+        """Stop every node; across hosts a listener (a recorder) fed from another host last:
+        once every host has stopped its nodes and it has received all they published."""
+        held = [p for n, p in self.procs.items() if n in self.held]
+        self._stop([p for p in self.procs.values() if p not in held])
+        if self.link is not None:
+            published = totals(self.procs)
+            self.link.send_final(published)
+            if held:
+                wait_for_finals(self.link, self.edges, published, held, self._step)
+        self._stop(held)
+
+    def _step(self) -> bool:
+        """Serve and reap once (50 ms at most); whether to go on waiting (no signal came)."""
+        self._serve(50)
+        self._reap()
+        return not self._signals
+
+    def _stop(self, procs: list[Proc]) -> None:
         hurry = bool(self._signals)
-        for signum, grace in (
-            (None, SIGNAL_STOP_GRACE_SECS if hurry else STOP_GRACE_SECS),
-            (signal.SIGTERM, SIGNAL_TERM_GRACE_SECS if hurry else TERM_GRACE_SECS),
-            (signal.SIGKILL, 5.0),
-        ):
-            live = [
-                p for p in self.procs.values() if p.popen is not None and p.popen.returncode is None
-            ]
-            if not live:
-                break
-            if signum is not None:
-                self.say(f"{len(live)} node(s) still running: sending {signum.name}")
-                for proc in live:
-                    signal_group(proc, signum)
-            end = time.monotonic() + grace
-            while time.monotonic() < end and any(p.popen.returncode is None for p in live):  # type: ignore[union-attr]
-                self._serve(50)
-                self._reap()
+        graces = (
+            SIGNAL_STOP_GRACE_SECS if hurry else STOP_GRACE_SECS,
+            SIGNAL_TERM_GRACE_SECS if hurry else TERM_GRACE_SECS,
+        )
+        stop(procs, graces, lambda p: self._send(p.spec.name, "stop"), self._step, self.say)
         self._serve(0)
 
     def run(self) -> int:
@@ -491,7 +480,7 @@ class Launcher:
     def report(self) -> str:
         """Per topic (messages, rate, dropped, superseded, bad, non-finite) and per node."""
         elapsed = (self.stopped_at or time.monotonic()) - (self.started_at or time.monotonic())
-        text = procs_table(self.procs, elapsed)
+        text = table(self.procs, elapsed)
         if self.control.refused:
             text += (
                 f"\ncontrol: refused {self.control.refused} message(s) (malformed or not signed)"

@@ -36,6 +36,9 @@ launcher <-> launcher (one per host, ``runtime.hostlink``; CURVE-encrypted tcp)
     link_stop  {host, reason, exit_code}         the graph stops
     link_counts {host, published, received}      lockstep: its nodes' newest counts, sent
                                                  when one changes (received: "node/port")
+    link_final {host, published}                 stopping: its nodes (but for listeners fed
+                                                 from other hosts) have stopped, and
+                                                 published this much in all, per topic
 """
 
 from __future__ import annotations
@@ -79,6 +82,7 @@ _FIELDS: dict[str, dict[str, type | tuple[type, ...]]] = {
     "link_pong": {"host": str, "t1": int, "t2": int, "t3": int},
     "link_stop": {"host": str, "reason": str, "exit_code": int},
     "link_counts": {"host": str, "published": dict, "received": dict},
+    "link_final": {"host": str, "published": dict},
 }
 
 
