@@ -52,13 +52,19 @@ def tcp_sockets(ns_command: list[str]) -> list[tuple[str, str, str]]:
     return [(f[0], f[3], f[4]) for f in (line.split() for line in out.splitlines()) if len(f) >= 5]
 
 
+def split_handover(keys: Path) -> dict:
+    """The handover graph (graph.yaml) on hosts robot (10.77.0.1) and workstation (.2)."""
+    doc = load_document(ROOT / "graph.yaml")
+    doc["hosts"] = host_table(keys, ["robot", "workstation"])
+    for name, node in doc["nodes"].items():
+        node["host"] = "robot" if name in ROBOT else "workstation"
+    return doc
+
+
 def test_the_handover_split_across_hosts_runs_end_to_end_records_and_refuses_intruders(
     netns, launched, tmp_path: Path
 ) -> None:
-    doc = load_document(ROOT / "graph.yaml")
-    doc["hosts"] = host_table(tmp_path, ["robot", "workstation"])
-    for name, node in doc["nodes"].items():
-        node["host"] = "robot" if name in ROBOT else "workstation"
+    doc = split_handover(tmp_path)
     # Recording across hosts: a recorder node in the graph, on the workstation.
     bag = tmp_path / "run.mcap"
     doc["nodes"]["recorder"] = {
@@ -181,10 +187,7 @@ def test_with_on_host_lost_wait_a_host_that_comes_back_is_resubscribed(
 def test_the_handover_recorded_across_hosts_replays_in_lockstep_across_them_as_on_one(
     netns, launched, tmp_path: Path
 ) -> None:
-    doc = load_document(ROOT / "graph.yaml")
-    doc["hosts"] = host_table(tmp_path, ["robot", "workstation"])
-    for name, node in doc["nodes"].items():
-        node["host"] = "robot" if name in ROBOT else "workstation"
+    doc = split_handover(tmp_path)
     graph = write_graph(doc, tmp_path / "handover.yaml")
     bag, keys = tmp_path / "run.mcap", ["--keys", tmp_path]
     # --record on both hosts: the recorder runs on the first (robot), over CURVE from the other.
