@@ -11,7 +11,9 @@ from pathlib import Path
 import pytest
 
 from messages.errors import GraphError
+from runtime.cli import shared_command_line
 from runtime.graph import check
+from runtime.hosts import without_hosts
 from runtime.run import host_keys
 from runtime.security import load_key, make_key
 from tests.hosts.conftest import ROOT, two_host_graph, write_graph
@@ -132,3 +134,20 @@ def test_without_host_it_says_what_to_run_on_each_host(tmp_path: Path) -> None:
     assert "places its nodes on 2 hosts" in run.stderr
     assert f"launch.py {graph} --keys {tmp_path} --host a" in run.stderr
     assert "on b (10.77.0.2, nodes sink):" in run.stderr
+
+
+def test_without_hosts_drops_the_table_its_policies_and_placements(tmp_path: Path) -> None:
+    doc = two_host_graph(tmp_path)
+    alone = without_hosts(doc)
+    assert set(alone) == {"nodes"} and "hosts" in doc  # a copy
+    assert all("host" not in body for body in alone["nodes"].values())
+    assert not check(alone).hosts.table
+    loopback = {"nodes": {"a": {"impl": "synthetic.source", "host": "127.0.0.1"}}}
+    assert without_hosts(loopback) == loopback  # no table: a node's address stays
+
+
+def test_the_shared_command_line_is_the_same_on_every_host() -> None:
+    a = shared_command_line(["launch.py", "g.yaml", "--record", "o.mcap", "--host", "a"])
+    b = shared_command_line(["launch.py", "g.yaml", "--keys=/k", "--record", "o.mcap"])
+    assert a == b == "python launch.py g.yaml --record o.mcap"
+    assert shared_command_line(["launch.py", "g.yaml"]).endswith(" launch.py g.yaml")
