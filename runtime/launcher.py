@@ -433,7 +433,7 @@ class Launcher:
         if self.link is not None:
             published = totals(self.procs)
             self.link.send_final(published)
-            if held:
+            if held and self.started_at:  # (not when the hosts never ran together)
                 wait_for_finals(self.link, self.edges, published, held, self._step)
         self._stop(held)
 

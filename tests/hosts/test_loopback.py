@@ -122,8 +122,8 @@ def test_lockstep_replay_split_over_two_hosts_gives_the_one_host_output(
 
 
 def test_a_host_started_without_lockstep_is_refused_naming_the_flag(tmp_path: Path) -> None:
-    graph = write_graph(GRAPH, tmp_path / "g.yaml")
-    a = Launched([graph, "--host", "a", "--lockstep"], tmp_path / "a.log")
+    graph, bag = write_graph(GRAPH, tmp_path / "g.yaml"), tmp_path / "o.mcap"
+    a = Launched([graph, "--host", "a", "--lockstep", "--record", bag], tmp_path / "a.log")
     b = Launched([graph, "--host", "b"], tmp_path / "b.log")
     try:
         assert a.finish() == 2 and b.finish() == 2
@@ -132,8 +132,8 @@ def test_a_host_started_without_lockstep_is_refused_naming_the_flag(tmp_path: Pa
         b.kill()
     assert "host 'b' runs another graph or run mode" in a.text
     assert "host 'b' was started with nothing that this host was not" in a.text
-    assert "and this host with --lockstep that it was not" in a.text
-    assert "host 'a' was started with --lockstep that this host was not" in b.text
+    assert f"and this host with --lockstep --record {bag} that it was not" in a.text
+    assert f"host 'a' was started with --lockstep --record {bag} that this host" in b.text
 
 
 def test_a_replay_across_hosts_without_host_says_what_to_run_on_each(
