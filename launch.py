@@ -13,6 +13,7 @@ python launch.py keys make HOST | list [--keys DIR]   CURVE keys of hosts (docs/
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 
@@ -29,6 +30,11 @@ def _interrupted(signum: int, frame: object) -> None:
 if __name__ == "__main__":
     signal.signal(signal.SIGINT, _interrupted)
     signal.signal(signal.SIGTERM, _interrupted)
+
+# Nodes are forks of the launcher (runtime.child): numpy's BLAS on one thread in each
+# unless the user says otherwise (a dozen processes share a few cores). Set before
+# anything imports numpy, for `python launch.py` and the `softbubble` command alike.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402 - after the signal handlers, on purpose
 from collections.abc import Callable  # noqa: E402

@@ -6,7 +6,10 @@ Rows, each timed from a fresh ``python launch.py`` process:
 
 - ``--help`` and ``bag info`` (a small bag written here): no node module is imported;
 - ``--check graph.yaml``: only the modules of the graph's nodes;
-- ``graph.yaml ready``: from the launch to the launcher's "all nodes ready" line;
+- ``graph.yaml ready``: from the launch to the launcher's "all nodes ready" line, nodes
+  forked from the launcher's fork server (``runtime.child``); and, interleaved with it,
+  the same with ``SBG_NODE_START=spawn`` (a fresh Python that imports each node's
+  modules itself): ``vs_fork`` is the ratio of the medians;
 - ``ctrl-c while running``: from SIGINT to the launcher's exit (every node stopped);
 - ``ctrl-c while starting``: SIGINT as soon as the nodes are spawned, to the exit.
 
@@ -30,6 +33,7 @@ import time
 from pathlib import Path
 
 from bench.common import Row, main, median
+from runtime.child import START_ENV
 
 ROOT = Path(__file__).resolve().parent.parent
 RUNS = 5
@@ -37,8 +41,10 @@ GRAPH = ROOT / "graph.yaml"
 QUICK_ONLY = ["--only", "world,gripper"]
 
 
-def _launch(*args: str) -> subprocess.Popen[str]:
+def _launch(*args: str, spawn: bool = False) -> subprocess.Popen[str]:
     env = dict(os.environ, PYTHONPATH=str(ROOT))
+    if spawn:
+        env[START_ENV] = "spawn"
     return subprocess.Popen(
         [sys.executable, str(ROOT / "launch.py"), *args],
         cwd=ROOT,
@@ -69,11 +75,11 @@ def _time_command(*args: str) -> tuple[float, float]:
     return took, _cpu_of_children() - cpu
 
 
-def _time_graph(args: list[str], signal_on: str) -> tuple[float, float]:
+def _time_graph(args: list[str], signal_on: str, spawn: bool = False) -> tuple[float, float]:
     """Launch ``launch.py ARGS``; seconds to the line containing ``signal_on``, then seconds from a
     SIGINT sent at that line to the launcher's exit (which must be 130)."""
     start = time.perf_counter()
-    proc = _launch(*args)
+    proc = _launch(*args, spawn=spawn)
     seen = threading.Event()
     lines: list[str] = []
 
@@ -124,6 +130,7 @@ def _row(what: str, seconds: list[float], goal_s: float, cpu: list[float] | None
         "runs": len(seconds),
         "goal_s": goal_s,
         "meets_goal": "yes" if med < goal_s else "no",
+        "vs_fork": float("nan"),
     }
 
 
@@ -144,9 +151,15 @@ def run(quick: bool) -> list[Row]:
             _command_row("bag info", ["bag", "info", str(bag)], runs, 0.5),
             _command_row(f"--check {name}", [*graph, "--check"], runs, 1.0),
         ]
-        running = [_time_graph(graph, "all nodes ready") for _ in range(runs)]
+        running, spawned = [], []
+        for _ in range(runs):  # side by side: forked nodes, then fresh Pythons
+            running.append(_time_graph(graph, "all nodes ready"))
+            spawned.append(_time_graph(graph, "all nodes ready", spawn=True))
         starting = [_time_graph(graph, "starting ") for _ in range(runs)]
     rows.append(_row(f"{name} ready", [r for r, _ in running], 3.0))
+    rows.append(_row(f"{name} ready, {START_ENV}=spawn", [r for r, _ in spawned], 3.0))
+    rows[-1]["vs_fork"] = rows[-1]["median_s"] / rows[-2]["median_s"]
+    rows[-2]["vs_fork"] = 1.0
     rows.append(_row("ctrl-c while running", [s for _, s in running], 2.0))
     rows.append(_row("ctrl-c while starting", [s for _, s in starting], 2.0))
     return rows
@@ -165,5 +178,6 @@ if __name__ == "__main__":
             "runs",
             "goal_s",
             "meets_goal",
+            "vs_fork",
         ],
     )

@@ -333,6 +333,8 @@ class HostLink:
         kind = msg["kind"]
         if kind == "link_hello":
             secret = bytes.fromhex(msg["run_secret"])
+            if msg["reply"]:  # also to another graph: then it learns so too, and stops
+                self._send(peer, self._hello(reply=0))
             if msg["graph"] != self.graph:  # its endpoints and nodes are not ours
                 if secret != peer.differs:
                     peer.differs = secret
@@ -340,8 +342,6 @@ class HostLink:
                         ("graph_differs", name, msg["graph"], self.graph, msg["argv"], self.argv)
                     )
                 return
-            if msg["reply"]:
-                self._send(peer, self._hello(reply=0))
             if secret != peer.secret:
                 first = peer.secret is None and not peer.last_seen
                 peer.secret = secret

@@ -5,9 +5,9 @@ Each run's ``ipc://`` endpoints live in a folder only its user can enter,
 is SIGKILLed, its nodes (which die with it) remove it on their way out
 (``runtime.child``), and the next launcher sweeps folders of this user whose PID is gone.
 
-Frames and control messages travel unencrypted, so the graph check
-(``runtime.graph``) lets a node bind TCP only on a loopback address until the runtime
-offers encrypted multi-host graphs.
+Frames and control messages on loopback and ``ipc://`` travel unencrypted, so the graph
+check (``runtime.graph``) lets a node bind TCP off loopback only in a graph whose
+``hosts:`` table gives CURVE keys (``runtime.hosts``, ``runtime.security``).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Start a checked graph as OS processes, supervise them, stop them, report.
 
-One process per node (``python -m runtime.child``), a control ROUTER socket for
+One process per node (forked by ``runtime.child``), a control ROUTER socket for
 the handshake, heartbeats, lockstep counters and stop requests (see
 ``runtime.protocol``). Supervision: a node that exits with an error, or whose
 heartbeat stops, or that stays busy in one handler longer than its
@@ -22,7 +22,6 @@ from __future__ import annotations
 import os
 import shutil
 import signal
-import subprocess
 import sys
 import threading
 import time
@@ -65,8 +64,6 @@ class Launcher:
         out: IO[str] | None = None,
         host: str | None = None,
         keys: KeyPair | None = None,
-        rundir: Path | None = None,
-        prestarted: list[subprocess.Popen[bytes]] | None = None,
         argv: str = "",
     ) -> None:
         self.graph = graph
@@ -108,14 +105,16 @@ class Launcher:
         self._print_lock = threading.Lock()
         self._signals: list[int] = []
         self.secret = protocol.new_secret()
-        self.rundir = rundir
-        self.prestarted = list(prestarted or [])  # started by ``launch`` during the check
+        self.rundir: Path | None = None
+        self.starter: child.Starter | None = None
         self.ctx: zmq.Context[Any] | None = None
         self.link: HostLink | None = None
 
     def _open(self) -> None:
-        """The run folder (for ``ipc://`` endpoints) and the control socket."""
-        self.rundir = self.rundir or make_rundir()
+        """The run folder (for ``ipc://`` endpoints), the fork server, the control socket."""
+        self.rundir = make_rundir()
+        # Forked before any socket or thread of the launcher exists (runtime.child).
+        self.starter = child.Starter(self.rundir)
         self.ctx = zmq.Context()
         self.control_endpoint = f"ipc://{self.rundir}/control"
         self.control = ControlServer(self.ctx, self.control_endpoint, self.secret, self.say)
@@ -130,7 +129,8 @@ class Launcher:
             self.poller.register(self.link.fileno(), zmq.POLLIN)
 
     def _close(self) -> None:
-        child.release(self.prestarted)  # a stop before every node was spawned
+        if self.starter is not None:
+            self.starter.close()
         if self.link is not None:
             self.link.close()
         if self.ctx is not None:
@@ -190,12 +190,12 @@ class Launcher:
                 "servers": self.servers,
             }
         assert self.rundir is not None
-        popen = self.prestarted.pop(0) if self.prestarted else child.start(self.rundir)
-        spawn(proc, popen, child_spec, self.say)
+        assert self.starter is not None
+        spawn(proc, self.starter.start(), child_spec, self.say)
 
     def _reap(self) -> None:
         for proc in self.procs.values():
-            if proc.popen is None or proc.state in ("exited", "failed", "waiting_restart"):
+            if proc.process is None or proc.state in ("exited", "failed", "waiting_restart"):
                 continue
             code = reap(proc)
             if code is None:
@@ -342,7 +342,6 @@ class Launcher:
             if self.stop_reason is not None:
                 return False
             self._spawn(proc)
-        child.release(self.prestarted)  # more than this host's nodes: not needed
         deadline = time.monotonic() + STARTUP_TIMEOUT_SECS
         connected = False
         said: list[str] = []

@@ -1,8 +1,7 @@
 """One node, one OS process: ZeroMQ transport, handshake, heartbeats, clean stop.
 
-Started by the launcher through ``runtime.child`` (``python -m runtime.child``, the
-node's JSON spec on stdin), which sets up parent death and signals before this module
-and the node's own module are imported.
+Started by the launcher through ``runtime.child`` (a fork of its fork server, the
+node's JSON spec on stdin), which sets up parent death and signals first.
 
 Transport. The node binds one XPUB (verbose, so it sees every subscription) and
 connects one SUB per input to the publisher of that input's topic. Frames are the
@@ -187,7 +186,9 @@ class Runner:
         poller = zmq.Poller()
         poller.register(self.io.pub, zmq.POLLIN)
         poller.register(self.io.control, zmq.POLLIN)
-        while any(self.io.subscriptions[t.encode()] < n for t, n in expected.items()):
+        while not self.io.stop_requested and any(
+            self.io.subscriptions[t.encode()] < n for t, n in expected.items()
+        ):
             events = dict(poller.poll(200))
             if self.io.pub in events:
                 self._drain_subscriptions()
@@ -333,6 +334,7 @@ def main(spec: dict[str, Any]) -> int:
         level=spec.get("log_level", "INFO"),
         format="%(levelname)s %(message)s",
         stream=sys.stdout,
+        force=True,  # a fork of the launcher: whatever it configured is not this node's
     )
     runner = Runner(spec)
 

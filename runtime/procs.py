@@ -1,10 +1,11 @@
 """The launcher's node processes: what it knows of each, and starting, reaping and
 signalling them.
 
-A node runs as ``python -m runtime.child`` in its own process group (a Ctrl-C at the
-terminal reaches the launcher only, which stops the nodes in order), its JSON spec on
-stdin (the run's secret with it: never on a command line or in the environment), its
-output read line by line by a thread and printed with the node's name.
+A node process (a fork of the launcher's fork server, ``runtime.child``) leads its own
+process group (a Ctrl-C at the terminal reaches the launcher only, which stops the nodes
+in order), reads its JSON spec on stdin (the run's secret with it: never on a command
+line or in the environment), and its output is read line by line by a thread and printed
+with the node's name.
 """
 
 from __future__ import annotations
@@ -12,7 +13,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import subprocess
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import IO, Any, Literal
 
 from runtime import counters
+from runtime.child import NodeProcess
 from runtime.counters import add_stats
 from runtime.graph import NodeSpec
 
@@ -30,7 +31,7 @@ ProcState = Literal["new", "hello", "ready", "running", "exited", "waiting_resta
 @dataclass
 class Proc:
     spec: NodeSpec
-    popen: subprocess.Popen[bytes] | None = None
+    process: NodeProcess | None = None
     rid: bytes | None = None  # the ROUTER id of the node's main control socket
     spawned_at: float = 0.0
     endpoint: str | None = None
@@ -50,17 +51,19 @@ class Proc:
 
 def spawn(
     proc: Proc,
-    popen: subprocess.Popen[bytes],
+    process: NodeProcess,
     child_spec: dict[str, Any],
     say: Callable[[str, str], None],
 ) -> None:
-    """Make ``popen`` (a ``runtime.child.start`` process) ``proc``'s node: ``child_spec`` on
-    its stdin, its lines to ``say``."""
-    assert popen.stdin is not None and popen.stdout is not None
-    popen.stdin.write(json.dumps(child_spec).encode())
-    popen.stdin.close()
-    threading.Thread(target=_pump, args=(proc, popen.stdout, say), daemon=True).start()
-    proc.popen = popen
+    """Make ``process`` (new from ``runtime.child.Starter``) ``proc``'s node:
+    ``child_spec`` on its stdin, its lines to ``say``."""
+    try:
+        process.stdin.write(json.dumps(child_spec).encode())
+        process.stdin.close()
+    except BrokenPipeError:
+        pass  # it died already: reaped and reported like any failed node
+    threading.Thread(target=_pump, args=(proc, process.stdout, say), daemon=True).start()
+    proc.process = process
     proc.rid = None
     proc.state = "new"
     proc.spawned_at = proc.last_heartbeat = time.monotonic()
@@ -82,17 +85,17 @@ def reap(proc: Proc) -> int | None:
     Whatever the node started and left behind is killed with it (the process group
     outlives its leader).
     """
-    assert proc.popen is not None
+    assert proc.process is not None
     try:
-        pid, status, usage = os.wait4(proc.popen.pid, os.WNOHANG)
+        pid, status, usage = os.wait4(proc.process.pid, os.WNOHANG)
     except ChildProcessError:
-        pid, status, usage = proc.popen.pid, 0, None
+        pid, status, usage = proc.process.pid, 0, None
     if pid == 0:
         return None
     if usage is not None:
         proc.cpu_secs += usage.ru_utime + usage.ru_stime
     code = os.waitstatus_to_exitcode(status)
-    proc.popen.returncode = code
+    proc.process.returncode = code
     try:
         os.killpg(pid, signal.SIGKILL)
     except (ProcessLookupError, PermissionError):
@@ -103,9 +106,9 @@ def reap(proc: Proc) -> int | None:
 
 def signal_group(proc: Proc, signum: int) -> None:
     """Signal a node's process group: the node and any process it started (a compiler)."""
-    if proc.popen is not None and proc.popen.returncode is None:
+    if proc.process is not None and proc.process.returncode is None:
         try:
-            os.killpg(proc.popen.pid, signum)
+            os.killpg(proc.process.pid, signum)
         except (ProcessLookupError, PermissionError):
             pass
 
@@ -148,14 +151,14 @@ def stop(
     """Stop ``procs``: ask each (``tell``; SIGTERM to one still importing, which cannot hear
     it yet), SIGTERM those still running after ``graces[0]`` s, SIGKILL those still running
     ``graces[1]`` s later; ``serve()`` serves the launcher for a moment (50 ms) meanwhile."""
-    live = [p for p in procs if p.popen is not None and p.popen.returncode is None]
+    live = [p for p in procs if p.process is not None and p.process.returncode is None]
     for proc in live:
         if proc.rid is None:
             signal_group(proc, signal.SIGTERM)
         else:
             tell(proc)
     for signum, grace in ((None, graces[0]), (signal.SIGTERM, graces[1]), (signal.SIGKILL, 5.0)):
-        live = [p for p in procs if p.popen is not None and p.popen.returncode is None]
+        live = [p for p in procs if p.process is not None and p.process.returncode is None]
         if not live:
             break
         if signum is not None:
@@ -163,5 +166,5 @@ def stop(
             for proc in live:
                 signal_group(proc, signum)
         end = time.monotonic() + grace
-        while time.monotonic() < end and any(p.popen.returncode is None for p in live):  # type: ignore[union-attr]
+        while time.monotonic() < end and any(p.process.returncode is None for p in live):  # type: ignore[union-attr]
             serve()

@@ -14,17 +14,13 @@ with other options is refused, naming the flags that differ.
 from __future__ import annotations
 
 import shlex
-import shutil
 import socket
-import subprocess
 import sys
 from pathlib import Path
 from typing import Any
 
 from messages.errors import GraphError
-from runtime import child
 from runtime.graph import Graph, check
-from runtime.isolation import make_rundir
 from runtime.launcher import Launcher
 from runtime.security import KeyPair, default_key_dir, load_key
 from runtime.taps import add_recorder
@@ -114,9 +110,6 @@ def launch(
     key_dir: Path | None = None,
 ) -> int:
     """Check and run a graph document; returns the exit code (2 when the check fails)."""
-    rundir = make_rundir()
-    prestarted: list[subprocess.Popen[bytes]] = []
-    launcher: Launcher | None = None
     try:
         if record is not None:
             graph = add_recorder(
@@ -127,11 +120,6 @@ def launch(
                 source,
                 overwrite=overwrite,
             )
-        # The node processes start now and import what every node shares while the graph
-        # is checked (the check imports the graph's node modules here, on one core).
-        nodes = graph.get("nodes")
-        count = len(nodes) if isinstance(nodes, dict) else 0
-        prestarted = [child.start(rundir) for _ in range(count)]
         checked = check(graph, source=source)
         if checked.hosts.table and host is None:
             print(host_commands(checked, [sys.executable, *sys.argv]), file=sys.stderr)
@@ -148,15 +136,9 @@ def launch(
             log_level=log_level,
             host=host,
             keys=keys,
-            rundir=rundir,
-            prestarted=prestarted,
             argv=command_line,
         )
     except GraphError as err:
         print(f"graph check failed:\n{err}", file=sys.stderr)
         return 2
-    finally:
-        if launcher is None:  # not started (a failed check, or Ctrl-C during it)
-            child.release(prestarted)
-            shutil.rmtree(rundir, ignore_errors=True)
     return launcher.run()

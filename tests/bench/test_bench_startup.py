@@ -18,9 +18,13 @@ def test_quick_rows_cover_start_and_stop() -> None:
         "bag info",
         "--check graph.yaml --only world,gripper",
         "graph.yaml --only world,gripper ready",
+        "graph.yaml --only world,gripper ready, SBG_NODE_START=spawn",
         "ctrl-c while running",
         "ctrl-c while starting",
     ]
     for row in rows:
         assert row["runs"] == 1
         assert math.isfinite(row["median_s"]) and row["median_s"] > 0
+    compared = [r for r in rows if math.isfinite(r["vs_fork"])]
+    assert [r["what"] for r in compared] == [r["what"] for r in rows[3:5]]
+    assert compared[0]["vs_fork"] == 1.0 and compared[1]["vs_fork"] > 0

@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tests.runtime.conftest import alive, children_of
+from runtime.child import SERVER_NAME
+from tests.runtime.conftest import alive, children_of, comm
 from tests.synthetic_nodes import IMPLS
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -52,10 +53,11 @@ class Run:
         return "".join(self.lines)
 
     def note_kids(self) -> list[int]:
-        """The launcher's children now (remembered for :meth:`leftovers`)."""
+        """The launcher's node processes now (every child, its fork server too, is
+        remembered for :meth:`leftovers`)."""
         kids = children_of(self.proc.pid)
         self.kids.update(kids)
-        return kids
+        return [k for k in kids if comm(k) != SERVER_NAME]
 
     def wait_for(self, text: str, timeout: float = 60) -> None:
         end = time.monotonic() + timeout

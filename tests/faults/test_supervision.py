@@ -16,6 +16,7 @@ from runtime import launcher as launcher_module
 from runtime.graph import check
 from runtime.launcher import Launcher
 from tests.faults.conftest import FAULTS, sink, ticker
+from tests.runtime.conftest import comm
 
 
 def launcher_for(nodes_doc: dict, **kwargs) -> tuple[Launcher, io.StringIO]:
@@ -30,8 +31,8 @@ def when_running(launcher: Launcher, node: str, action, timeout: float = 60) -> 
         end = time.monotonic() + timeout
         while time.monotonic() < end:
             proc = launcher.procs[node]
-            if proc.state == "running" and proc.popen is not None:
-                action(proc.popen.pid)
+            if proc.state == "running" and proc.process is not None:
+                action(proc.process.pid)
                 return
             time.sleep(0.02)
 
@@ -110,3 +111,30 @@ def test_non_finite_inputs_are_counted_and_warned_about_once() -> None:
     warnings = [line for line in log.splitlines() if "non-finite" in line and "[s]" in line]
     assert len(warnings) == 1, log
     assert "pressure_pa" in warnings[0] and "p/pressure" in warnings[0]
+
+
+def test_a_node_restarts_after_the_fork_server_died() -> None:
+    # Nodes are forks of the launcher's fork server; with it killed, a restart starts a
+    # fresh server (a new Python) and the node comes back from there.
+    a = ticker()
+    a["restart"] = {"policy": "on-failure", "max_restarts": 1, "backoff_secs": 0.1}
+    launcher, out = launcher_for({"a": a, "b": sink("a/tick")}, duration_secs=10.0)
+    seen: dict[str, object] = {}
+
+    def kill_server_then_node(pid: int) -> None:
+        assert launcher.starter is not None
+        seen["server"] = launcher.starter.server
+        seen["name"] = comm(pid)  # each node is named after itself in ps and top
+        os.kill(launcher.starter.server, signal.SIGKILL)
+        time.sleep(0.2)
+        os.kill(pid, signal.SIGKILL)
+
+    when_running(launcher, "a", kill_server_then_node)
+    code = launcher.run()
+    log = out.getvalue()
+    assert code == 0, log
+    assert seen["name"] == "a"
+    assert "node 'a' failed (signal 9); restart 1/1" in log
+    assert "node 'a' is back" in log
+    assert launcher.starter is not None and launcher.starter.server != seen["server"]
+    assert "a/tick" in log

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from runtime.child import SERVER_NAME
 from tests.synthetic_nodes import IMPLS
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -71,6 +72,19 @@ def children_of(pid: int) -> list[int]:
         except OSError:
             pass
     return kids
+
+
+def nodes_of(pid: int) -> list[int]:
+    """The node processes among ``pid``'s children (the launcher's fork server aside)."""
+    return [k for k in children_of(pid) if comm(k) != SERVER_NAME]
+
+
+def comm(pid: int) -> str:
+    """What ``ps`` calls ``pid`` ("" once it is gone)."""
+    try:
+        return Path(f"/proc/{pid}/comm").read_text().strip()
+    except OSError:
+        return ""
 
 
 def alive(pid: int) -> bool:

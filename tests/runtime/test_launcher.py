@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.runtime.conftest import GraphRun, alive, children_of, sink
+from tests.runtime.conftest import GraphRun, alive, children_of, nodes_of, sink
 
 FUZZER = "tests.runtime.nodes_for_tests:Fuzzer"
 
@@ -154,7 +154,7 @@ def test_ctrl_c_leaves_no_process_behind(graph_run: GraphRun) -> None:
     proc = graph_run.start(graph)
     wait_for_line(proc, "all nodes ready")
     kids = children_of(proc.pid)
-    assert len(kids) == 2 and all(alive(k) for k in kids)
+    assert len(nodes_of(proc.pid)) == 2 and all(alive(k) for k in kids)
     proc.send_signal(signal.SIGINT)
     out, _ = proc.communicate(timeout=30)
     assert proc.returncode == 130, out  # 128 + SIGINT, as a shell reports Ctrl-C
@@ -172,7 +172,7 @@ def test_sigkill_of_launcher_takes_children_down(graph_run: GraphRun) -> None:
     proc = graph_run.start(graph)
     wait_for_line(proc, "all nodes ready")
     kids = children_of(proc.pid)
-    assert len(kids) == 2
+    assert len(nodes_of(proc.pid)) == 2
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(timeout=10)
     end = time.monotonic() + 10
