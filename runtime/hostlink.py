@@ -289,6 +289,7 @@ class HostLink:
         if now - peer.asked_at > WHO_EVERY_SECS:
             peer.asked_at = now
             self._send(peer, self._hello(reply=1))
+            self._beat_now.set()  # a beat right after it: the peer could not check the last
 
     def _receive(self, frames: list[zmq.Frame], arrived_ns: int) -> None:
         if len(frames) != 3:
@@ -335,6 +336,9 @@ class HostLink:
             secret = bytes.fromhex(msg["run_secret"])
             if msg["reply"]:  # also to another graph: then it learns so too, and stops
                 self._send(peer, self._hello(reply=0))
+                # It could not check our last beat (it asked who we are): one more at once,
+                # or a host whose nodes are ready may wait for ours while ours run.
+                self._beat_now.set()
             if msg["graph"] != self.graph:  # its endpoints and nodes are not ours
                 if secret != peer.differs:
                     peer.differs = secret
