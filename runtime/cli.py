@@ -128,6 +128,28 @@ def shared_command_line(argv: Sequence[str]) -> str:
     return shlex.join([python, *kept])
 
 
+def flags_differ(theirs: str, ours: str) -> tuple[str, str]:
+    """The options (with their values) in one command line and not in the other, each way."""
+
+    def options(argv: str) -> list[str]:
+        try:
+            words = shlex.split(argv)
+        except ValueError:  # unbalanced quotes: the words as they are
+            words = argv.split()
+        out: list[str] = []
+        for i, word in enumerate(words):
+            if word.startswith("--"):
+                value = words[i + 1] if i + 1 < len(words) else ""
+                out.append(word if value.startswith("--") or not value else f"{word} {value}")
+        return out
+
+    mine, other = options(ours), options(theirs)
+    return (
+        " ".join(o for o in other if o not in mine),
+        " ".join(o for o in mine if o not in other),
+    )
+
+
 # -- launch.py nodes ------------------------------------------------------------------------------
 
 
