@@ -37,7 +37,6 @@ if __name__ == "__main__":
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402 - after the signal handlers, on purpose
-import shlex  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -76,25 +75,8 @@ def run_parser() -> argparse.ArgumentParser:
         metavar="OUT.rrd|foxglove",
         help="add a viewer: a Rerun window, an .rrd file, or a Foxglove live server",
     )
-    parser.add_argument(
-        "--host",
-        default=None,
-        metavar="NAME",
-        help="with a hosts table: run this host's nodes only (docs/hosts.md)",
-    )
-    add_keys_option(parser)
     add_deprecated(parser, "--topics", "--record-topics", "record_topics")
     return parser
-
-
-def add_keys_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--keys",
-        type=Path,
-        default=None,
-        metavar="DIR",
-        help="the hosts' key folder (default ~/.config/softbubble/keys)",
-    )
 
 
 def run_main(argv: list[str]) -> int:
@@ -102,6 +84,7 @@ def run_main(argv: list[str]) -> int:
     import nodes  # noqa: F401 - the index of node implementations (no node module)
     from messages.errors import GraphError
     from runtime import graph as graphs
+    from runtime.cli import shared_command_line
     from runtime.run import launch
 
     source = str(args.graph)
@@ -145,7 +128,7 @@ def run_main(argv: list[str]) -> int:
         lockstep=args.lockstep,
         duration_secs=args.duration,
         log_level=args.log_level,
-        command_line=shlex.join([sys.executable, *sys.argv]),
+        command_line=shared_command_line(sys.argv),
         host=args.host,
         key_dir=args.keys,
     )
@@ -201,6 +184,8 @@ def keys_main(argv: list[str]) -> int:
     parser.add_argument("action", choices=("make", "list"))
     parser.add_argument("host", nargs="?", help="make: the host's name in the hosts table")
     parser.add_argument("--overwrite", action="store_true", help="make: replace a host's key")
+    from runtime.cli import add_keys_option
+
     add_keys_option(parser)
     args = parser.parse_args(argv)
     from runtime.security import default_key_dir, list_keys, make_key

@@ -3,13 +3,15 @@
 One vocabulary for both: ``--swap NODE=IMPL`` changes an implementation, ``--set
 NODE.PARAM=VALUE`` a parameter (``PARAM`` may be dotted: ``shear.farneback.winsize``),
 ``--record OUT.mcap`` with ``--record-topics REGEX`` records, ``--replay-topics REGEX``
-(replay only) chooses what the bag plays. Old spellings (``--replace``, ``--topics``)
+(replay only) chooses what the bag plays, ``--host NAME`` (``--keys DIR``) runs one host's
+part of a graph with a hosts table. Old spellings (``--replace``, ``--topics``)
 still work for a while and say what replaced them.
 """
 
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -56,7 +58,8 @@ def add_deprecated(
 
 def add_run_options(parser: argparse.ArgumentParser, *, swap_help: str, swap_metavar: str) -> None:
     """``--set``, ``--swap``, ``--record``, ``--record-topics``, ``--overwrite``, ``--lockstep``,
-    ``--duration`` and ``--log-level``, as ``launch.py GRAPH`` and ``launch.py replay`` take them.
+    ``--duration``, ``--log-level``, ``--host`` and ``--keys``, as ``launch.py GRAPH`` and
+    ``launch.py replay`` take them.
     """
     parser.add_argument(
         "--set",
@@ -86,6 +89,65 @@ def add_run_options(parser: argparse.ArgumentParser, *, swap_help: str, swap_met
     )
     parser.add_argument("--duration", type=float, default=None, metavar="SECS")
     parser.add_argument("--log-level", default="INFO", choices=LOG_LEVELS)
+    parser.add_argument(
+        "--host",
+        default=None,
+        metavar="NAME",
+        help="with a hosts table: run this host's nodes only (docs/hosts.md)",
+    )
+    add_keys_option(parser)
+
+
+def add_keys_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--keys",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="the hosts' key folder (default ~/.config/softbubble/keys)",
+    )
+
+
+HOST_OPTIONS = ("--host", "--keys")
+
+
+def shared_command_line(argv: Sequence[str]) -> str:
+    """``argv`` (``launch.py ...``) as every host of a graph runs it, to record and compare:
+    without ``--host`` and ``--keys``, which differ from host to host, and, if it had
+    them, with ``python`` for the interpreter, whose path may differ too."""
+    kept: list[str] = []
+    skip = False
+    for word in argv:
+        if skip:
+            skip = False
+        elif word in HOST_OPTIONS:
+            skip = True
+        elif not word.startswith(tuple(f"{o}=" for o in HOST_OPTIONS)):
+            kept.append(word)
+    python = sys.executable if len(kept) == len(argv) else "python"
+    return shlex.join([python, *kept])
+
+
+def flags_differ(theirs: str, ours: str) -> tuple[str, str]:
+    """The options (with their values) in one command line and not in the other, each way."""
+
+    def options(argv: str) -> list[str]:
+        try:
+            words = shlex.split(argv)
+        except ValueError:  # unbalanced quotes: the words as they are
+            words = argv.split()
+        out: list[str] = []
+        for i, word in enumerate(words):
+            if word.startswith("--"):
+                value = words[i + 1] if i + 1 < len(words) else ""
+                out.append(word if value.startswith("--") or not value else f"{word} {value}")
+        return out
+
+    mine, other = options(ours), options(theirs)
+    return (
+        " ".join(o for o in other if o not in mine),
+        " ".join(o for o in mine if o not in other),
+    )
 
 
 # -- launch.py nodes ------------------------------------------------------------------------------

@@ -77,6 +77,24 @@ def delivered(
     return True
 
 
+def balanced(
+    edges: Iterable[tuple[str, str, str]],
+    stats: Mapping[str, dict[str, Any]],
+    published: Mapping[str, int] | None = None,
+) -> bool:
+    """Whether, by the nodes' heartbeat ``stats``, each edge to one of them received
+    everything published on it (by ``published``, default: by the publishers among them;
+    an edge to a node without stats is not counted)."""
+    if published is None:
+        published = {t: n for st in stats.values() for t, n in st.get("published", {}).items()}
+
+    def received(node: str, port: str) -> int | None:
+        st = stats.get(node)
+        return None if st is None else st.get("inputs", {}).get(port, {}).get("received", 0)
+
+    return delivered(edges, published, received)
+
+
 def add_stats(base: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
     """Sum two stats snapshots (of two incarnations of one node)."""
     if not base:

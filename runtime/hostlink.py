@@ -13,19 +13,27 @@ secret and checked. A peer that hears a message it cannot check (it restarted, o
 hello was sent before the connection was up) sends its own hello asking for a reply.
 
 What the launcher learns comes out of :meth:`HostLink.events` as tuples:
-``("joined", host)``, ``("graph_differs", host, its digest, ours)`` (its hello names
-another graph: it is not let in), ``("back", host)`` (a lost host speaks again; ``restarted`` says
+``("joined", host)``, ``("graph_differs", host, its digest, ours, its command line,
+ours)`` (its hello names another graph or run mode: it is not let in), ``("back", host)`` (a lost host speaks again; ``restarted`` says
 whether it is a new launcher), ``("lost", host, silent_secs)`` after
 ``host_timeout_secs`` without a message (heartbeats also say whether the sender's nodes
 are ready, see :meth:`HostLink.waiting_for`), ``("clock", host, offset_secs, round_trip_secs)``
 once per incarnation (the NTP four-timestamp exchange, the sample with the shortest round
 trip of ``CLOCK_SAMPLES``), and ``("stop", host, reason, exit_code)``.
+
+In lockstep each launcher also passes on its nodes' newest counts (:meth:`HostLink.send_counts`)
+and keeps the other hosts' (:meth:`HostLink.remote_counts`), so the idle barrier sees every
+edge of the graph. Neither end waits on a timer for them: the link's thread sleeps in a poll
+of its socket and of a pipe the launcher writes to when it queues a message, and it writes
+to another pipe (:meth:`HostLink.fileno`) that the launcher polls with its control socket
+whenever an event or counts arrive.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import os
 import threading
 import time
 from collections import deque
@@ -37,7 +45,10 @@ import msgpack
 import zmq
 
 from runtime import protocol
+from runtime.cli import flags_differ
+from runtime.counters import balanced
 from runtime.hosts import Hosts, HostSpec
+from runtime.procs import Proc
 from runtime.protocol import ControlError
 from runtime.security import Guard, KeyPair, connect_to, serve
 
@@ -60,6 +71,9 @@ class _Peer:
     ping_t1: int | None = None
     ping_sent_at: float = 0.0
     samples: list[tuple[float, float]] = field(default_factory=list)
+    # Its nodes' newest counts (lockstep): published per topic, received per "node/port".
+    counts: tuple[dict[str, int], dict[str, int]] = ({}, {})
+    final: dict[str, int] | None = None  # what its nodes published in all, once stopped
 
 
 class HostLink:
@@ -72,12 +86,15 @@ class HostLink:
         me: str,
         keys: KeyPair | None,
         log: Callable[[str], None],
-        document: Mapping[str, Any],
+        run: Mapping[str, Any],
+        argv: str = "",
     ) -> None:
         self.me = me
-        # Every host must run the same graph (the same nodes on the same ports): a digest.
-        text = json.dumps(document, sort_keys=True, default=str).encode()
+        # Every host must run the same graph (the same nodes on the same ports; a recorder
+        # added by --record is one of them) in the same mode (lockstep): a digest of ``run``.
+        text = json.dumps(run, sort_keys=True, default=str).encode()
         self.graph = hashlib.sha256(text).hexdigest()
+        self.argv = argv
         self.timeout = hosts.host_timeout_secs
         self.secret = protocol.new_secret()
         self.refused = 0
@@ -111,6 +128,11 @@ class HostLink:
                 connect_to(dealer, keys, spec.public_key)
             dealer.connect(spec.link)
             self.peers[name] = _Peer(spec, dealer)
+        # Wake-ups: the launcher -> this thread (a message queued), and back (something came).
+        self._wake_r, self._wake_w = os.pipe()
+        self._note_r, self._note_w = os.pipe()
+        for fd in (self._wake_r, self._wake_w, self._note_r, self._note_w):
+            os.set_blocking(fd, False)
         self._thread = threading.Thread(target=self._run, daemon=True)
 
     # -- the launcher's side ----------------------------------------------------------------
@@ -119,7 +141,12 @@ class HostLink:
             self.guard.start()
         self._thread.start()
 
+    def fileno(self) -> int:
+        """A pipe that turns readable when an event or counts arrive (for the launcher's poll)."""
+        return self._note_r
+
     def events(self) -> list[tuple[Any, ...]]:
+        _drain_pipe(self._note_r)
         out = []
         while self._events:
             out.append(self._events.popleft())
@@ -130,6 +157,7 @@ class HostLink:
         if not self._ready:
             self._ready = True
             self._beat_now.set()
+            _poke(self._wake_w)
 
     def waiting_for(self) -> list[str]:
         """The other hosts not yet ready: a host starts its nodes when this is empty, so
@@ -138,12 +166,50 @@ class HostLink:
 
     def send_stop(self, reason: str, exit_code: int) -> None:
         """Tell every other host the graph stops (sent by the link's thread)."""
-        self._outbox.append(self._pack("link_stop", reason=reason, exit_code=exit_code))
+        self._queue(self._pack("link_stop", reason=reason, exit_code=exit_code))
+
+    def send_counts(self, published: dict[str, int], received: dict[str, int]) -> None:
+        """This host's nodes' newest counts (lockstep): published per topic, received per
+        ``"node/port"``; each node's pair is one snapshot, taken after a handled batch."""
+        self._queue(self._pack("link_counts", published=published, received=received))
+
+    def remote_counts(self) -> tuple[dict[str, int], dict[str, int]]:
+        """The other hosts' newest counts, merged (as :meth:`send_counts` takes them)."""
+        published: dict[str, int] = {}
+        received: dict[str, int] = {}
+        for peer in self.peers.values():
+            theirs = peer.counts  # replaced whole by the link's thread, never changed
+            published.update(theirs[0])
+            received.update(theirs[1])
+        return published, received
+
+    def send_final(self, published: dict[str, int]) -> None:
+        """This host's nodes have stopped (but for listeners): all they published, per topic."""
+        self._queue(self._pack("link_final", published=published))
+
+    def finals(self) -> dict[str, int] | None:
+        """All the other hosts' nodes published, per topic, once every host that is not
+        lost has sent :meth:`send_final`; None until then."""
+        peers = [p for p in self.peers.values() if not p.lost]
+        if any(p.final is None for p in peers):
+            return None
+        return {t: n for p in peers for t, n in (p.final or {}).items()}
+
+    def _queue(self, frames: list[bytes]) -> None:
+        self._outbox.append(frames)
+        _poke(self._wake_w)
+
+    def _event(self, event: tuple[Any, ...]) -> None:
+        self._events.append(event)
+        _poke(self._note_w)
 
     def close(self) -> None:
         self._stopping.set()
+        _poke(self._wake_w)
         if self._thread.is_alive():
             self._thread.join(timeout=2)
+        for fd in (self._wake_r, self._wake_w, self._note_r, self._note_w):
+            os.close(fd)
         if self.guard is not None:
             self.guard.close()
         self.router.close(linger=0)
@@ -155,7 +221,13 @@ class HostLink:
         return protocol.pack(self.secret, kind, host=self.me, **body)
 
     def _hello(self, reply: int) -> list[bytes]:
-        return self._pack("link_hello", run_secret=self.secret.hex(), reply=reply, graph=self.graph)
+        return self._pack(
+            "link_hello",
+            run_secret=self.secret.hex(),
+            reply=reply,
+            graph=self.graph,
+            argv=self.argv,
+        )
 
     def _send(self, peer: _Peer, frames: list[bytes]) -> None:
         try:
@@ -165,7 +237,11 @@ class HostLink:
 
     def _run(self) -> None:
         next_beat = 0.0
+        poller = zmq.Poller()
+        poller.register(self.router, zmq.POLLIN)
+        poller.register(self._wake_r, zmq.POLLIN)
         while True:
+            _drain_pipe(self._wake_r)
             stopping = self._stopping.is_set()
             while self._outbox:
                 frames = self._outbox.popleft()
@@ -182,7 +258,9 @@ class HostLink:
                     self._send(peer, beat)
             for peer in self.peers.values():
                 self._tend(peer, now)
-            if self.router.poll(POLL_MS):
+            # Wakes at once for a message in (the router) or out (the pipe); at the latest
+            # after POLL_MS, for the heartbeats and the timeouts.
+            if self.router in dict(poller.poll(POLL_MS)):
                 while True:
                     try:
                         frames = self.router.recv_multipart(zmq.NOBLOCK, copy=False)
@@ -199,7 +277,7 @@ class HostLink:
                 self._send(peer, self._pack("link_ping", t1=peer.ping_t1))
         if peer.last_seen and not peer.lost and now - peer.last_seen > self.timeout:
             peer.lost = True
-            self._events.append(("lost", peer.spec.name, now - peer.last_seen))
+            self._event(("lost", peer.spec.name, now - peer.last_seen))
 
     def _refuse(self, why: str) -> None:
         self.refused += 1
@@ -211,6 +289,7 @@ class HostLink:
         if now - peer.asked_at > WHO_EVERY_SECS:
             peer.asked_at = now
             self._send(peer, self._hello(reply=1))
+            self._beat_now.set()  # a beat right after it: the peer could not check the last
 
     def _receive(self, frames: list[zmq.Frame], arrived_ns: int) -> None:
         if len(frames) != 3:
@@ -255,23 +334,30 @@ class HostLink:
         kind = msg["kind"]
         if kind == "link_hello":
             secret = bytes.fromhex(msg["run_secret"])
+            if msg["reply"]:  # also to another graph: then it learns so too, and stops
+                self._send(peer, self._hello(reply=0))
+                # It could not check our last beat (it asked who we are): one more at once,
+                # or a host whose nodes are ready may wait for ours while ours run.
+                self._beat_now.set()
             if msg["graph"] != self.graph:  # its endpoints and nodes are not ours
                 if secret != peer.differs:
                     peer.differs = secret
-                    self._events.append(("graph_differs", name, msg["graph"], self.graph))
+                    self._event(
+                        ("graph_differs", name, msg["graph"], self.graph, msg["argv"], self.argv)
+                    )
                 return
-            if msg["reply"]:
-                self._send(peer, self._hello(reply=0))
             if secret != peer.secret:
                 first = peer.secret is None and not peer.last_seen
                 peer.secret = secret
                 peer.ready = False
                 peer.samples = []
                 peer.ping_t1 = None
+                peer.counts = ({}, {})
+                peer.final = None
                 if first:
-                    self._events.append(("joined", name))
+                    self._event(("joined", name))
                 elif not peer.lost:  # restarted within the timeout
-                    self._events.append(("back", name, True))
+                    self._event(("back", name, True))
         elif kind == "link_ping":
             self._send(
                 peer, self._pack("link_pong", t1=msg["t1"], t2=arrived_ns, t3=time.time_ns())
@@ -282,15 +368,60 @@ class HostLink:
             peer.samples.append((((t2 - t1) + (t3 - t4)) / 2e9, ((t4 - t1) - (t3 - t2)) / 1e9))
             if len(peer.samples) == CLOCK_SAMPLES:
                 offset, rtt = min(peer.samples, key=lambda s: s[1])
-                self._events.append(("clock", name, offset, rtt))
+                self._event(("clock", name, offset, rtt))
         elif kind == "link_beat":
             peer.ready = bool(msg["ready"])
+        elif kind in ("link_counts", "link_final"):
+            if kind == "link_counts":
+                peer.counts = (msg["published"], msg["received"])
+            else:
+                peer.final = msg["published"]
+            _poke(self._note_w)
         elif kind == "link_stop":
-            self._events.append(("stop", name, msg["reason"], msg["exit_code"]))
+            self._event(("stop", name, msg["reason"], msg["exit_code"]))
         peer.last_seen = time.monotonic()
         if peer.lost:
             peer.lost = False
-            self._events.append(("back", name, kind == "link_hello"))
+            self._event(("back", name, kind == "link_hello"))
+
+
+def _poke(fd: int) -> None:
+    try:
+        os.write(fd, b"\0")
+    except (BlockingIOError, OSError):
+        pass  # full: a wake-up is pending anyway (or closed: the link is closing)
+
+
+def _drain_pipe(fd: int) -> None:
+    try:
+        while os.read(fd, 4096):
+            pass
+    except (BlockingIOError, OSError):
+        pass
+
+
+def wait_for_finals(
+    link: HostLink,
+    edges: list[tuple[str, str, str]],
+    published: dict[str, int],
+    listeners: list[Proc],
+    step: Callable[[], bool],
+    secs: float = 8.0,
+) -> None:
+    """Stopping: wait until every other host has stopped its nodes (:meth:`HostLink.finals`)
+    and each of this host's ``listeners``, by its heartbeat after that, received all that
+    was published on each of its ``edges`` (here: ``published``). ``step`` serves the
+    launcher once and says whether to go on; at most ``secs``."""
+    end = time.monotonic() + secs
+    complete = 0.0  # when the last host's final counts came
+    while time.monotonic() < end and step():
+        finals = link.finals()
+        if finals is None:
+            continue
+        complete = complete or time.monotonic()
+        stats = {p.spec.name: p.stats for p in listeners if p.stats_at > complete}
+        if len(stats) == len(listeners) and balanced(edges, stats, published | finals):
+            return
 
 
 @dataclass
@@ -311,12 +442,20 @@ def judge(event: tuple[Any, ...], hosts: Hosts) -> Act:
     if kind == "joined":
         return Act([f"host {host!r} joined"])
     if kind == "graph_differs":
-        theirs, ours = args
+        theirs, ours, their_argv, our_argv = args
+        lines = [
+            f"host {host!r} runs another graph or run mode (sha256 {theirs[:12]}, here "
+            f"{ours[:12]}): give every host the same graph file and the same options "
+            "(--set/--swap/--only/--view/--lockstep/--record ...; only --host and --keys differ)"
+        ]
+        there, here = flags_differ(their_argv, our_argv)
+        if there or here:
+            lines.append(
+                f"host {host!r} was started with {there or 'nothing'} that this host was not, "
+                f"and this host with {here or 'nothing'} that it was not"
+            )
         return Act(
-            [
-                f"host {host!r} runs another graph (sha256 {theirs[:12]}, here {ours[:12]}): "
-                "give every host the same graph file and the same --set/--swap/--only/--view"
-            ],
+            lines,
             f"host {host!r} runs another graph",
             exit_code=2,
         )

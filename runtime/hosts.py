@@ -96,6 +96,23 @@ class Hosts:
         return out
 
 
+def without_hosts(doc: Mapping[str, Any]) -> dict[str, Any]:
+    """A copy of graph document ``doc`` for one machine: no hosts table, none of its
+    policies, no node's ``host:`` (a graph without a table is returned as it is)."""
+    if "hosts" not in doc:
+        return dict(doc)
+    out = {k: v for k, v in doc.items() if k not in TOP_KEYS}
+    nodes = doc.get("nodes")
+    if isinstance(nodes, Mapping):
+        out["nodes"] = {
+            name: {k: v for k, v in body.items() if k != "host"}
+            if isinstance(body, Mapping)
+            else body
+            for name, body in nodes.items()
+        }
+    return out
+
+
 def _port_range(value: Any, where: str, errors: list[str]) -> tuple[int, int] | None:
     ok = (
         isinstance(value, list)

@@ -32,11 +32,11 @@ from typing import IO, Any
 import zmq
 
 from runtime import child, protocol
-from runtime.counters import add_stats, delivered, table
+from runtime.counters import balanced, delivered
 from runtime.graph import Graph, ipc_path
-from runtime.hostlink import HostLink, judge
+from runtime.hostlink import HostLink, judge, wait_for_finals
 from runtime.isolation import make_rundir
-from runtime.procs import Proc, reap, signal_group, spawn
+from runtime.procs import Proc, counts, reap, signal_group, spawn, stop, table, totals
 from runtime.protocol import ControlServer
 from runtime.registry import class_path
 from runtime.security import KeyPair
@@ -64,8 +64,10 @@ class Launcher:
         out: IO[str] | None = None,
         host: str | None = None,
         keys: KeyPair | None = None,
+        argv: str = "",
     ) -> None:
         self.graph = graph
+        self.argv = argv  # the command line, for the other hosts to say which flags differ
         # With a hosts table: only this host's nodes, every publisher at its fixed endpoint.
         self.host, self.keys = host, keys
         placed = graph.hosts.placement({n: s.host for n, s in graph.nodes.items()})
@@ -83,17 +85,21 @@ class Launcher:
         # Subscriptions each publisher waits for: one per input, but in lockstep a node
         # reads each publisher through one socket, subscribed once per topic.
         self.expected: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
-        edges = graph.edges()
+        self.edges = edges = graph.edges()
         subscriptions = {(t, n) for t, n, _ in edges} if lockstep else [(t, n) for t, n, _ in edges]
         for topic, _ in subscriptions:
             self.expected[self.providers[topic]][topic] += 1
         # The edges this launcher sees both ends of (all of them on one host).
         self.local_edges = [e for e in edges if {e[1], self.providers[e[0]]} <= local]
+        # Listeners (a recorder) fed from another host: stopped last (see ``_shutdown``).
+        remote = {n for t, n, _ in edges if n in local and self.providers[t] not in local}
+        self.held = {n for n in remote if graph.nodes[n].cls.raw_input}
         self.barrier_topics = graph.barrier_topics() if lockstep else set()
         self.stop_reason: str | None = None
         self.exit_code = 0
         self.verdict_code = 0  # a node's verdict on the run (stop_request's exit_code)
         self.idle_waiters: list[bytes] = []
+        self.counts_changed = False  # lockstep across hosts: to send to the other hosts
         self.started_at = 0.0
         self.stopped_at = 0.0
         self._print_lock = threading.Lock()
@@ -113,9 +119,14 @@ class Launcher:
         self.control_endpoint = f"ipc://{self.rundir}/control"
         self.control = ControlServer(self.ctx, self.control_endpoint, self.secret, self.say)
         if self.host is not None:
-            graph, hosts = self.graph, self.graph.hosts
-            self.link = HostLink(self.ctx, hosts, self.host, self.keys, self.say, graph.document)
+            hosts = self.graph.hosts
+            run = {"graph": self.graph.document, "lockstep": self.lockstep}  # must agree
+            self.link = HostLink(self.ctx, hosts, self.host, self.keys, self.say, run, self.argv)
             self.link.start()
+        self.poller = zmq.Poller()
+        self.poller.register(self.control.socket, zmq.POLLIN)
+        if self.link is not None:
+            self.poller.register(self.link.fileno(), zmq.POLLIN)
 
     def _close(self) -> None:
         if self.starter is not None:
@@ -253,6 +264,7 @@ class Launcher:
         elif kind == "counts":
             proc.counts_published = msg["published"]
             proc.counts_received = msg["received"]
+            self.counts_changed = True
         elif kind == "wait_idle":
             self.idle_waiters.append(rid)
         elif kind == "stop_request":
@@ -276,15 +288,18 @@ class Launcher:
         return self.fixed | {name: p.endpoint for name, p in self.procs.items() if p.endpoint}
 
     def _graph_idle(self) -> bool:
-        published = {t: n for p in self.procs.values() for t, n in p.counts_published.items()}
-        return delivered(
-            self.local_edges,
-            published,
-            lambda node, port: self.procs[node].counts_received.get(port, 0),
-        )
+        """Whether every edge received all published on it (other hosts' counts from the
+        link: stale ones only make the graph look busy, see docs/hosts.md)."""
+        published, received = counts(self.procs)
+        if self.link is not None:
+            theirs, got = self.link.remote_counts()
+            published, received = theirs | published, got | received
+        return delivered(self.edges, published, lambda n, port: received.get(f"{n}/{port}", 0))
 
     def _serve(self, timeout_ms: int) -> None:
-        for rid, msg in self.control.receive(timeout_ms):
+        # Wakes for a node's message or for the link's (an event, or another host's counts).
+        self.poller.poll(timeout_ms)
+        for rid, msg in self.control.receive(0):
             proc = self.procs.get(msg["node"])
             if proc is None:
                 self.control.refuse(f"signed, but names no node of the graph: {msg['node']!r:.40}")
@@ -299,6 +314,9 @@ class Launcher:
                     self.exit_code = self.exit_code or act.exit_code
                     self.verdict_code = self.verdict_code or act.verdict_code
                     self._request_stop(act.stop, echo=act.echo)
+        if self.counts_changed and self.link is not None:
+            self.counts_changed = False
+            self.link.send_counts(*counts(self.procs))
         if self.idle_waiters and self._graph_idle():
             for rid in self.idle_waiters:
                 self.control.send(rid, "idle")
@@ -395,62 +413,42 @@ class Launcher:
                 self._request_stop(f"duration of {self.duration_secs:g} s reached")
 
     def _drain(self) -> None:
-        """Before a requested stop, let messages in flight reach their subscribers.
-
-        Waits (at most ``DRAIN_SECS``) for a heartbeat of every running node taken after
-        the request that shows each edge received everything published on it.
-        """
+        """Before a requested stop, let messages in flight reach their subscribers: wait (at
+        most ``DRAIN_SECS``) for a heartbeat of every running node taken after the request
+        that shows each edge between them received everything published on it."""
         asked = time.monotonic()
         end = asked + DRAIN_SECS
-        while time.monotonic() < end and not self._signals:
-            self._serve(50)
-            self._reap()
+        while time.monotonic() < end and self._step():
             running = [p for p in self.procs.values() if p.state == "running"]
-            if all(p.stats_at > asked for p in running) and self._stats_balanced():
+            stats = {n: p.stats for n, p in self.procs.items() if p.state == "running"}
+            if all(p.stats_at > asked for p in running) and balanced(self.local_edges, stats):
                 return
 
-    def _stats_balanced(self) -> bool:
-        running = {n: p.stats for n, p in self.procs.items() if p.state == "running"}
-        published = {t: n for st in running.values() for t, n in st.get("published", {}).items()}
-
-        def received(node: str, port: str) -> int | None:
-            stats = running.get(node)
-            return (
-                None if stats is None else stats.get("inputs", {}).get(port, {}).get("received", 0)
-            )
-
-        return delivered(self.local_edges, published, received)
-
     def _shutdown(self) -> None:
-        live = [
-            p for p in self.procs.values() if p.process is not None and p.process.returncode is None
-        ]
-        for proc in live:
-            if proc.rid is None:  # still importing: it cannot hear "stop" yet
-                signal_group(proc, signal.SIGTERM)
-            else:
-                self._send(proc.spec.name, "stop")
+        """Stop every node; across hosts a listener (a recorder) fed from another host last:
+        once every host has stopped its nodes and it has received all they published."""
+        held = [p for n, p in self.procs.items() if n in self.held]
+        self._stop([p for p in self.procs.values() if p not in held])
+        if self.link is not None:
+            published = totals(self.procs)
+            self.link.send_final(published)
+            if held and self.started_at:  # (not when the hosts never ran together)
+                wait_for_finals(self.link, self.edges, published, held, self._step)
+        self._stop(held)
+
+    def _step(self) -> bool:
+        """Serve and reap once (50 ms at most); whether to go on waiting (no signal came)."""
+        self._serve(50)
+        self._reap()
+        return not self._signals
+
+    def _stop(self, procs: list[Proc]) -> None:
         hurry = bool(self._signals)
-        for signum, grace in (
-            (None, SIGNAL_STOP_GRACE_SECS if hurry else STOP_GRACE_SECS),
-            (signal.SIGTERM, SIGNAL_TERM_GRACE_SECS if hurry else TERM_GRACE_SECS),
-            (signal.SIGKILL, 5.0),
-        ):
-            live = [
-                p
-                for p in self.procs.values()
-                if p.process is not None and p.process.returncode is None
-            ]
-            if not live:
-                break
-            if signum is not None:
-                self.say(f"{len(live)} node(s) still running: sending {signum.name}")
-                for proc in live:
-                    signal_group(proc, signum)
-            end = time.monotonic() + grace
-            while time.monotonic() < end and any(p.process.returncode is None for p in live):  # type: ignore[union-attr]
-                self._serve(50)
-                self._reap()
+        graces = (
+            SIGNAL_STOP_GRACE_SECS if hurry else STOP_GRACE_SECS,
+            SIGNAL_TERM_GRACE_SECS if hurry else TERM_GRACE_SECS,
+        )
+        stop(procs, graces, lambda p: self._send(p.spec.name, "stop"), self._step, self.say)
         self._serve(0)
 
     def run(self) -> int:
@@ -481,16 +479,7 @@ class Launcher:
     def report(self) -> str:
         """Per topic (messages, rate, dropped, superseded, bad, non-finite) and per node."""
         elapsed = (self.stopped_at or time.monotonic()) - (self.started_at or time.monotonic())
-        stats = {name: add_stats(p.stats_base, p.stats) for name, p in self.procs.items()}
-        nodes = {
-            name: {
-                "restarts": p.restarts,
-                "cpu_secs": p.cpu_secs,
-                "exit": p.exit_codes[-1] if p.exit_codes else None,
-            }
-            for name, p in self.procs.items()
-        }
-        text = table(stats, nodes, elapsed)
+        text = table(self.procs, elapsed)
         if self.control.refused:
             text += (
                 f"\ncontrol: refused {self.control.refused} message(s) (malformed or not signed)"

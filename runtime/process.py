@@ -186,7 +186,9 @@ class Runner:
         poller = zmq.Poller()
         poller.register(self.io.pub, zmq.POLLIN)
         poller.register(self.io.control, zmq.POLLIN)
-        while any(self.io.subscriptions[t.encode()] < n for t, n in expected.items()):
+        while not self.io.stop_requested and any(
+            self.io.subscriptions[t.encode()] < n for t, n in expected.items()
+        ):
             events = dict(poller.poll(200))
             if self.io.pub in events:
                 self._drain_subscriptions()

@@ -15,10 +15,11 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import IO, Any, Literal
 
+from runtime import counters
 from runtime.child import NodeProcess
 from runtime.counters import add_stats
 from runtime.graph import NodeSpec
@@ -110,3 +111,60 @@ def signal_group(proc: Proc, signum: int) -> None:
             os.killpg(proc.process.pid, signum)
         except (ProcessLookupError, PermissionError):
             pass
+
+
+def counts(procs: Mapping[str, Proc]) -> tuple[dict[str, int], dict[str, int]]:
+    """These nodes' newest lockstep counts: published per topic, received per node/port."""
+    items = procs.items()
+    published = {t: n for _, p in items for t, n in p.counts_published.items()}
+    received = {f"{x}/{port}": n for x, p in items for port, n in p.counts_received.items()}
+    return published, received
+
+
+def totals(procs: Mapping[str, Proc]) -> dict[str, int]:
+    """What these nodes published, per topic, every incarnation summed."""
+    stats = [add_stats(p.stats_base, p.stats) for p in procs.values()]
+    return {t: n for st in stats for t, n in st.get("published", {}).items()}
+
+
+def table(procs: Mapping[str, Proc], elapsed_secs: float) -> str:
+    """The end-of-run table of these nodes (every incarnation's counts summed)."""
+    stats = {name: add_stats(p.stats_base, p.stats) for name, p in procs.items()}
+    nodes = {
+        name: {
+            "restarts": p.restarts,
+            "cpu_secs": p.cpu_secs,
+            "exit": p.exit_codes[-1] if p.exit_codes else None,
+        }
+        for name, p in procs.items()
+    }
+    return counters.table(stats, nodes, elapsed_secs)
+
+
+def stop(
+    procs: list[Proc],
+    graces: tuple[float, float],
+    tell: Callable[[Proc], None],
+    serve: Callable[[], object],
+    say: Callable[[str], None],
+) -> None:
+    """Stop ``procs``: ask each (``tell``; SIGTERM to one still importing, which cannot hear
+    it yet), SIGTERM those still running after ``graces[0]`` s, SIGKILL those still running
+    ``graces[1]`` s later; ``serve()`` serves the launcher for a moment (50 ms) meanwhile."""
+    live = [p for p in procs if p.process is not None and p.process.returncode is None]
+    for proc in live:
+        if proc.rid is None:
+            signal_group(proc, signal.SIGTERM)
+        else:
+            tell(proc)
+    for signum, grace in ((None, graces[0]), (signal.SIGTERM, graces[1]), (signal.SIGKILL, 5.0)):
+        live = [p for p in procs if p.process is not None and p.process.returncode is None]
+        if not live:
+            break
+        if signum is not None:
+            say(f"{len(live)} node(s) still running: sending {signum.name}")
+            for proc in live:
+                signal_group(proc, signum)
+        end = time.monotonic() + grace
+        while time.monotonic() < end and any(p.process.returncode is None for p in live):  # type: ignore[union-attr]
+            serve()

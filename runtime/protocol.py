@@ -25,13 +25,20 @@ launcher -> node
     idle       {}                                answer to wait_idle
     stop       {}                                stop cleanly now
 launcher <-> launcher (one per host, ``runtime.hostlink``; CURVE-encrypted tcp)
-    link_hello {host, run_secret, reply, graph}  this run's link secret (the tag: with it);
-                                                 reply=1: "yours is unknown here: hello?";
-                                                 graph: its digest (must be the same)
+    link_hello {host, run_secret, reply, graph, argv}  this run's link secret (the tag:
+                                                 with it); reply=1: "yours is unknown here:
+                                                 hello?"; graph: the digest of the graph and
+                                                 its run mode (must be the same); argv: its
+                                                 command line, to say which flags differ
     link_beat  {host, ready}                     every ``HEARTBEAT_SECS``; ready=1: its
                                                  nodes are ready (or running)
     link_ping  {host, t1} / link_pong {host, t1, t2, t3}   clock offset (NTP-style)
     link_stop  {host, reason, exit_code}         the graph stops
+    link_counts {host, published, received}      lockstep: its nodes' newest counts, sent
+                                                 when one changes (received: "node/port")
+    link_final {host, published}                 stopping: its nodes (but for listeners fed
+                                                 from other hosts) have stopped, and
+                                                 published this much in all, per topic
 """
 
 from __future__ import annotations
@@ -69,11 +76,13 @@ _FIELDS: dict[str, dict[str, type | tuple[type, ...]]] = {
     "idle": {},
     "stop": {},
     # between the launchers of a graph's hosts (runtime.hostlink), over CURVE
-    "link_hello": {"host": str, "run_secret": str, "reply": int, "graph": str},
+    "link_hello": {"host": str, "run_secret": str, "reply": int, "graph": str, "argv": str},
     "link_beat": {"host": str, "ready": int},
     "link_ping": {"host": str, "t1": int},
     "link_pong": {"host": str, "t1": int, "t2": int, "t3": int},
     "link_stop": {"host": str, "reason": str, "exit_code": int},
+    "link_counts": {"host": str, "published": dict, "received": dict},
+    "link_final": {"host": str, "published": dict},
 }
 
 

@@ -3,12 +3,14 @@
 python launch.py replay FILE [--graph G] [--swap NODE[=IMPL] ...] [--rate X | --fast]
                         [--loop] [--start S] [--end E] [--replay-topics RE] [--remap A=B ...]
                         [--lockstep] [--strict] [--record OUT [--record-topics RE] [--overwrite]]
-                        [--duration S]
+                        [--duration S] [--host NAME [--keys DIR] | --no-hosts]
                         [--set NODE.PARAM=VALUE ...] [--print-graph]
 
 ``replay`` runs the graph stored in the bag (or ``--graph``) with the nodes named
 in ``--swap`` (and everything downstream of them) live, and a ``replay`` node publishing
-the recorded topics they need (see :func:`build_replay_graph`).
+the recorded topics they need (see :func:`build_replay_graph`). A graph with a hosts
+table replays across its hosts, one launcher per host (``--host NAME``, the replay node on
+the first host), or on this machine alone with ``--no-hosts`` (docs/hosts.md).
 """
 
 from __future__ import annotations
@@ -17,7 +19,6 @@ import argparse
 import copy
 import logging
 import re
-import shlex
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -28,7 +29,8 @@ import yaml
 
 from messages.errors import BagError, GraphError
 from runtime.bag import BagReader, topic_filter
-from runtime.cli import add_deprecated, add_run_options
+from runtime.cli import add_deprecated, add_run_options, shared_command_line
+from runtime.hosts import without_hosts
 
 log = logging.getLogger(__name__)
 
@@ -232,6 +234,11 @@ def replay_main(argv: Sequence[str]) -> int:
     parser.add_argument(
         "--strict", action="store_true", help="stop at a message that cannot be decoded"
     )
+    parser.add_argument(
+        "--no-hosts",
+        action="store_true",
+        help="drop the graph's hosts table: replay a bag recorded across hosts on this machine",
+    )
     parser.add_argument("--print-graph", action="store_true", help="print the graph; run nothing")
     add_deprecated(parser, "--replace", "--swap", "swaps", append=True)
     add_deprecated(parser, "--topics", "--replay-topics", "replay_topics")
@@ -248,6 +255,10 @@ def replay_main(argv: Sequence[str]) -> int:
                 print(f"{args.bag}: the bag stores no graph; pass --graph", file=sys.stderr)
                 return 2
             graph = yaml.safe_load(text)
+        if args.no_hosts:
+            if args.host is not None:
+                raise GraphError("--no-hosts and --host: give one of them")
+            graph = without_hosts(graph)
         options = ReplayOptions(
             rate=args.rate,
             fast=args.fast,
@@ -285,5 +296,7 @@ def replay_main(argv: Sequence[str]) -> int:
         lockstep=True,
         duration_secs=args.duration,
         log_level=args.log_level,
-        command_line=shlex.join([sys.executable, "launch.py", "replay", *argv]),
+        command_line=shared_command_line(["launch.py", "replay", *argv]),
+        host=args.host,
+        key_dir=args.keys,
     )

@@ -2,8 +2,13 @@
 
 A graph with a ``hosts:`` table runs as one launcher per host (``--host NAME``, see
 ``runtime.hosts`` and docs/hosts.md). Without ``--host`` such a graph is not started:
-the command prints the command to run on each host. Recording and lockstep across hosts
-are refused (see :func:`multihost_refusals`).
+the command prints the command to run on each host. Every host is started with the same
+options: with ``--record`` each launcher adds the same recorder node (its parameters hold
+the command line without ``--host``/``--keys``), which runs on the first host of the
+table while the others' publishers wait for its subscriptions; with ``--lockstep`` the
+launchers pass their nodes' counts to each other so the idle barrier covers every edge.
+The launchers' link compares a digest of the graph and the run mode, so a host started
+with other options is refused, naming the flags that differ.
 """
 
 from __future__ import annotations
@@ -76,27 +81,6 @@ def check_here(graph: Graph, host: str) -> None:
             ) from err
 
 
-def multihost_refusals(graph: Graph, *, record: bool, lockstep: bool) -> list[str]:
-    """What a graph on several hosts cannot do (yet), each said plainly."""
-    if not graph.hosts.table:
-        return []
-    refusals = []
-    if record:
-        refusals.append(
-            "--record with a hosts table: the recorder it adds would be known to this host's "
-            "launcher only, and the others' publishers would not wait for it (the first "
-            "messages would be lost); put a recorder node in the graph on the host that "
-            "records instead (docs/hosts.md)"
-        )
-    if lockstep:
-        refusals.append(
-            "--lockstep with a hosts table: the replay's idle barrier needs every node's "
-            "counts at one launcher, and each host's launcher knows only its own; replay "
-            "the bag on one host"
-        )
-    return refusals
-
-
 def host_commands(graph: Graph, argv: list[str]) -> str:
     """What to run on each host of ``graph`` (``argv``: this command line, without --host)."""
     placed = graph.hosts.placement({n: s.host for n, s in graph.nodes.items()})
@@ -137,9 +121,6 @@ def launch(
                 overwrite=overwrite,
             )
         checked = check(graph, source=source)
-        refusals = multihost_refusals(checked, record=record is not None, lockstep=lockstep)
-        if refusals:
-            raise GraphError("\n".join(f"{source}: {r}" for r in refusals))
         if checked.hosts.table and host is None:
             print(host_commands(checked, [sys.executable, *sys.argv]), file=sys.stderr)
             return 2
@@ -155,6 +136,7 @@ def launch(
             log_level=log_level,
             host=host,
             keys=keys,
+            argv=command_line,
         )
     except GraphError as err:
         print(f"graph check failed:\n{err}", file=sys.stderr)

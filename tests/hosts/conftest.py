@@ -62,16 +62,25 @@ def netns() -> Iterator[list[Namespace]]:
 
 
 class Launched:
-    """A launcher started in a namespace, its output in a file."""
+    """``launch.py ARGS...`` started (in a namespace, if given), its output in a file."""
 
-    def __init__(self, ns: Namespace, graph: Path, host: str, keys: Path, log: Path) -> None:
+    def __init__(self, args: list[str | Path], log: Path, ns: Namespace | None = None) -> None:
         self.log = log
         env = dict(os.environ, PYTHONPATH=str(ROOT))
-        argv = [sys.executable, "launch.py", str(graph), "--host", host, "--keys", str(keys)]
+        argv = [sys.executable, "launch.py", *map(str, args)]
         with open(log, "w") as out:
             self.proc = subprocess.Popen(
-                ns.command(argv), cwd=ROOT, stdout=out, stderr=subprocess.STDOUT, env=env
+                ns.command(argv) if ns else argv,
+                cwd=ROOT,
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                env=env,
             )
+
+    @classmethod
+    def host(cls, ns: Namespace, graph: Path, host: str, keys: Path, log: Path) -> Launched:
+        """This host's launcher of ``graph``, in namespace ``ns``."""
+        return cls([graph, "--host", host, "--keys", keys], log, ns)
 
     @property
     def text(self) -> str:

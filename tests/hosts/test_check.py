@@ -11,7 +11,9 @@ from pathlib import Path
 import pytest
 
 from messages.errors import GraphError
-from runtime.graph import check, load
+from runtime.cli import shared_command_line
+from runtime.graph import check
+from runtime.hosts import without_hosts
 from runtime.run import host_keys
 from runtime.security import load_key, make_key
 from tests.hosts.conftest import ROOT, two_host_graph, write_graph
@@ -134,14 +136,18 @@ def test_without_host_it_says_what_to_run_on_each_host(tmp_path: Path) -> None:
     assert "on b (10.77.0.2, nodes sink):" in run.stderr
 
 
-def test_recording_and_lockstep_across_hosts_are_refused_with_why(tmp_path: Path) -> None:
-    graph = write_graph(two_host_graph(tmp_path), tmp_path / "g.yaml")
-    record = launch(graph, "--host", "a", "--keys", tmp_path, "--record", tmp_path / "o.mcap")
-    assert record.returncode == 2
-    assert "--record with a hosts table" in record.stderr
-    assert "put a recorder node in the graph" in record.stderr
-    lockstep = launch(graph, "--host", "a", "--keys", tmp_path, "--lockstep")
-    assert lockstep.returncode == 2
-    assert "--lockstep with a hosts table" in lockstep.stderr
-    assert not (tmp_path / "o.mcap").exists()
-    assert load(graph).hosts.on_host_lost == "stop"
+def test_without_hosts_drops_the_table_its_policies_and_placements(tmp_path: Path) -> None:
+    doc = two_host_graph(tmp_path)
+    alone = without_hosts(doc)
+    assert set(alone) == {"nodes"} and "hosts" in doc  # a copy
+    assert all("host" not in body for body in alone["nodes"].values())
+    assert not check(alone).hosts.table
+    loopback = {"nodes": {"a": {"impl": "synthetic.source", "host": "127.0.0.1"}}}
+    assert without_hosts(loopback) == loopback  # no table: a node's address stays
+
+
+def test_the_shared_command_line_is_the_same_on_every_host() -> None:
+    a = shared_command_line(["launch.py", "g.yaml", "--record", "o.mcap", "--host", "a"])
+    b = shared_command_line(["launch.py", "g.yaml", "--keys=/k", "--record", "o.mcap"])
+    assert a == b == "python launch.py g.yaml --record o.mcap"
+    assert shared_command_line(["launch.py", "g.yaml"]).endswith(" launch.py g.yaml")

@@ -9,8 +9,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+from runtime import protocol
 from runtime.hostlink import Act, judge
 from runtime.hosts import Hosts
+from runtime.protocol import ControlError
 from tests.hosts.conftest import ROOT, host_table, write_graph
 
 HOSTS = Hosts({}, on_host_lost="stop", host_timeout_secs=1.0, max_clock_offset_secs=0.005)
@@ -34,9 +38,16 @@ def test_judge_applies_the_policies() -> None:
     assert stop.stop == "host 'robot' stops: supervisor: done"
     assert stop.verdict_code == 3 and not stop.echo
     assert judge(("back", "robot", True), HOSTS).lines == ["host 'robot' is back (a new launcher)"]
-    other = judge(("graph_differs", "robot", "ab" * 32, "cd" * 32), HOSTS)
+    theirs, ours = "python launch.py g.yaml --lockstep --record o.mcap", "python launch.py g.yaml"
+    other = judge(("graph_differs", "robot", "ab" * 32, "cd" * 32, theirs, ours), HOSTS)
     assert other.stop == "host 'robot' runs another graph" and other.exit_code == 2
     assert "sha256 abababababab, here cdcdcdcdcdcd" in other.lines[0]
+    assert other.lines[1] == (
+        "host 'robot' was started with --lockstep --record o.mcap that this host was not, "
+        "and this host with nothing that it was not"
+    )
+    same = judge(("graph_differs", "robot", "ab" * 32, "cd" * 32, ours, ours), HOSTS)
+    assert len(same.lines) == 1  # the same options: another graph file
 
 
 # Two links (hosts a and b on the namespace's own address), and a forger: a DEALER with
@@ -125,3 +136,17 @@ def test_the_link_joins_measures_refuses_forgeries_passes_stops_and_sees_a_loss(
     assert ("a", "lost", "b") in events
     assert ("a", "graph_differs", "b") in events
     assert ("a", "back", "b") not in events
+
+
+def test_link_counts_are_checked_field_by_field() -> None:
+    secret = protocol.new_secret()
+    good = protocol.pack(secret, "link_counts", host="b", published={"a/t": 3}, received={"n/p": 3})
+    assert protocol.unpack(secret, good, from_node=False)["received"] == {"n/p": 3}
+    for bad, why in (
+        ({"published": {"a/t": -1}, "received": {}}, "link_counts.published: expected a map"),
+        ({"published": {}, "received": {"n/p": "3"}}, "link_counts.received: expected a map"),
+        ({"published": {}}, "link_counts.received: expected dict"),
+    ):
+        frames = protocol.pack(secret, "link_counts", host="b", **bad)
+        with pytest.raises(ControlError, match=why):
+            protocol.unpack(secret, frames, from_node=False)

@@ -10,6 +10,8 @@ import sys
 import time
 from pathlib import Path
 
+from runtime.bag import BagReader
+from runtime.bagtool import diff_bags
 from runtime.graph import load_document
 from runtime.hosts import check_hosts
 from tests.hosts.conftest import ROOT, Launched, host_table, two_host_graph, write_graph
@@ -50,13 +52,19 @@ def tcp_sockets(ns_command: list[str]) -> list[tuple[str, str, str]]:
     return [(f[0], f[3], f[4]) for f in (line.split() for line in out.splitlines()) if len(f) >= 5]
 
 
+def split_handover(keys: Path) -> dict:
+    """The handover graph (graph.yaml) on hosts robot (10.77.0.1) and workstation (.2)."""
+    doc = load_document(ROOT / "graph.yaml")
+    doc["hosts"] = host_table(keys, ["robot", "workstation"])
+    for name, node in doc["nodes"].items():
+        node["host"] = "robot" if name in ROBOT else "workstation"
+    return doc
+
+
 def test_the_handover_split_across_hosts_runs_end_to_end_records_and_refuses_intruders(
     netns, launched, tmp_path: Path
 ) -> None:
-    doc = load_document(ROOT / "graph.yaml")
-    doc["hosts"] = host_table(tmp_path, ["robot", "workstation"])
-    for name, node in doc["nodes"].items():
-        node["host"] = "robot" if name in ROBOT else "workstation"
+    doc = split_handover(tmp_path)
     # Recording across hosts: a recorder node in the graph, on the workstation.
     bag = tmp_path / "run.mcap"
     doc["nodes"]["recorder"] = {
@@ -67,8 +75,8 @@ def test_the_handover_split_across_hosts_runs_end_to_end_records_and_refuses_int
     }
     graph = write_graph(doc, tmp_path / "handover.yaml")
     robot_ns, ws_ns, outside = netns
-    robot = Launched(robot_ns, graph, "robot", tmp_path, tmp_path / "robot.log")
-    workstation = Launched(ws_ns, graph, "workstation", tmp_path, tmp_path / "ws.log")
+    robot = Launched.host(robot_ns, graph, "robot", tmp_path, tmp_path / "robot.log")
+    workstation = Launched.host(ws_ns, graph, "workstation", tmp_path, tmp_path / "ws.log")
     launched += [robot, workstation]
     robot.wait_for("all nodes ready; running")
     # Checked at once, while the graph surely runs (it ends by itself within seconds).
@@ -138,8 +146,8 @@ def test_a_killed_host_is_reported_within_the_timeout_and_stops_the_graph(
     ]
     checked = subprocess.run(netns[0].command(argv), cwd=ROOT, capture_output=True, text=True)
     assert "OK, 2 nodes, 1 edges; host a, its key matches" in checked.stdout, checked.stderr
-    a = Launched(netns[0], graph, "a", tmp_path, tmp_path / "a.log")
-    b = Launched(netns[1], graph, "b", tmp_path, tmp_path / "b.log")
+    a = Launched.host(netns[0], graph, "a", tmp_path, tmp_path / "a.log")
+    b = Launched.host(netns[1], graph, "b", tmp_path, tmp_path / "b.log")
     launched += [a, b]
     b.wait_for("all nodes ready; running")
     b.wait_for("clock offset to host 'a'")
@@ -156,15 +164,15 @@ def test_with_on_host_lost_wait_a_host_that_comes_back_is_resubscribed(
     netns, launched, tmp_path: Path
 ) -> None:
     graph = write_graph(two_host_graph(tmp_path, policy="wait", count=40), tmp_path / "g.yaml")
-    a = Launched(netns[0], graph, "a", tmp_path, tmp_path / "a.log")
-    b = Launched(netns[1], graph, "b", tmp_path, tmp_path / "b.log")
+    a = Launched.host(netns[0], graph, "a", tmp_path, tmp_path / "a.log")
+    b = Launched.host(netns[1], graph, "b", tmp_path, tmp_path / "b.log")
     launched += [a, b]
     a.wait_for("all nodes ready; running")
     time.sleep(0.5)
     a.kill()
     b.wait_for("host 'a' lost", timeout=30)
     assert b.proc.poll() is None  # the sink's host goes on
-    again = Launched(netns[0], graph, "a", tmp_path, tmp_path / "a2.log")
+    again = Launched.host(netns[0], graph, "a", tmp_path, tmp_path / "a2.log")
     launched.append(again)
     b.wait_for("host 'a' is back (a new launcher)")
     # The new source waits for the sink, whose socket reconnects and subscribes again,
@@ -174,3 +182,40 @@ def test_with_on_host_lost_wait_a_host_that_comes_back_is_resubscribed(
     received = int(re.search(r"received (\d+) ticks", b.text).group(1))
     assert received > 40, b.text[-2000:]  # before the kill, and all 40 of the new source
     assert b.text.count("[launch] starting 1 node(s)") == 1  # the sink was not restarted
+
+
+def test_the_handover_recorded_across_hosts_replays_in_lockstep_across_them_as_on_one(
+    netns, launched, tmp_path: Path
+) -> None:
+    doc = split_handover(tmp_path)
+    graph = write_graph(doc, tmp_path / "handover.yaml")
+    bag, keys = tmp_path / "run.mcap", ["--keys", tmp_path]
+    # --record on both hosts: the recorder runs on the first (robot), over CURVE from the other.
+    on = [(netns[0], "robot"), (netns[1], "workstation")]
+    record = [graph, "--record", bag, "--log-level", "WARNING", *keys]
+    launched += [Launched([*record, "--host", h], tmp_path / f"rec-{h}.log", ns) for ns, h in on]
+    assert [item.finish() for item in launched] == [0, 0], launched[1].text[-3000:]
+    with BagReader(bag) as reader:
+        counts = {t: s.messages for t, s in reader.stats().items()}
+    assert counts["world/state"] == topic_count(launched[0].text, "world/state")
+    assert counts["shear/shear"] > 0 and counts["pose/pose"] > 0  # from the workstation
+
+    # The shear tracker rerun in lockstep: the replay (robot) feeds it on the workstation,
+    # whose counts come back over the link before every barrier; then on one host.
+    replay = ["replay", bag, "--swap", "shear", "--lockstep", "--log-level", "WARNING"]
+    split, alone = tmp_path / "split.mcap", tmp_path / "alone.mcap"
+    runs = [
+        Launched([*replay, "--record", split, *keys, "--host", h], tmp_path / f"{h}.log", ns)
+        for ns, h in on
+    ]
+    launched += runs
+    assert [item.finish() for item in runs] == [0, 0], runs[1].text[-3000:]
+    one = Launched([*replay, "--record", alone, "--no-hosts"], tmp_path / "alone.log")
+    launched.append(one)
+    assert one.finish() == 0, one.text[-3000:]
+    assert diff_bags(alone, split, ["shear/shear"]) == []
+    shear = []
+    for path in (alone, split):
+        with BagReader(path) as reader:
+            shear.append(reader.stats()["shear/shear"].messages)
+    assert shear[0] == shear[1] > 0
