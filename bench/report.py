@@ -32,6 +32,7 @@ from bench.common import Row, machine
 ROOT = Path(__file__).resolve().parents[1]
 ORDER = (
     "transport",
+    "hosts",
     "codec",
     "bags",
     "sim",
