@@ -5,15 +5,12 @@ No timing is asserted: the figures only have to exist, be finite and be positive
 
 from __future__ import annotations
 
-import json
 import math
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.bench import run_quick
+
 MODES = {
     "record_bag",
     "record_raw_mcap",
@@ -32,15 +29,8 @@ MODES = {
 
 @pytest.mark.timeout(900)
 def test_quick_json_has_every_mode_with_finite_positive_figures() -> None:
-    done = subprocess.run(
-        [sys.executable, "-m", "bench.bags", "--quick", "--json", "--no-plot"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=880,
-    )
-    assert done.returncode == 0, done.stderr[-3000:]
-    report = json.loads(done.stdout)
+    report, stderr = run_quick("bags", "--no-plot", timeout=880)
+    report = report
     assert set(report) == {"machine", "rows"}
     rows = {row["mode"]: row for row in report["rows"]}
     assert set(rows) == MODES

@@ -3,31 +3,21 @@ their rows and write their plots (the pose bench's smoke test is in test_bench_p
 
 from __future__ import annotations
 
-import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).parents[2]
+from tests.bench import run_quick
 
 
 @pytest.mark.parametrize("name", ["shear", "classifier"])
 def test_quick_run_prints_rows_and_writes_the_plot(name: str, tmp_path: Path) -> None:
     png = tmp_path / f"{name}.png"
-    done = subprocess.run(
-        [sys.executable, "-m", f"bench.{name}", "--quick", "--json", "--plot", str(png)],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert done.returncode == 0, done.stderr[-2000:]
-    rows = json.loads(done.stdout)["rows"]
+    report, stderr = run_quick(name, "--plot", str(png), timeout=600)
+    rows = report["rows"]
     assert rows and png.stat().st_size > 10_000
-    assert f"[bench.{name}] 1/" in done.stderr  # one progress line per sweep point
+    assert f"[bench.{name}] 1/" in stderr  # one progress line per sweep point
     if name == "shear":
         for row in rows:
             assert math.isfinite(row["dir_err_deg_median"]) and row["ms_per_frame_median"] > 0

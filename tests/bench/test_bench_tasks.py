@@ -3,28 +3,17 @@ promised shape (task, success rate, latencies). No figure is judged beyond being
 
 from __future__ import annotations
 
-import json
 import math
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.bench import run_quick
 
 
 @pytest.mark.timeout(420)
 def test_quick_json_has_a_stacking_row() -> None:
-    done = subprocess.run(
-        [sys.executable, "-m", "bench.tasks", "--quick", "--json"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=400,
-    )
-    assert done.returncode == 0, done.stderr[-3000:]
-    report = json.loads(done.stdout)
+    report, stderr = run_quick("tasks", timeout=400)
+    report = report
     assert set(report) == {"machine", "rows"}
     (row,) = report["rows"]
     assert row["task"] == "stacking" and row["runs"] == 1 and row["seeds"] == "0"

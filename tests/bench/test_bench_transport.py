@@ -5,15 +5,12 @@ No timing is asserted: the figures only have to exist, be finite and be positive
 
 from __future__ import annotations
 
-import json
 import math
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.bench import run_quick
+
 FIGURES = (
     "frames_per_sec",
     "throughput_vs_raw",
@@ -27,15 +24,8 @@ FIGURES = (
 
 @pytest.mark.timeout(240)
 def test_quick_json_has_every_transport_and_impl_with_finite_positive_figures() -> None:
-    done = subprocess.run(
-        [sys.executable, "-m", "bench.transport", "--quick", "--json", "--no-plot"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=220,
-    )
-    assert done.returncode == 0, done.stderr[-3000:]
-    report = json.loads(done.stdout)
+    report, stderr = run_quick("transport", "--no-plot", timeout=220)
+    report = report
     assert set(report) == {"machine", "rows"}
     rows = report["rows"]
     keys = {(row["transport"], row["impl"]) for row in rows}
