@@ -296,8 +296,10 @@ def _node(stdin: int, out: int, launcher: int, rundir: str) -> None:
         sys.stderr = io.TextIOWrapper(io.FileIO(2, "w", closefd=False), write_through=True)
         adopted_by(launcher)
         code = run(launcher, rundir)
-    except SystemExit as end:
-        code = end.code
+    except SystemExit as end:  # as Python ends: None is 0, a message goes to stderr and is 1
+        code = 0 if end.code is None else end.code
+        if not isinstance(code, int):
+            print(code, file=sys.stderr)
     except BaseException:  # noqa: BLE001 - said on its output, never back into the server
         import traceback
 

@@ -13,8 +13,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from runtime.child import SERVER_NAME
-from tests.runtime.conftest import alive, children_of, comm
+from tests.runtime.conftest import alive, children_of, is_node
 from tests.synthetic_nodes import IMPLS
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -57,7 +56,7 @@ class Run:
         remembered for :meth:`leftovers`)."""
         kids = children_of(self.proc.pid)
         self.kids.update(kids)
-        return [k for k in kids if comm(k) != SERVER_NAME]
+        return [k for k in kids if is_node(k)]
 
     def wait_for(self, text: str, timeout: float = 60) -> None:
         end = time.monotonic() + timeout

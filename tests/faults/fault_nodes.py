@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import os
 import subprocess
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +22,7 @@ class TickerParams:
     crash_after: int = 0  # ticks, then exit 3 once (a marker file remembers it)
     crash_marker: str = ""
     restarted_init_secs: float = 0.0  # the restarted incarnation's start-up time
+    exit_message: str = ""  # sys.exit(this) in setup: a node that ends itself as Python does
 
 
 class Ticker(Node):
@@ -37,6 +39,8 @@ class Ticker(Node):
         self.crash = params.crash_after and not restarted
 
     def setup(self) -> None:
+        if self.params.exit_message:
+            sys.exit(self.params.exit_message)
         self.sent = 0
         self.io.add_timer(1.0 / self.params.rate_hz, self.tick)
 

@@ -138,3 +138,16 @@ def test_a_node_restarts_after_the_fork_server_died() -> None:
     assert "node 'a' is back" in log
     assert launcher.starter is not None and launcher.starter.server != seen["server"]
     assert "a/tick" in log
+
+
+def test_a_node_ending_with_sys_exit_and_a_message_fails_as_python_would() -> None:
+    # A forked node ends through the fork server's code, not Python's: the same outcome
+    # (the message on its output, exit code 1).
+    launcher, out = launcher_for(
+        {"a": ticker(exit_message="no sensor here"), "b": sink("a/tick")}, duration_secs=10.0
+    )
+    code = launcher.run()
+    log = out.getvalue()
+    assert code == 1, log
+    assert "[a] no sensor here" in log
+    assert launcher.procs["a"].exit_codes == [1]

@@ -76,7 +76,12 @@ def children_of(pid: int) -> list[int]:
 
 def nodes_of(pid: int) -> list[int]:
     """The node processes among ``pid``'s children (the launcher's fork server aside)."""
-    return [k for k in children_of(pid) if comm(k) != SERVER_NAME]
+    return [k for k in children_of(pid) if is_node(k)]
+
+
+def is_node(pid: int) -> bool:
+    """Whether a child of a launcher is one of its nodes, not its fork server."""
+    return comm(pid) != SERVER_NAME
 
 
 def comm(pid: int) -> str:
