@@ -174,7 +174,7 @@ class PoseEstimator:
         self.yaw_turns = not symmetric_about_z
         fld = solver.field
         self._turn_is_symmetry = [
-            bool(np.allclose(t[:3, :3] @ r, np.eye(3)) for r in symmetry_rotations(fld))
+            any(np.allclose(t[:3, :3] @ r, np.eye(3)) for r in symmetry_rotations(fld))
             for t in _turns(np.eye(4), yaw=self.yaw_turns)
         ]
         self._flip_is_symmetry = any(r[2, 2] < 0 for r in symmetry_rotations(fld))
