@@ -50,7 +50,7 @@ from geometry import objects, se3
 from geometry.camera import PinholeCamera
 from geometry.fields import Field
 from perception.contact import ContactParams, ContactPatcher
-from perception.pose import common, synthetic
+from perception.pose import metrics, problem, synthetic
 from perception.pose.estimator import EstimatorParams, PoseEstimator
 from perception.pose.icp import IcpParams, IcpSolver
 from perception.pose.ipopt import IpoptParams, IpoptSolver, jit_available
@@ -157,10 +157,10 @@ def _solvers(body: Field, tol: str, use_jit: bool) -> dict[str, Callable[[], Any
     }
 
 
-def _score(result: common.FitResult, truth: np.ndarray) -> tuple[float, float]:
+def _score(result: problem.FitResult, truth: np.ndarray) -> tuple[float, float]:
     return (
-        common.axis_error_deg(result.tool_from_object, truth, flip_symmetric=True),
-        common.offaxis_error_m(result.tool_from_object, truth),
+        metrics.axis_error_deg(result.tool_from_object, truth, flip_symmetric=True),
+        metrics.offaxis_error_m(result.tool_from_object, truth),
     )
 
 

@@ -12,7 +12,7 @@ a random object axis, or tilted 80 degrees for bodies of revolution, and moved 3
 ``track`` (the second estimate on the same cloud: the tracking path).
 
 Success: within 2 degrees and 2 mm of the truth up to the object's symmetry, counting
-only the translations the patch observes (``common.pose_difference``).
+only the translations the patch observes (``symmetry.pose_difference``).
 ``silent_wrong``: answers outside those bounds whose status was ``ok`` or ``recovered``
 (the goal is 0); ``suspect_rate``: the share reported ``suspect``.
 
@@ -38,7 +38,7 @@ import numpy as np
 from bench.common import Row, main, median, one_core, percentile, progress
 from geometry import fields, se3
 from geometry.objects import ObjectModel
-from perception.pose import common, synthetic
+from perception.pose import metrics, problem, symmetry, synthetic
 from perception.pose.estimator import EstimatorParams, PoseEstimator
 from perception.pose.ipopt import IpoptParams, IpoptSolver, jit_available
 from perception.pose.lm import LMSolver
@@ -98,10 +98,10 @@ def bad_seed(model: ObjectModel, truth: np.ndarray, rng: np.random.Generator) ->
     return seed
 
 
-def right(fld: fields.Field, result: common.FitResult, truth: np.ndarray) -> bool:
+def right(fld: fields.Field, result: problem.FitResult, truth: np.ndarray) -> bool:
     if result.status in ("no_patch", "failed"):
         return False
-    angle, offset = common.pose_difference(
+    angle, offset = symmetry.pose_difference(
         fld, se3.invert(truth), result.object_from_tool, result.observable
     )
     return angle < AXIS_OK_DEG and offset < OFFSET_OK_M
@@ -114,7 +114,7 @@ def _solver(name: str, fld: fields.Field, fit_dims: tuple[str, ...] = ()) -> Any
     return IpoptSolver(fld, IpoptParams(jit=jit, fit_dims=fit_dims))
 
 
-def _summary(results: list[tuple[common.FitResult, bool, float]], extra: dict[str, Any]) -> Row:
+def _summary(results: list[tuple[problem.FitResult, bool, float]], extra: dict[str, Any]) -> Row:
     statuses = [r.status for r, _, _ in results]
     cpu = [c for _, _, c in results]
     return {
@@ -206,8 +206,10 @@ def size_rows(offsets_mm: list[float], n_cases: int, n_points: int) -> list[Row]
                 res = est.estimate(pts, bub, seed_tool_from_object=seed)
                 cpu = time.process_time() - c0
                 results.append((res, right(true.field, res, truth), cpu))
-                axis.append(common.axis_error_deg(res.tool_from_object, truth, flip_symmetric=True))
-                offaxis.append(common.offaxis_error_m(res.tool_from_object, truth))
+                axis.append(
+                    metrics.axis_error_deg(res.tool_from_object, truth, flip_symmetric=True)
+                )
+                offaxis.append(metrics.offaxis_error_m(res.tool_from_object, truth))
                 if fit:
                     radius_err.append(abs(res.dims_m["radius_m"] - true.field.dims_m["radius_m"]))
             row = _summary(

@@ -43,11 +43,11 @@ import numpy as np
 from geometry import objects
 from messages.base import Header
 from messages.types import ContactPatch, GraspState, PoseEstimate
-from perception.pose.common import check_rigid
 from perception.pose.estimator import EstimatorParams, PoseEstimator
 from perception.pose.icp import IcpParams, IcpSolver
 from perception.pose.ipopt import IpoptParams, IpoptSolver
 from perception.pose.lm import LMParams, LMSolver
+from perception.pose.problem import check_rigid
 from perception.pose.synthetic import grasp_cloud, random_grasp_pose
 from runtime.node import Node
 from runtime.registry import register

@@ -1,7 +1,11 @@
 """Proximity pose estimation (paper, "Proximity Pose Estimation") and its baselines.
 
-- ``common``: the problem (``object_from_tool``, the paper's G X T), results,
-  observability, seeds and error metrics.
+- ``problem``: the problem (``object_from_tool``, the paper's G X T), results, input
+  checks, residuals and observability.
+- ``cloud``: finite rows, subsampling and the noise measured from the cloud.
+- ``seeds``: cold-start seeds from the data and the turns of a minimum.
+- ``symmetry``: the object's symmetry turns and the distance between two estimates.
+- ``metrics``: the errors benches and tests score estimates with.
 - ``lm``: Levenberg-Marquardt on SE(3) (fast path).
 - ``ipopt``: the paper's formulation with CasADi and IPOPT.
 - ``icp``: point-to-point ICP against a sampled model surface (baseline).
@@ -11,8 +15,8 @@
 
 from __future__ import annotations
 
-from perception.pose.common import FitResult
 from perception.pose.estimator import EstimatorParams, PoseEstimator
 from perception.pose.lm import LMParams, LMSolver
+from perception.pose.problem import FitResult
 
 __all__ = ["EstimatorParams", "FitResult", "LMParams", "LMSolver", "PoseEstimator"]

@@ -8,13 +8,13 @@ asks for around it:
   fits within the acceptance, its RMS has not risen by more than ``track_rise_ratio``
   and enough directions are observable. Otherwise, and for a given seed (vision, the
   node's parameter: unverified) or a cold start, the search below runs.
-- Search: the prior (if any), the data seeds (``common.seed_poses``: the axis along
+- Search: the prior (if any), the data seeds (``seeds.seed_poses``: the axis along
   each patch's principal directions and the cardinal axes) and then the best
   minimum's turns (90 degrees about its x and y axes, over, and about z for objects
   that are not bodies of revolution; turns that are symmetries of the object are
   skipped) are solved on a subsample (``screen_points``); the two best distinct minima
   (up to the object's symmetry) are polished on the full cloud.
-- Judgement, with the noise measured from the cloud itself (``common.estimate_noise_m``)
+- Judgement, with the noise measured from the cloud itself (``cloud.estimate_noise_m``)
   unless ``noise_m`` is configured: ``suspect``, with the reasons in ``message``, when
   the best minimum fits worse than ``accept_ratio`` times the noise, when another
   distinct minimum fits about as well (``ambiguity_ratio``: a box squeezed over an
@@ -42,18 +42,10 @@ import numpy as np
 
 from geometry import se3
 from geometry.fields import Field
-from perception.pose.common import (
-    MIN_POINTS,
-    FitResult,
-    check_rigid,
-    clean_points,
-    estimate_noise_m,
-    pose_difference,
-    residuals,
-    seed_poses,
-    spread_problem,
-    symmetry_rotations,
-)
+from perception.pose.cloud import clean_cloud, clean_points, estimate_noise_m
+from perception.pose.problem import MIN_POINTS, FitResult, check_rigid, residuals, spread_problem
+from perception.pose.seeds import seed_poses, turns
+from perception.pose.symmetry import pose_difference, symmetry_rotations
 
 
 class LocalSolver(Protocol):
@@ -69,7 +61,7 @@ class EstimatorParams:
 
     Attributes:
         noise_m: the depth noise sigma; 0 (default) estimates it from each cloud
-            (``common.estimate_noise_m``, the spread about local quadric fits).
+            (``cloud.estimate_noise_m``, the spread about local quadric fits).
         min_noise_m: floor under the estimated noise (a noiseless cloud still has
             model and sampling error).
         accept_ratio: a minimum whose residual RMS exceeds ``accept_ratio * noise`` is
@@ -136,22 +128,6 @@ class EstimatorParams:
             raise ValueError(f"min_observable must be in [0, 6], got {self.min_observable}")
 
 
-def _turns(object_from_tool: np.ndarray, *, yaw: bool) -> list[np.ndarray]:
-    """The estimate turned 90 degrees both ways about the object's x and y axes, and
-    over; with ``yaw``, also about z (objects that are not bodies of revolution)."""
-    out = []
-    if yaw:
-        for angle in (np.pi / 2, -np.pi / 2, np.pi):
-            turn = se3.rotation_about(np.array([0.0, 0.0, 1.0]), angle)
-            out.append(se3.make_pose(turn) @ object_from_tool)
-    for axis in (np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])):
-        for angle in (np.pi / 2, -np.pi / 2, np.pi):
-            if angle == np.pi and axis[1] == 1.0:
-                continue  # turning over about x or about y differ by a yaw only
-            out.append(se3.make_pose(se3.rotation_about(axis, angle)) @ object_from_tool)
-    return out
-
-
 @dataclass
 class _Minimum:
     result: FitResult
@@ -175,7 +151,7 @@ class PoseEstimator:
         fld = solver.field
         self._turn_is_symmetry = [
             any(np.allclose(t[:3, :3] @ r, np.eye(3)) for r in symmetry_rotations(fld))
-            for t in _turns(np.eye(4), yaw=self.yaw_turns)
+            for t in turns(np.eye(4), yaw=self.yaw_turns)
         ]
         self._flip_is_symmetry = any(r[2, 2] < 0 for r in symmetry_rotations(fld))
         self.last_object_from_tool: np.ndarray | None = None
@@ -207,7 +183,7 @@ class PoseEstimator:
         """
         start = time.perf_counter()
         prm = self.params
-        pts, sides = self._prepare(points_in_tool, bubble)
+        pts, sides = clean_cloud(points_in_tool, bubble, prm.max_points)
         tracking = False
         prior: np.ndarray | None = None
         if seed_tool_from_object is not None:
@@ -253,24 +229,6 @@ class PoseEstimator:
         minima, iterations, tried = self._search(pts, sides, prior, noise)
         return self._judge(pts, minima, iterations, tried, prior is not None, noise, start)
 
-    def _prepare(
-        self, points_in_tool: np.ndarray, bubble: np.ndarray | None
-    ) -> tuple[np.ndarray, np.ndarray | None]:
-        """Finite rows (and their bubbles), subsampled to ``max_points`` (fixed seed)."""
-        raw = np.asarray(points_in_tool, dtype=np.float64).reshape(-1, 3)
-        finite = np.all(np.isfinite(raw), axis=1)
-        sides = None
-        if bubble is not None and len(bubble) == len(raw):
-            sides = np.asarray(bubble)[finite]
-        pts = raw[finite]
-        if len(pts) > self.params.max_points:
-            idx = np.sort(
-                np.random.default_rng(0).choice(len(pts), self.params.max_points, replace=False)
-            )
-            pts = pts[idx]
-            sides = sides[idx] if sides is not None else None
-        return pts, sides
-
     def _search(
         self, pts: np.ndarray, sides: np.ndarray | None, prior: np.ndarray | None, noise: float
     ) -> tuple[list[_Minimum], int, int]:
@@ -290,10 +248,17 @@ class PoseEstimator:
             iterations += result.iterations
             screened.append(_Minimum(result, rank))
         turned = min(screened, key=lambda m: m.result.cost)
-        turns = _turns(turned.result.object_from_tool, yaw=self.yaw_turns)
+        turned_seeds = [
+            t
+            for t, sym in zip(
+                turns(turned.result.object_from_tool, yaw=self.yaw_turns),
+                self._turn_is_symmetry,
+                strict=True,
+            )
+            if not sym
+        ]
         budget = max(prm.max_seeds - len(screened), 0)
-        turns = [t for t, sym in zip(turns, self._turn_is_symmetry, strict=True) if not sym]
-        for seed in turns[:budget]:
+        for seed in turned_seeds[:budget]:
             result = self._solve(screen, seed)
             iterations += result.iterations
             screened.append(_Minimum(result, len(screened)))

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from geometry.fields import Field
-from perception.pose.common import (
+from perception.pose.problem import (
     FitResult,
     characteristic_length,
     check_problem,
@@ -88,7 +88,7 @@ class IcpSolver:
         """Refine ``object_from_tool`` on finite (N, 3) tool-frame points spread in 3-D.
 
         Raises:
-            ValueError: bad points or a seed that is not rigid (``common.check_problem``).
+            ValueError: bad points or a seed that is not rigid (``problem.check_problem``).
         """
         start = time.perf_counter()
         prm = self.params

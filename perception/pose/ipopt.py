@@ -47,7 +47,7 @@ IPOPT's verdict is mapped honestly: ``Solve_Succeeded``, ``Solved_To_Acceptable_
 and ``Search_Direction_Becomes_Too_Small`` (converged to the noise floor) are ``ok``;
 every other return (iteration or time limit, restoration failure, invalid numbers, ...)
 is ``not_converged`` with IPOPT's status in ``message``. Input is checked first
-(``common.check_problem``).
+(``problem.check_problem``).
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ import numpy as np
 from geometry import se3
 from geometry.fields import Field
 from perception.pose import jit_cache
-from perception.pose.common import (
+from perception.pose.problem import (
     FitResult,
     characteristic_length,
     check_problem,
@@ -338,7 +338,7 @@ class IpoptSolver:
         """Refine ``object_from_tool`` on finite (N, 3) tool-frame points spread in 3-D.
 
         Raises:
-            ValueError: bad points or a seed that is not rigid (``common.check_problem``).
+            ValueError: bad points or a seed that is not rigid (``problem.check_problem``).
         """
         start = time.perf_counter()
         prm = self.params

@@ -1,7 +1,7 @@
 """Levenberg-Marquardt on SE(3) for the proximity fit: exp-map steps, analytic Jacobians.
 
 Minimizes ``sum_i phi(X p_i)^2`` over ``X = object_from_tool`` with left steps
-``X <- exp(xi) X`` (see ``common``). Each iteration: residuals and the analytic
+``X <- exp(xi) X`` (see ``problem``). Each iteration: residuals and the analytic
 Jacobian ``[g, q x g]`` (vectorized numpy), the 6x6 normal equations scaled so that
 rotations are in metres at the object's lever arm, an eigen-split of them, and a damped
 step in the observable subspace only. Directions whose information is under
@@ -12,7 +12,7 @@ fixing the issue asks for, and the result reports them.
 Stops when the relative cost decrease falls under ``cost_tol`` (after an accepted
 step), when the scaled step falls under ``step_tol_m`` or no damped step decreases the
 cost (converged: status ``ok``), or after ``max_iterations`` (status ``not_converged``).
-Input is checked first (``common.check_problem``): finite points spread in 3-D and a
+Input is checked first (``problem.check_problem``): finite points spread in 3-D and a
 rigid seed, else ``ValueError``.
 """
 
@@ -25,7 +25,7 @@ import numpy as np
 
 from geometry import se3
 from geometry.fields import Field
-from perception.pose.common import (
+from perception.pose.problem import (
     FitResult,
     characteristic_length,
     check_problem,
@@ -69,7 +69,7 @@ class LMSolver:
         """Refine ``object_from_tool`` on finite (N, 3) tool-frame points spread in 3-D.
 
         Raises:
-            ValueError: bad points or a seed that is not rigid (``common.check_problem``).
+            ValueError: bad points or a seed that is not rigid (``problem.check_problem``).
         """
         start = time.perf_counter()
         prm = self.params

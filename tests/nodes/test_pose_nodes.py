@@ -11,7 +11,7 @@ from messages.base import Header
 from messages.types import ContactPatch, GraspState, GripperState, ToFImage
 from nodes.contact_patch import ContactPatchNode
 from nodes.pose_estimator import IcpPoseNode, IpoptPoseNode, LMPoseNode
-from perception.pose import common, synthetic
+from perception.pose import metrics, synthetic
 from runtime.testing import feed, make_node
 from tests.nodes.test_contact_patch_node import CAM, tof_image
 
@@ -87,7 +87,7 @@ def test_pose_nodes_estimate_and_take_the_newest_patch(cls, extra) -> None:  # n
     assert np.all(np.isfinite(est.tool_from_object)) and len(est.observable) == 6
     if cls is not IcpPoseNode:  # the baseline is judged in the bench, not here
         assert est.status in ("ok", "recovered")
-        assert common.axis_error_deg(est.tool_from_object, truth, flip_symmetric=True) < 2.0
+        assert metrics.axis_error_deg(est.tool_from_object, truth, flip_symmetric=True) < 2.0
 
 
 def test_pose_node_bad_patches_never_raise() -> None:
@@ -149,7 +149,7 @@ def test_tracking_goes_on_through_a_transient_release_until_the_patch_is_gone() 
     io.advance(0.01)
     est = io.published["pose"][-1]
     assert priors == [tracked] and est.status == "ok"
-    assert common.axis_error_deg(est.tool_from_object, truth, flip_symmetric=True) < 2.0
+    assert metrics.axis_error_deg(est.tool_from_object, truth, flip_symmetric=True) < 2.0
     # Released for real: not stable and nothing in the bubbles; the next grasp starts cold.
     empty = ContactPatch(
         header=Header(stamp_nanos=3),

@@ -7,7 +7,7 @@ import pytest
 
 from geometry import fields, se3
 from geometry.objects import ObjectModel
-from perception.pose import common, synthetic
+from perception.pose import metrics, problem, synthetic
 from perception.pose.estimator import EstimatorParams, PoseEstimator
 from perception.pose.lm import LMSolver
 
@@ -26,10 +26,10 @@ def _case(seed: int, model: ObjectModel = CYL, n: int = 1500, noise_m: float = 0
     return rng, truth, pts, bubble
 
 
-def _errors(result: common.FitResult, truth: np.ndarray) -> tuple[float, float]:
+def _errors(result: problem.FitResult, truth: np.ndarray) -> tuple[float, float]:
     return (
-        common.axis_error_deg(result.tool_from_object, truth, flip_symmetric=True),
-        common.offaxis_error_m(result.tool_from_object, truth),
+        metrics.axis_error_deg(result.tool_from_object, truth, flip_symmetric=True),
+        metrics.offaxis_error_m(result.tool_from_object, truth),
     )
 
 

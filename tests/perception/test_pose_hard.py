@@ -8,7 +8,7 @@ import pytest
 
 from geometry import fields, se3
 from geometry.objects import ObjectModel
-from perception.pose import common, synthetic
+from perception.pose import problem, symmetry, synthetic
 from perception.pose.estimator import EstimatorParams, PoseEstimator
 from perception.pose.ipopt import IpoptParams, IpoptSolver
 from perception.pose.lm import LMSolver
@@ -23,16 +23,16 @@ BOX = ObjectModel(name="box", class_label="box", field=fields.Box([0.06, 0.06, 0
 GOOD = ("ok", "recovered")
 
 
-def _right(result: common.FitResult, fld: fields.Field, truth: np.ndarray) -> bool:
+def _right(result: problem.FitResult, fld: fields.Field, truth: np.ndarray) -> bool:
     if result.status in ("no_patch", "failed"):
         return False
-    angle, offset = common.pose_difference(
+    angle, offset = symmetry.pose_difference(
         fld, se3.invert(truth), result.object_from_tool, result.observable
     )
     return angle < 2.0 and offset < 0.002
 
 
-def _honest(result: common.FitResult, fld: fields.Field, truth: np.ndarray) -> bool:
+def _honest(result: problem.FitResult, fld: fields.Field, truth: np.ndarray) -> bool:
     """Right, or not claimed right (and then a reason is given)."""
     if result.status in GOOD:
         return _right(result, fld, truth)
@@ -223,9 +223,9 @@ def test_cold_start_keeps_unobservable_directions_mid_patch() -> None:
             assert abs(centroid[2]) < 1e-6
         # Where the true pose leaves the slide unobservable (no cap in the patch), the
         # estimate did not slide onto a cap either.
-        _, jac = common.residuals_and_jacobian(CYL.field, se3.invert(truth), pts)
-        info = common.scaled_information(jac, common.characteristic_length(CYL.field))
-        flags, _, _ = common.observability(info, 1e-4)
+        _, jac = problem.residuals_and_jacobian(CYL.field, se3.invert(truth), pts)
+        info = problem.scaled_information(jac, problem.characteristic_length(CYL.field))
+        flags, _, _ = problem.observability(info, 1e-4)
         if not flags[2]:
             assert result.observable == flags, k
 
@@ -260,7 +260,7 @@ class _Recording:
         self.seeds: list[np.ndarray] = []
         self.answers: list[np.ndarray] = []
 
-    def solve(self, points: np.ndarray, seed: np.ndarray) -> common.FitResult:
+    def solve(self, points: np.ndarray, seed: np.ndarray) -> problem.FitResult:
         self.seeds.append(seed)
         result = self.inner.solve(points, seed)
         self.answers.append(result.object_from_tool)

@@ -11,7 +11,7 @@ import pytest
 
 from geometry import fields, se3
 from geometry.objects import ObjectModel
-from perception.pose import common, jit_cache, synthetic
+from perception.pose import jit_cache, metrics, problem, synthetic
 from perception.pose.icp import IcpSolver, kabsch
 from perception.pose.ipopt import IpoptParams, IpoptSolver, _bucket, _theta_jacobian, jit_available
 from perception.pose.lm import LMSolver
@@ -32,8 +32,8 @@ def _case(seed: int, n: int = 600):
     return truth, pts, se3.invert(start)
 
 
-def _axis_err(result: common.FitResult, truth: np.ndarray) -> float:
-    return common.axis_error_deg(result.tool_from_object, truth, flip_symmetric=True)
+def _axis_err(result: problem.FitResult, truth: np.ndarray) -> float:
+    return metrics.axis_error_deg(result.tool_from_object, truth, flip_symmetric=True)
 
 
 @pytest.mark.parametrize("hessian", ["gauss_newton", "exact"])
@@ -42,7 +42,7 @@ def test_ipopt_without_jit_recovers_pose_and_matches_lm(hessian: str) -> None:
     result = IpoptSolver(CYL.field, IpoptParams(jit="off", hessian=hessian)).solve(pts, seed)
     assert result.status == "ok" and result.solver == "ipopt"
     assert _axis_err(result, truth) < 1.0
-    assert common.offaxis_error_m(result.tool_from_object, truth) < 0.001
+    assert metrics.offaxis_error_m(result.tool_from_object, truth) < 0.001
     lm = LMSolver(CYL.field).solve(pts, seed)
     # Same problem: IPOPT started at LM's minimum stays there (the costs agree closely).
     # From the seed the two may settle at different slides along the axis: this patch

@@ -1,4 +1,4 @@
-"""What every pose solver shares: the problem, the result, observability, seeds, errors.
+"""The problem every pose solver shares: the unknown, the result, input checks, residuals.
 
 The unknown is the paper's ``G X T``, here named ``object_from_tool`` (a 4x4 pose):
 a point of the grasp cloud in the tool frame maps into the object frame G, where the
@@ -16,7 +16,6 @@ and ``observable`` reports them as ``False``.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -76,20 +75,6 @@ class FitResult:
         return se3.invert(self.object_from_tool)
 
 
-def clean_points(points: np.ndarray, max_points: int | None = None, seed: int = 0) -> np.ndarray:
-    """Finite rows of an (N, 3) cloud as float64, subsampled to ``max_points`` (fixed seed).
-
-    Subsampling with a fixed generator keeps a repeated solve on the same patch
-    deterministic.
-    """
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    pts = pts[np.all(np.isfinite(pts), axis=1)]
-    if max_points is not None and len(pts) > max_points:
-        idx = np.random.default_rng(seed).choice(len(pts), size=max_points, replace=False)
-        pts = pts[np.sort(idx)]
-    return pts
-
-
 MIN_POINTS = 6  # six unknowns
 MIN_SPREAD_M = 1e-5  # the smallest principal standard deviation a cloud must reach
 
@@ -143,38 +128,6 @@ def check_rigid(pose: np.ndarray, name: str) -> None:
             f"{name} is not rigid: |R^T R - I| = {err:.2e}, det R = {np.linalg.det(rot):.6f}, "
             f"last row {arr[3].tolist()}"
         )
-
-
-def estimate_noise_m(
-    points: np.ndarray, *, sample: int = 1000, neighbours: int = 40, queries: int = 150
-) -> float:
-    """The depth noise of a cloud from the data alone: the median RMS of the residuals of
-    local quadric fits (``neighbours`` nearest points around ``queries`` points, height
-    over their principal plane, six coefficients), corrected for the fitted degrees of
-    freedom. The cloud is first thinned to ``sample`` points, so a neighbourhood spans
-    several millimetres whatever the point count (a dense cloud's tiny neighbourhoods
-    would take 3 mm noise for curvature). Curvature is absorbed by the quadric, so a curved patch is not taken for
-    noise; a neighbourhood across an edge is, and the median ignores the few there."""
-    from scipy.spatial import cKDTree  # here, not at import: checking a graph need not pay
-
-    pts = clean_points(points, sample)
-    k = min(neighbours, len(pts))
-    if k < 10:
-        return 0.0
-    rng = np.random.default_rng(0)
-    centres = pts[rng.choice(len(pts), size=min(queries, len(pts)), replace=False)]
-    _, idx = cKDTree(pts).query(centres, k=k)
-    hood = pts[idx]  # (Q, k, 3)
-    hood = hood - hood.mean(axis=1, keepdims=True)
-    _, vecs = np.linalg.eigh(np.einsum("qki,qkj->qij", hood, hood))
-    local = np.einsum("qki,qij->qkj", hood, vecs)  # coordinates in the principal frame
-    u, v, w = local[..., 2], local[..., 1], local[..., 0]  # w along the least spread
-    design = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=-1)
-    gram = np.einsum("qki,qkj->qij", design, design) + 1e-18 * np.eye(6)
-    coef = np.linalg.solve(gram, np.einsum("qki,qk->qi", design, w)[..., None])[..., 0]
-    resid = w - np.einsum("qki,qi->qk", design, coef)
-    var = np.sum(resid * resid, axis=1) / (k - 6)
-    return float(np.sqrt(np.median(var)))
 
 
 def residuals_and_jacobian(
@@ -232,124 +185,3 @@ def characteristic_length(fld: Field) -> float:
     """Half the diagonal of the field's bounding box: the lever arm of a rotation."""
     lo, hi = fld.bounds_m()
     return float(max(0.5 * np.linalg.norm(hi - lo), 1e-3))
-
-
-def axis_error_deg(
-    tool_from_object_est: np.ndarray, tool_from_object_true: np.ndarray, *, flip_symmetric: bool
-) -> float:
-    """Angle between the estimated and true object z axes in the tool frame (degrees).
-
-    With ``flip_symmetric`` the axis is a line (a plain cylinder: z and -z look alike).
-    """
-    a = tool_from_object_est[:3, 2]
-    b = tool_from_object_true[:3, 2]
-    ang = se3.angle_between(a, b)
-    if flip_symmetric:
-        ang = min(ang, np.pi - ang)
-    return float(np.degrees(ang))
-
-
-def offaxis_error_m(tool_from_object_est: np.ndarray, tool_from_object_true: np.ndarray) -> float:
-    """Distance of the estimated origin from the true axis line (metres, tool frame)."""
-    axis = tool_from_object_true[:3, 2]
-    d = tool_from_object_est[:3, 3] - tool_from_object_true[:3, 3]
-    return float(np.linalg.norm(d - (d @ axis) * axis))
-
-
-def frame_from_axis(axis: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    """A ``tool_from_object`` whose z is ``axis`` (normalized) at ``centre``; x arbitrary."""
-    z = np.asarray(axis, dtype=np.float64)
-    z = z / max(np.linalg.norm(z), 1e-300)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = np.cross(helper, z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return se3.make_pose(np.stack([x, y, z], axis=1), centre)
-
-
-def seed_poses(points_in_tool: np.ndarray, bubble: np.ndarray | None = None) -> list[np.ndarray]:
-    """Starting ``tool_from_object`` poses for a cold start, most likely first.
-
-    The first few come from the data: the object centre is put midway between the two
-    bubbles' patch centroids, and the axis along each patch's principal direction (a
-    cylinder touches a bubble along a line parallel to its axis), then the other
-    in-plane direction. Then the cardinal poses: axis along tool x, y, z. Each axis is
-    also tried flipped (top and bottom differ for bottles and glasses).
-    """
-    pts = np.asarray(points_in_tool, dtype=np.float64)
-    if len(pts) == 0:
-        return [np.eye(4)]
-    groups = [pts]
-    if bubble is not None and len(bubble) == len(pts):
-        groups = [pts[bubble == k] for k in (0, 1) if np.any(bubble == k)]
-    centroids = [g.mean(axis=0) for g in groups if len(g)]
-    centre = np.mean(centroids, axis=0)
-    axes: list[np.ndarray] = []
-    for g in groups:
-        if len(g) >= 3:
-            centred = g - g.mean(axis=0)
-            _, vecs = np.linalg.eigh(centred.T @ centred)  # ascending: principal last
-            axes += [vecs[:, 2], vecs[:, 1]]
-    axes += [np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0])]
-    unique: list[np.ndarray] = []
-    for a in axes:
-        a = a / max(np.linalg.norm(a), 1e-300)
-        if all(abs(a @ u) < 0.985 for u in unique):  # 10 degrees apart at least
-            unique.append(a)
-    seeds = []
-    for a in unique:
-        seeds.append(frame_from_axis(a, centre))
-        seeds.append(frame_from_axis(-a, centre))
-    return seeds
-
-
-@functools.cache
-def symmetry_rotations(fld: Field) -> tuple[np.ndarray, ...]:
-    """The turns that map the field onto itself among the 24 axis-permuting rotations
-    (a box's 90- and 180-degree turns, a cylinder's flip; the identity first), found by
-    checking the field on its own surface samples. Yaw of a body of revolution is
-    continuous and handled by comparing axes instead (:func:`pose_difference`)."""
-    pts = fld.sample_surface(400, np.random.default_rng(7))
-    scale = characteristic_length(fld)
-    out = []
-    for perm in ((0, 1, 2), (1, 2, 0), (2, 0, 1), (0, 2, 1), (2, 1, 0), (1, 0, 2)):
-        for signs in np.ndindex(2, 2, 2):
-            rot = np.zeros((3, 3))
-            rot[np.arange(3), perm] = [1.0 if s == 0 else -1.0 for s in signs]
-            if np.linalg.det(rot) < 0.0:
-                continue
-            if float(np.max(np.abs(fld.value(pts @ rot.T)))) < 1e-6 * scale:
-                out.append(rot)
-    out.sort(key=lambda r: -float(np.trace(r)))  # the identity first
-    return tuple(out)
-
-
-def pose_difference(
-    fld: Field, a: np.ndarray, b: np.ndarray, observable: tuple[bool, ...] = (True,) * 6
-) -> tuple[float, float]:
-    """How far apart two ``object_from_tool`` estimates are, up to the object's symmetry:
-    ``(angle_deg, offset_m)``.
-
-    For a body of revolution the angle is between the axes (as lines when the flip is
-    a symmetry) and the offset is that of ``b``'s origin from ``a``'s axis; otherwise
-    the smallest rotation angle over the symmetry turns and the distance of the
-    origins. Translations along directions ``observable`` marks ``False`` (in ``a``'s
-    object frame) are not counted: the patch does not fix them.
-    """
-    ta, tb = se3.invert(a), se3.invert(b)
-    turns = symmetry_rotations(fld)
-    # b's origin from a's, in a's object frame, along the observable axes only.
-    seen = np.asarray(observable[:3], dtype=np.float64)
-    offset = float(np.linalg.norm(seen * (a[:3, :3] @ (tb[:3, 3] - ta[:3, 3]))))
-    if not any(observable[3:]):  # a sphere's turns are all invisible
-        return 0.0, offset
-    if fld.revolves_about_z:
-        flip = any(r[2, 2] < 0 for r in turns)
-        return (
-            axis_error_deg(tb, ta, flip_symmetric=flip),
-            offaxis_error_m(tb, ta),
-        )
-    angle = min(
-        float(np.degrees(se3.rotation_angle((ta[:3, :3] @ r).T @ tb[:3, :3]))) for r in turns
-    )
-    return angle, offset
