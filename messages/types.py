@@ -123,7 +123,19 @@ class MaskImage(Message):
 
 
 class PoseEstimate(Message):
-    """In-hand object pose and how the solver got it."""
+    """In-hand object pose, how the solver got it, and how sure it is.
+
+    ``status`` ``ok`` (or ``recovered``): every direction the patch observes is
+    determined to the estimator's tolerance (2 degrees, 2 mm by default) at 95%
+    confidence, and nothing else that fits as well differs along them. ``suspect``:
+    not so; ``message`` says why. The uncertainty is in the object frame, as a left
+    twist ``(tx, ty, tz, rx, ry, rz)``: ``observable`` says which directions the patch
+    constrains at all (the others are not held against the answer: a cylinder's yaw,
+    its slide along its axis), ``covariance`` and the standard deviations cover the
+    observable ones (zero along the others), and ``alternatives`` describes other
+    minima that agree with this one on every observable direction (a bottle end over
+    end).
+    """
 
     header: Header
     tool_from_object: Pose4x4
@@ -143,6 +155,19 @@ class PoseEstimate(Message):
     # Dimensions fitted beside the pose (``fit_dims``); 0 when not fitted.
     fitted_radius_m: float = 0.0
     fitted_height_m: float = 0.0
+    # Covariance of the left twist (tx, ty, tz in m; rx, ry, rz in rad), object frame;
+    # zero along unobservable directions and when not computed (no_patch, failed).
+    covariance: Annotated[np.ndarray, Array("float64", (6, 6))] = msgspec.field(
+        default_factory=lambda: np.zeros((6, 6))
+    )
+    # Standard deviations along the object's x, y, z: of its origin and of rotations about them.
+    translation_std_m: list[float] = []
+    rotation_std_deg: list[float] = []
+    # The largest rotation and displacement of the origin within the 95% region.
+    region95_deg: float = 0.0
+    region95_m: float = 0.0
+    # Other minima that fit as well and agree on every observable direction, described.
+    alternatives: str = ""
 
 
 class ShearEstimate(Message):

@@ -5,8 +5,10 @@ Ports:
     outputs: ``pose`` (PoseEstimate: ``tool_from_object``, residual RMS, cost,
         iterations, status and the reason in ``message``, solve time, points used,
         solver, the noise measured from the patch, ``observable`` per
-        ``(tx, ty, tz, rx, ry, rz)`` in the object frame, and the fitted radius and
-        height when ``ipopt: {fit_dims: [radius, height]}`` asks for them).
+        ``(tx, ty, tz, rx, ry, rz)`` in the object frame, the uncertainty (covariance,
+        standard deviations, the extent of the 95% region), the alternatives the patch
+        cannot tell apart, and the fitted radius and height when
+        ``ipopt: {fit_dims: [radius, height]}`` asks for them).
 
 Parameters nest: ``estimator:`` (``EstimatorParams``) and the solver's own, ``ipopt:``,
 ``lm:`` or ``icp:``, e.g. ``params: {object: mug, estimator: {max_points: 3000},
@@ -195,6 +197,7 @@ class _PoseNode(Node):
             self.grasp_phase = "closing"
         if self.grasp_phase == "closing":
             self.estimator.reset()
+        std = np.sqrt(np.maximum(np.diag(result.covariance), 0.0))
         self.io.publish(
             "pose",
             PoseEstimate(
@@ -212,6 +215,12 @@ class _PoseNode(Node):
                 noise_m=float(result.noise_m),
                 fitted_radius_m=float(result.dims_m.get("radius_m", 0.0)),
                 fitted_height_m=float(result.dims_m.get("height_m", 0.0)),
+                covariance=np.ascontiguousarray(result.covariance, dtype=np.float64),
+                translation_std_m=[float(v) for v in std[:3]],
+                rotation_std_deg=[float(np.degrees(v)) for v in std[3:]],
+                region95_deg=float(result.region95_deg),
+                region95_m=float(result.region95_m),
+                alternatives=result.alternatives,
             ),
         )
 

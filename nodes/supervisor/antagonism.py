@@ -38,7 +38,7 @@ import numpy as np
 
 from messages import GraspState, GroundTruth, PoseEstimate
 from nodes.supervisor.base import SingleGraspTask, TaskParams
-from perception.pose.metrics import axis_error_deg, offaxis_error_m
+from perception.pose.symmetry import axis_error_deg, offaxis_error_m
 from runtime.registry import register
 
 TRUTH_KEPT = 600  # truths kept for matching (20 s at 30 fps): estimates trail by less

@@ -4,23 +4,34 @@ Wraps any local solver (``LMSolver``, ``IpoptSolver``, ``IcpSolver``: each has
 ``solve(points_in_tool, object_from_tool_seed) -> FitResult``) with what the issue
 asks for around it:
 
-- Tracking: the last accepted estimate is solved from alone; it stands (``ok``) when it
-  fits within the acceptance, its RMS has not risen by more than ``track_rise_ratio``
-  and enough directions are observable. Otherwise, and for a given seed (vision, the
-  node's parameter: unverified) or a cold start, the search below runs.
+- A prior, solved once: the last accepted estimate (tracking) or a given seed (vision,
+  the node's parameter) is solved from alone, and that one solve stands when it is
+  judged ``ok`` (below), its residual RMS is within ``warm_accept_ratio`` times the
+  noise (and, tracking, within ``track_rise_ratio`` times the last one), and the answer
+  lies within ``warm_deg`` of the prior. Otherwise (the residual says the track is
+  lost, or the seed was far or wrong), and on a cold start, the search below runs.
 - Search: the prior (if any), the data seeds (``seeds.seed_poses``: the axis along
   each patch's principal directions and the cardinal axes) and then the best
-  minimum's turns (90 degrees about its x and y axes, over, and about z for objects
-  that are not bodies of revolution; turns that are symmetries of the object are
-  skipped) are solved on a subsample (``screen_points``); the two best distinct minima
-  (up to the object's symmetry) are polished on the full cloud.
-- Judgement, with the noise measured from the cloud itself (``cloud.estimate_noise_m``)
-  unless ``noise_m`` is configured: ``suspect``, with the reasons in ``message``, when
-  the best minimum fits worse than ``accept_ratio`` times the noise, when another
-  distinct minimum fits about as well (``ambiguity_ratio``: a box squeezed over an
-  edge, a planar patch), when fewer than ``min_observable`` directions are observable,
-  or when the solver did not converge; else ``ok`` when the first seed's minimum won
-  and ``recovered`` when another seed's did.
+  minimum's turns (``seeds.turns``: 90 degrees about its x and y axes, over, and about
+  z for objects that are not bodies of revolution; turns that are symmetries of the
+  object are skipped) are solved on a subsample (``screen_points``); the two best
+  distinct minima (up to the object's symmetry) are polished on the full cloud.
+- Judgement (``judge``), the same whatever solver found the answer, with the noise
+  measured from the cloud itself (``cloud.estimate_noise_m``) unless ``noise_m`` is
+  configured. The uncertainty of the answer (``judge.uncertainty``: a covariance from
+  the fit's curvature and residuals at the answer, calibrated so its 95% region holds
+  the truth 95% of the time) decides: ``suspect``, with the reasons in ``message``,
+  when the 95% region is wider than ``tolerance_deg`` or ``tolerance_m`` along the
+  observable directions, when the answer is not at the minimum of the fit (a
+  Gauss-Newton step beyond ``step_limit`` of the region remains: a solver stopped
+  early), when the fit is worse than ``accept_ratio`` times the noise or biased, when
+  another minimum that fits about as well (``ambiguity_ratio``) differs from it along
+  an observable direction by more than the tolerance, or when fewer than
+  ``min_observable`` directions are observable; else ``ok`` when the first seed's
+  minimum won and ``recovered`` when another seed's did. Directions the patch does not
+  observe (``observable``) and other minima that agree on every observable direction
+  (``alternatives``: a box face's slide or turn within the face, a bottle end over end)
+  are reported, not held against the answer.
 - Unobservable directions: the local solvers keep them at their seed. When the winner
   did not come from the prior, its unobservable translations are moved so the patch's
   centroid sits at the object's origin along them (a turned seed otherwise leaves a
@@ -42,6 +53,7 @@ import numpy as np
 
 from geometry import se3
 from geometry.fields import Field
+from perception.pose import judge
 from perception.pose.cloud import clean_cloud, clean_points, estimate_noise_m
 from perception.pose.problem import MIN_POINTS, FitResult, check_rigid, residuals, spread_problem
 from perception.pose.seeds import seed_poses, turns
@@ -79,15 +91,25 @@ class EstimatorParams:
             a model of the wrong size leaves the points on one side (a radius 1 mm off:
             0.1-3 times the noise).
         min_observable: fewer observable directions than this is ``suspect``.
+        tolerance_deg, tolerance_m: ``ok`` needs the 95% region within this rotation
+            and this displacement of the object's origin (the benches call an answer
+            right within 2 degrees and 2 mm).
+        step_limit: the Gauss-Newton step left at the answer, as a fraction of the 95%
+            region along it, beyond which the answer is not at the minimum of the fit.
+        observability_floor: information per point (scaled, as the solvers' floors)
+            under which the judgement counts a direction unobservable (from the points
+            where the field is smooth across the noise: ``judge.uncertainty``).
+        warm_deg: a prior's single solve stands only if its answer is within this
+            angle of the prior.
+        warm_accept_ratio: ... and its residual RMS within this times the noise.
         min_points: below this many finite points there is no estimate.
         max_points: the cloud is subsampled (fixed seed) to at most this many points.
         screen_points: seeds are screened on a subsample of this many points; the best
             minima are then polished on the full cloud.
         max_seeds: at most this many screening solves per estimate.
         track: warm-start from the last accepted estimate.
-        track_rise_ratio: a tracking solve is accepted alone when its RMS is within the
-            acceptance and at most this times the last accepted one; otherwise the
-            seeds and turns are searched as on a cold start.
+        track_rise_ratio: a tracking solve also needs its RMS at most this times the
+            last accepted one.
     """
 
     noise_m: float = 0.0
@@ -104,13 +126,21 @@ class EstimatorParams:
     max_seeds: int = 16
     track: bool = True
     track_rise_ratio: float = 1.25
+    tolerance_deg: float = 2.0
+    tolerance_m: float = 0.002
+    step_limit: float = 0.5
+    observability_floor: float = 1e-4
+    warm_deg: float = 10.0
+    warm_accept_ratio: float = 1.3
 
     def __post_init__(self) -> None:
         for name in ("noise_m", "min_noise_m", "ambiguity_ratio", "bias_ratio"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0.0):
                 raise ValueError(f"{name} must be >= 0, got {value}")
-        for name in ("accept_ratio", "distinct_deg", "distinct_m", "track_rise_ratio"):
+        positive = ("accept_ratio", "distinct_deg", "distinct_m", "track_rise_ratio")
+        positive += ("tolerance_deg", "tolerance_m", "step_limit", "observability_floor")
+        for name in (*positive, "warm_deg", "warm_accept_ratio"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0.0):
                 raise ValueError(f"{name} must be > 0, got {value}")
@@ -154,6 +184,13 @@ class PoseEstimator:
             for t in turns(np.eye(4), yaw=self.yaw_turns)
         ]
         self._flip_is_symmetry = any(r[2, 2] < 0 for r in symmetry_rotations(fld))
+        # Alternatives are compared up to the object's symmetry turns and, for a body of
+        # revolution, end over end (a bottle's patch may see only its body; its ends
+        # then trade places along the axis).
+        flip = se3.rotation_about(np.array([1.0, 0.0, 0.0]), np.pi)
+        self._turn_labels = [(r, "") for r in symmetry_rotations(fld)]
+        if fld.revolves_about_z and not self._flip_is_symmetry:
+            self._turn_labels.append((flip, "end over end"))
         self.last_object_from_tool: np.ndarray | None = None
         self.last_rms_m = 0.0
         self.last_noise_m = 0.0
@@ -210,24 +247,33 @@ class PoseEstimator:
                 seeds_tried=0,
                 message=problem,
             )
-        if tracking and prior is not None:
-            # The sensor's noise does not change between frames: measured on a search,
-            # kept while tracking.
-            noise = prm.noise_m or self.last_noise_m
-            accept = prm.accept_ratio * noise
+        # The sensor's noise does not change between frames: measured on a search, kept
+        # while tracking.
+        kept = self.last_noise_m if tracking else 0.0
+        noise = prm.noise_m or kept or max(estimate_noise_m(pts), prm.min_noise_m)
+        if prior is not None:
             first = self._solve(pts, prior)
-            if (
-                first.status == "ok"
-                and first.residual_rms_m <= accept
-                and first.residual_rms_m <= prm.track_rise_ratio * self.last_rms_m
-                and sum(first.observable) >= prm.min_observable
-                and abs(first.residual_mean_m) <= self._bias_limit_m(noise, len(pts))
-            ):
-                return self._finish(first, "ok", "", first.iterations, 1, noise, start)
-
-        noise = prm.noise_m or max(estimate_noise_m(pts), prm.min_noise_m)
+            if self._warm_stands(first, prior, tracking, noise):
+                judged = self._judge(
+                    pts, [_Minimum(first, 0)], first.iterations, 1, True, noise, start
+                )
+                if judged.status == "ok":
+                    return judged
         minima, iterations, tried = self._search(pts, sides, prior, noise)
         return self._judge(pts, minima, iterations, tried, prior is not None, noise, start)
+
+    def _warm_stands(
+        self, first: FitResult, prior: np.ndarray, tracking: bool, noise: float
+    ) -> bool:
+        """Whether a prior's single solve may stand without a search (if judged ``ok``):
+        it fits as the right pose does and did not wander far from the prior."""
+        prm = self.params
+        if first.status == "failed" or first.residual_rms_m > prm.warm_accept_ratio * noise:
+            return False
+        if tracking and first.residual_rms_m > prm.track_rise_ratio * self.last_rms_m:
+            return False
+        angle, _ = pose_difference(self.solver.field, prior, first.object_from_tool)
+        return angle <= prm.warm_deg
 
     def _search(
         self, pts: np.ndarray, sides: np.ndarray | None, prior: np.ndarray | None, noise: float
@@ -308,6 +354,7 @@ class PoseEstimator:
         noise: float,
         start: float,
     ) -> FitResult:
+        """The verdict on the best usable minimum (module docstring), with its uncertainty."""
         prm = self.params
         usable = [m for m in minima if m.result.status != "failed"]
         if not usable:
@@ -317,42 +364,96 @@ class PoseEstimator:
         result = best.result
         if best.rank != 0 or not had_prior:
             result = self._centre_unobservable(result, pts)
-        n = max(len(pts), 1)
+        fld = self.solver.field.resized(**result.dims_m)
+        unc = judge.uncertainty(fld, result.object_from_tool, pts, floor=prm.observability_floor)
         reasons = []
-        if result.status == "not_converged":
-            reasons.append(f"the solver did not converge ({result.message})")
+        if unc.region95_deg > prm.tolerance_deg or unc.region95_m > prm.tolerance_m:
+            reasons.append(
+                f"not determined to {prm.tolerance_deg:g} deg / {1e3 * prm.tolerance_m:g} mm: "
+                f"the 95% region spans {unc.region95_deg:.2f} deg / "
+                f"{1e3 * unc.region95_m:.2f} mm"
+            )
+        if unc.step_sigma > prm.step_limit:
+            stopped = f" (the solver did not converge: {result.message})"
+            reasons.append(
+                f"not at the minimum of the fit: a step of {unc.step_sigma:.2f} of the 95% "
+                f"region remains{stopped if result.status == 'not_converged' else ''}"
+            )
         accept = prm.accept_ratio * noise
         if result.residual_rms_m > accept:
             reasons.append(
                 f"residual {1e3 * result.residual_rms_m:.2f} mm above {1e3 * accept:.2f} mm "
                 f"({prm.accept_ratio} x noise {1e3 * noise:.2f} mm)"
             )
-        if len(usable) > 1:
-            other = usable[1].result
-            gap = (other.cost - best.result.cost) / n
-            if gap < prm.ambiguity_ratio * noise**2:
-                angle, offset = pose_difference(
-                    self.solver.field, result.object_from_tool, other.object_from_tool
-                )
-                reasons.append(
-                    f"another minimum {angle:.1f} deg / {1e3 * offset:.1f} mm away fits as well "
-                    f"(mean square {1e6 * gap:.4f} mm^2 worse, under "
-                    f"{prm.ambiguity_ratio} x noise^2)"
-                )
         bias = result.residual_mean_m
         if abs(bias) > self._bias_limit_m(noise, len(pts)):
             reasons.append(
                 f"the residuals are biased (mean {1e3 * bias:+.3f} mm, noise "
                 f"{1e3 * noise:.2f} mm): the object may differ from its model in size (fit_dims)"
             )
-        seen = sum(result.observable)
+        seen = sum(unc.observable)
         if seen < prm.min_observable:
             reasons.append(f"only {seen} of 6 directions observable")
+        alike, differ = self._alternatives(result, unc, usable[1:], noise, len(pts))
+        reasons += differ
         if reasons:
             status = "suspect"
         else:
             status = "ok" if best.rank == 0 else "recovered"
+        result = replace(
+            result,
+            observable=unc.observable,
+            covariance=unc.covariance,
+            region95_deg=unc.region95_deg,
+            region95_m=unc.region95_m,
+            alternatives="; ".join(alike),
+        )
         return self._finish(result, status, "; ".join(reasons), iterations, tried, noise, start)
+
+    def _alternatives(
+        self,
+        result: FitResult,
+        unc: judge.Uncertainty,
+        others: list[_Minimum],
+        noise: float,
+        n: int,
+    ) -> tuple[list[str], list[str]]:
+        """Other minima that fit about as well: ``(those that agree with the answer on
+        every observable direction, those that do not)``, described."""
+        prm = self.params
+        alike: list[str] = []
+        differ: list[str] = []
+        for other in others:
+            gap = (other.result.cost - result.cost) / max(n, 1)
+            if gap >= prm.ambiguity_ratio * noise**2:
+                continue
+            angle, offset, how = np.inf, np.inf, ""
+            for turn, label in self._turn_labels:
+                coords = judge.observed_difference(
+                    unc,
+                    result.object_from_tool,
+                    se3.make_pose(turn) @ other.result.object_from_tool,
+                )
+                # End over end, the ends trade places along the axis: the axis and the
+                # position across it are what must agree.
+                a, o = judge.extent(unc, coords, ignore=(2,) if label else ())
+                if max(a / prm.tolerance_deg, o / prm.tolerance_m) < max(
+                    angle / prm.tolerance_deg, offset / prm.tolerance_m
+                ):
+                    angle, offset, how = a, o, label
+            if angle <= prm.tolerance_deg and offset <= prm.tolerance_m:
+                unseen = ", ".join(unc.unobservable) or "none"
+                alike.append(
+                    f"another minimum fits as well and differs only where the patch cannot "
+                    f"see ({how or 'unobservable directions'}: {unseen})"
+                )
+            else:
+                differ.append(
+                    f"another minimum {angle:.1f} deg / {1e3 * offset:.1f} mm away along "
+                    f"observable directions fits as well (mean square {1e6 * gap:.4f} mm^2 "
+                    f"worse, under {prm.ambiguity_ratio} x noise^2)"
+                )
+        return alike, differ
 
     def _bias_limit_m(self, noise: float, n: int) -> float:
         return (self.params.bias_ratio + 2.0 / np.sqrt(max(n, 1))) * noise

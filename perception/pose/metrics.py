@@ -5,25 +5,50 @@ from __future__ import annotations
 import numpy as np
 
 from geometry import se3
+from geometry.fields import Field
+from perception.pose import judge
+from perception.pose.problem import FitResult, characteristic_length
+from perception.pose.symmetry import (
+    axis_error_deg,
+    offaxis_error_m,
+    pose_difference,
+    symmetry_rotations,
+)
+
+__all__ = ["axis_error_deg", "covered", "offaxis_error_m", "right"]
 
 
-def axis_error_deg(
-    tool_from_object_est: np.ndarray, tool_from_object_true: np.ndarray, *, flip_symmetric: bool
-) -> float:
-    """Angle between the estimated and true object z axes in the tool frame (degrees).
+def right(
+    fld: Field,
+    result: FitResult,
+    tool_from_object_true: np.ndarray,
+    *,
+    angle_deg: float = 2.0,
+    offset_m: float = 0.002,
+) -> bool:
+    """Within ``angle_deg`` and ``offset_m`` of the truth up to the object's symmetry,
+    counting only the translations the estimate observes (``symmetry.pose_difference``);
+    never for ``no_patch`` and ``failed``."""
+    if result.status in ("no_patch", "failed"):
+        return False
+    angle, offset = pose_difference(
+        fld, se3.invert(tool_from_object_true), result.object_from_tool, result.observable
+    )
+    return angle < angle_deg and offset < offset_m
 
-    With ``flip_symmetric`` the axis is a line (a plain cylinder: z and -z look alike).
-    """
-    a = tool_from_object_est[:3, 2]
-    b = tool_from_object_true[:3, 2]
-    ang = se3.angle_between(a, b)
-    if flip_symmetric:
-        ang = min(ang, np.pi - ang)
-    return float(np.degrees(ang))
 
-
-def offaxis_error_m(tool_from_object_est: np.ndarray, tool_from_object_true: np.ndarray) -> float:
-    """Distance of the estimated origin from the true axis line (metres, tool frame)."""
-    axis = tool_from_object_true[:3, 2]
-    d = tool_from_object_est[:3, 3] - tool_from_object_true[:3, 3]
-    return float(np.linalg.norm(d - (d @ axis) * axis))
+def covered(fld: Field, result: FitResult, tool_from_object_true: np.ndarray) -> bool:
+    """Whether the truth (up to the object's symmetry turns) lies in the estimate's 95%
+    region along the observable directions (``judge``); the covariance is the one the
+    estimate carries, its observable directions those the covariance spans."""
+    unc = judge.from_covariance(result.covariance, characteristic_length(fld))
+    if unc.basis.shape[1] == 0:
+        return False
+    truth = se3.invert(tool_from_object_true)
+    return any(
+        judge.within_region(
+            unc, judge.observed_difference(unc, result.object_from_tool, se3.make_pose(t) @ truth)
+        )
+        <= 1.0
+        for t in symmetry_rotations(fld)
+    )

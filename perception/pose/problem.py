@@ -38,9 +38,11 @@ class FitResult:
         status: from a local solver ``ok`` (converged), ``not_converged`` (stopped by
             its iteration limit or a numerical failure; the pose is its last iterate) or
             ``failed``; from the estimator ``ok``, ``recovered`` (the first seed's minimum
-            lost to another seed's), ``suspect`` (see ``message``: the fit is worse
-            than the noise allows, another distinct minimum fits about as well, too few
-            directions are observable, or the solver did not converge), ``no_patch``
+            lost to another seed's), ``suspect`` (see ``message``: the observable
+            directions are not determined to the estimator's tolerance, the fit is
+            worse than the noise allows or biased, another minimum that differs in an
+            observable direction fits about as well, too few directions are observable,
+            or the answer is not at the minimum of the fit), ``no_patch``
             (too few points, or no spread in 3-D: the prior is returned) or ``failed``.
         solve_secs: wall time of the solve.
         points_used: points after dropping non-finite ones and subsampling.
@@ -52,6 +54,14 @@ class FitResult:
             unless configured); 0 when not computed.
         dims_m: fitted dimensions (``radius_m``, ``height_m``), empty unless fitted.
         residual_mean_m: the mean of the field values at the estimate (its bias).
+        covariance: (6, 6) covariance of the estimate's left twist ``(tx, ty, tz, rx,
+            ry, rz)`` in the object frame (metres, radians), zero along unobservable
+            directions (``judge.uncertainty``); zeros when not computed.
+        region95_deg, region95_m: the largest rotation and the largest displacement of
+            the object's origin within the 95% region; 0 when not computed.
+        alternatives: other minima that fit as well and agree with the estimate on
+            every observable direction (the patch cannot tell them apart), described;
+            empty when there are none.
     """
 
     object_from_tool: np.ndarray
@@ -68,6 +78,10 @@ class FitResult:
     noise_m: float = 0.0
     dims_m: dict[str, float] = field(default_factory=dict)
     residual_mean_m: float = 0.0
+    covariance: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))
+    region95_deg: float = 0.0
+    region95_m: float = 0.0
+    alternatives: str = ""
 
     @property
     def tool_from_object(self) -> np.ndarray:

@@ -65,6 +65,10 @@ NOTES: dict[str, str] = {
     "shear_px": "mean membrane displacement (dx, dy) in full-resolution image pixels",
     "direction": "shear_px / magnitude_px, or (0, 0) when direction_defined is false",
     "observable": "which of (tx, ty, tz, rx, ry, rz) in the object frame the patch constrains",
+    "PoseEstimate.covariance": (
+        "6x6 covariance of the pose's left twist (tx, ty, tz in m; rx, ry, rz in rad) in the "
+        "object frame; zero along directions observable marks false"
+    ),
     "probabilities": "one per entry of classes, in that order; they sum to 1",
 }
 

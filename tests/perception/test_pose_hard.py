@@ -117,7 +117,10 @@ def test_shapeless_clouds_give_no_patch_with_a_reason(label, points, why) -> Non
 
 
 @pytest.mark.parametrize("noise_m", [0.0, 0.0005])
-def test_a_planar_cloud_with_a_seed_is_never_ok(noise_m: float) -> None:
+def test_a_planar_cloud_is_ok_only_along_what_it_observes(noise_m: float) -> None:
+    """One face of a box: without a prior, any face could be it (``suspect``); with a
+    seed naming the face, the face's normal position and tilt are observed and the rest
+    (the slide and turn within the face) is reported unobservable, never claimed."""
     rng = np.random.default_rng(7)
     plane = np.stack(
         [np.full(800, 0.03), rng.uniform(-0.02, 0.02, 800), rng.uniform(-0.03, 0.03, 800)], 1
@@ -126,9 +129,16 @@ def test_a_planar_cloud_with_a_seed_is_never_ok(noise_m: float) -> None:
     seed = se3.make_pose(np.eye(3), [0.0, 0.0, 0.0])  # the box face at x = +30 mm
     for solver in _solvers(BOX.field):
         est = PoseEstimator(solver, EstimatorParams(track=False), symmetric_about_z=False)
-        result = est.estimate(plane, seed_tool_from_object=seed)
-        assert result.status in ("suspect", "no_patch"), (solver.name, result.status)
-        assert result.message and np.all(np.isfinite(result.tool_from_object))
+        cold = est.estimate(plane)
+        assert cold.status in ("suspect", "no_patch"), (solver.name, cold.status)
+        assert cold.message and np.all(np.isfinite(cold.tool_from_object))
+        seeded = est.estimate(plane, seed_tool_from_object=seed)
+        assert np.all(np.isfinite(seeded.tool_from_object))
+        if seeded.status in GOOD:
+            assert seeded.observable == (True, False, False, False, True, True), solver.name
+            assert _right(seeded, BOX.field, seed)  # the face the seed named
+        else:
+            assert seeded.message
 
 
 # -- IPOPT's verdict and far seeds --------------------------------------------------------
@@ -149,7 +159,43 @@ def test_ipopt_iteration_limit_is_not_ok() -> None:
     result = PoseEstimator(one, EstimatorParams(track=False)).estimate(
         pts, bubble, seed_tool_from_object=se3.invert(seed)
     )
-    assert result.status == "suspect" and "did not converge" in result.message
+    assert _honest(result, CYL.field, truth), (result.status, result.message)
+    if result.status == "suspect" and "not at the minimum" in result.message:
+        assert "did not converge" in result.message  # the solver's own verdict, quoted
+
+
+class _Lazy:
+    """A solver that returns its seed and calls it converged: only the judgement can
+    tell that the answer is not at the minimum of the fit."""
+
+    name = "lazy"
+
+    def __init__(self, fld: fields.Field) -> None:
+        self.field = fld
+
+    def solve(self, points: np.ndarray, seed: np.ndarray) -> problem.FitResult:
+        r = problem.residuals(self.field, seed, points)
+        return problem.FitResult(
+            object_from_tool=seed,
+            residual_rms_m=float(np.sqrt(np.mean(r * r))),
+            residual_mean_m=float(np.mean(r)),
+            cost=float(r @ r),
+            iterations=1,
+            status="ok",
+            solve_secs=0.0,
+            points_used=len(points),
+        )
+
+
+@pytest.mark.parametrize("tilt_deg", [0.5, 3.0])
+def test_an_answer_short_of_the_minimum_is_suspect_whatever_the_solver_says(tilt_deg) -> None:  # noqa: ANN001
+    """The verdict does not trust the solver: a pose off the minimum of the fit, reported
+    converged, is ``suspect`` with the step that remains."""
+    rng, truth, pts, bubble = _cyl_case(5, n=3000)
+    seed = synthetic.tilted_seed(truth, tilt_deg, rng, offset_m=0.0005)
+    est = PoseEstimator(_Lazy(CYL.field), EstimatorParams(track=False, noise_m=0.001))
+    result = est.estimate(pts, bubble, seed_tool_from_object=seed)
+    assert result.status == "suspect" and "not at the minimum" in result.message, result.message
 
 
 @pytest.mark.parametrize("solver", _solvers(CYL.field), ids=["lm", "ipopt"])
@@ -209,23 +255,28 @@ def test_cold_starts_across_noise_levels(noise_m: float) -> None:
         good += result.status in GOOD
         # The noise is measured from the cloud: within 40% of the normal component.
         assert 0.5 * noise_m < result.noise_m < 1.2 * noise_m
-    assert good >= 3  # honest, and still useful
+    if noise_m <= 0.001:
+        assert good >= 3  # honest, and still useful (noisier: honest; bench.pose_hard)
 
 
 def test_cold_start_keeps_unobservable_directions_mid_patch() -> None:
     est = PoseEstimator(LMSolver(CYL.field), EstimatorParams(track=False))
+    length = problem.characteristic_length(CYL.field)
+
+    def seen(pose: np.ndarray, pts: np.ndarray, floor: float) -> tuple[bool, ...]:
+        _, jac = problem.residuals_and_jacobian(CYL.field, pose, pts)
+        return problem.observability(problem.scaled_information(jac, length), floor)[0]
+
     for k in range(5):
         _, truth, pts, bubble = _cyl_case(50 + k)
         result = est.estimate(pts, bubble)
         assert result.status in GOOD and _right(result, CYL.field, truth)
         centroid = se3.transform_points(result.object_from_tool, pts).mean(axis=0)
-        if not result.observable[2]:  # the slide along the axis: the patch mid-body
-            assert abs(centroid[2]) < 1e-6
+        if not seen(result.object_from_tool, pts, 1e-4)[2]:  # the solver's floor
+            assert abs(centroid[2]) < 1e-6  # the slide along the axis: the patch mid-body
         # Where the true pose leaves the slide unobservable (no cap in the patch), the
         # estimate did not slide onto a cap either.
-        _, jac = problem.residuals_and_jacobian(CYL.field, se3.invert(truth), pts)
-        info = problem.scaled_information(jac, problem.characteristic_length(CYL.field))
-        flags, _, _ = problem.observability(info, 1e-4)
+        flags = seen(se3.invert(truth), pts, EstimatorParams().observability_floor)
         if not flags[2]:
             assert result.observable == flags, k
 

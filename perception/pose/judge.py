@@ -1,0 +1,225 @@
+"""The judgement of an estimate: how sure it is, and whether a user may act on it.
+
+Uncertainty (:func:`uncertainty`), from the fit at the estimate whatever solver found it:
+
+- Curvature: the Gauss-Newton information ``J^T J`` of the residuals at the estimate,
+  in the scaled twist coordinates of ``problem.scaled_information`` (rotations in metres
+  at the object's lever arm). Its eigenvectors under ``floor`` per point are the
+  directions the patch does not observe (yaw of a body of revolution, slide along a
+  cylinder seen on its side, slide and turn within a box face seen on two faces); the
+  covariance is zero along them and ``observable`` says so. Only the points where the
+  field is smooth across the noise count here: a slide seen only through the few noisy
+  points pushed past a rim is not observed (its Gaussian spread would not describe
+  its error).
+- Noise: the residuals themselves, point by point (the "sandwich" covariance
+  ``H^-1 (sum r_i^2 a_i a_i^T) H^-1`` with ``H = sum a_i a_i^T``): noise along the
+  camera rays leaves less in the residual where a ray meets the surface obliquely, and
+  the sandwich follows that without a noise model.
+- Model error: noise across an edge or a rim, or across a curved surface, biases the
+  residuals by about ``noise^2 / length`` (a point pushed inside past a rim is nearer the
+  cap than the side); the bias is coherent over the patch and does not average out with
+  more points. It is added as ``(model_error * noise^2 / length)^2 H^-1 N``, where
+  ``length`` is the object's half diagonal.
+- Calibration: the statistical part is scaled by ``inflation``. ``inflation`` and
+  ``model_error`` were fitted on synthetic two-bubble clouds (cylinders of radius 30-50
+  mm, a 60x60x160 mm box on a face, an edge and a corner; 0.5-3 mm noise along the rays;
+  3000 points) so that the 95% region holds the truth 95% of the time over all of them;
+  ``bench.pose_hard`` measures the coverage per shape and noise.
+
+The 95% region is the ellipsoid ``c^T C^-1 c <= chi2_k(0.95)`` over the ``k`` observable
+directions. ``region95_deg`` and ``region95_m`` are its extent: the largest rotation and
+the largest displacement of the object's origin it allows.
+
+Comparisons (:func:`observed_difference`): two poses are compared along the observable
+directions only: motion along unobservable ones is removed first (a yaw of a cylinder,
+a slide along a face), then the rest is expressed in the observable coordinates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from geometry import se3
+from geometry.fields import Field
+from perception.pose.problem import (
+    DOF_NAMES,
+    characteristic_length,
+    observability,
+    residuals_and_jacobian,
+    scaled_information,
+)
+
+#: chi-square 95% quantiles for 0-6 degrees of freedom.
+CHI2_95 = (0.0, 3.841, 5.991, 7.815, 9.488, 11.070, 12.592)
+#: Fitted calibration (module docstring; measured by ``bench.pose_hard``).
+INFLATION = 1.3
+MODEL_ERROR = 2.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class Uncertainty:
+    """How sure an estimate is (module docstring).
+
+    Attributes:
+        covariance: (6, 6) covariance of the left twist ``(tx, ty, tz, rx, ry, rz)``
+            (metres, radians) in the object frame; zero along unobservable directions.
+        observable: per twist axis: whether the patch observes it.
+        basis: (6, k) the observable directions, in scaled twist coordinates.
+        length_m: the lever arm of the scaled coordinates.
+        inverse: (k, k) inverse covariance in ``basis`` coordinates.
+        region95_deg: the largest rotation within the 95% region.
+        region95_m: the largest displacement of the object's origin within it.
+        step_sigma: the Gauss-Newton step from the estimate to the minimum of the fit,
+            as a fraction of the 95% region's size along it (0 at the minimum; 1 at
+            the region's edge): how far the solver stopped short.
+    """
+
+    covariance: np.ndarray
+    observable: tuple[bool, ...]
+    basis: np.ndarray
+    length_m: float
+    inverse: np.ndarray
+    region95_deg: float
+    region95_m: float
+    step_sigma: float
+
+    @property
+    def scale(self) -> np.ndarray:
+        """Scaled twist coordinates to twist coordinates."""
+        return np.array([1.0] * 3 + [1.0 / self.length_m] * 3)
+
+    @property
+    def unobservable(self) -> list[str]:
+        """Names of the twist axes the patch does not observe."""
+        return [name for name, seen in zip(DOF_NAMES, self.observable, strict=True) if not seen]
+
+
+def _nothing(length_m: float) -> Uncertainty:
+    return Uncertainty(
+        covariance=np.zeros((6, 6)),
+        observable=(False,) * 6,
+        basis=np.zeros((6, 0)),
+        length_m=length_m,
+        inverse=np.zeros((0, 0)),
+        region95_deg=0.0,
+        region95_m=0.0,
+        step_sigma=0.0,
+    )
+
+
+def from_covariance(covariance: np.ndarray, length_m: float) -> Uncertainty:
+    """The :class:`Uncertainty` a (6, 6) twist covariance describes (as an estimate
+    carries it), for comparing poses with it; ``step_sigma`` is not known (0)."""
+    scale = np.array([1.0] * 3 + [1.0 / length_m] * 3)
+    scaled = np.asarray(covariance, dtype=np.float64) / np.outer(scale, scale)
+    vals, vecs = np.linalg.eigh(0.5 * (scaled + scaled.T))
+    keep = vals > 1e-12 * max(float(vals[-1]), 1e-300)
+    basis = vecs[:, keep]
+    k = basis.shape[1]
+    if k == 0:
+        return _nothing(length_m)
+    inverse = np.diag(1.0 / vals[keep])
+    share = np.sum(basis**2, axis=1)
+    q95 = CHI2_95[k]
+    return Uncertainty(
+        covariance=np.asarray(covariance, dtype=np.float64),
+        observable=tuple(bool(s > 0.5) for s in share),
+        basis=basis,
+        length_m=length_m,
+        inverse=inverse,
+        region95_deg=float(
+            np.degrees(np.sqrt(q95 * max(np.linalg.eigvalsh(covariance[3:, 3:])[-1], 0)))
+        ),
+        region95_m=float(np.sqrt(q95 * max(np.linalg.eigvalsh(covariance[:3, :3])[-1], 0.0))),
+        step_sigma=0.0,
+    )
+
+
+def uncertainty(
+    fld: Field,
+    object_from_tool: np.ndarray,
+    points_in_tool: np.ndarray,
+    *,
+    floor: float = 1e-4,
+    inflation: float = INFLATION,
+    model_error: float = MODEL_ERROR,
+) -> Uncertainty:
+    """The uncertainty of ``object_from_tool`` on finite (N, 3) points (module docstring)."""
+    length = characteristic_length(fld)
+    r, jac = residuals_and_jacobian(fld, object_from_tool, points_in_tool)
+    n = len(r)
+    # Which directions the patch observes is decided by the points where the field is
+    # smooth across the noise; a point that noise pushed past a rim or an edge (its
+    # gradient turns within two sigma along itself) would make a slide "observed".
+    q = points_in_tool @ object_from_tool[:3, :3].T + object_from_tool[:3, 3]
+    reach = 2.0 * float(np.sqrt(r @ r / max(n, 1)))
+    grad = jac[:, :3]
+    smooth = np.ones(n, dtype=bool)
+    for sign in (-1.0, 1.0):
+        _, moved = fld.value_and_grad(q + sign * reach * grad)
+        smooth &= np.sum(moved * grad, axis=1) > 0.99
+    info = scaled_information(jac[smooth], length) * (int(smooth.sum()) / max(n, 1))
+    flags, basis, _ = observability(info, floor)
+    k = basis.shape[1]
+    if k == 0 or n <= k:
+        return _nothing(length)
+    scale = np.array([1.0] * 3 + [1.0 / length] * 3)
+    a = (jac * scale) @ basis
+    h_inv = np.linalg.inv(a.T @ a)
+    meat = (a * (r * r)[:, None]).T @ a
+    noise_sq = float(r @ r) / n
+    cov = inflation**2 * (h_inv @ meat @ h_inv) * n / (n - k)
+    cov = cov + (model_error * noise_sq / length) ** 2 * n * h_inv
+    cov = 0.5 * (cov + cov.T)
+    inverse = np.linalg.inv(cov)
+    q95 = CHI2_95[k]
+    step = -h_inv @ (a.T @ r)
+    twist = basis * scale[:, None]  # basis coordinates -> twist
+    cov6 = twist @ cov @ twist.T
+    return Uncertainty(
+        covariance=cov6,
+        observable=flags,
+        basis=basis,
+        length_m=length,
+        inverse=inverse,
+        region95_deg=float(np.degrees(np.sqrt(q95 * max(np.linalg.eigvalsh(cov6[3:, 3:])[-1], 0)))),
+        region95_m=float(np.sqrt(q95 * max(np.linalg.eigvalsh(cov6[:3, :3])[-1], 0.0))),
+        step_sigma=float(np.sqrt(step @ inverse @ step / q95)),
+    )
+
+
+def observed_difference(
+    unc: Uncertainty, object_from_tool: np.ndarray, other: np.ndarray
+) -> np.ndarray:
+    """``other`` relative to the estimate ``object_from_tool`` in the observable
+    coordinates of ``unc``, after motion along the unobservable directions is removed."""
+    scale = unc.scale
+    basis = unc.basis
+    null = np.linalg.svd(basis, full_matrices=True)[0][:, basis.shape[1] :]
+    rel = other @ se3.invert(object_from_tool)
+    for _ in range(20):
+        along = null @ (null.T @ (se3.log_se3(rel) / scale))
+        if float(np.linalg.norm(along)) < 1e-12:
+            break
+        rel = se3.exp_se3(-along * scale) @ rel
+    return basis.T @ (se3.log_se3(rel) / scale)
+
+
+def extent(
+    unc: Uncertainty, coords: np.ndarray, *, ignore: tuple[int, ...] = ()
+) -> tuple[float, float]:
+    """The rotation (degrees) and origin displacement (metres) of a difference given in
+    observable coordinates, leaving out the twist axes ``ignore``."""
+    twist = (unc.basis @ coords) * unc.scale
+    twist[list(ignore)] = 0.0
+    return float(np.degrees(np.linalg.norm(twist[3:]))), float(np.linalg.norm(twist[:3]))
+
+
+def within_region(unc: Uncertainty, coords: np.ndarray) -> float:
+    """``c^T C^-1 c / chi2_k(0.95)``: at most 1 inside the 95% region."""
+    k = len(coords)
+    if k == 0:
+        return 0.0
+    return float(coords @ unc.inverse @ coords / CHI2_95[k])
