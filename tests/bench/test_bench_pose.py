@@ -19,6 +19,8 @@ def test_pose_hard_quick(capsys: pytest.CaptureFixture[str]) -> None:
     assert kinds == {"hard", "size", "degenerate"}
     assert all("silent_wrong" in r and "object" in r for r in rows)
     assert sum(r["silent_wrong"] for r in rows) == 0
+    hard = [r for r in rows if r["kind"] == "hard"]
+    assert all(0.0 <= r["coverage95"] <= 1.0 and "right_suspect_share" in r for r in hard)
     fitted = [r for r in rows if r["kind"] == "size" and r["fit_dims"] == "radius"]
     assert fitted and fitted[0]["radius_err_mm_median"] < 0.5
 
@@ -35,3 +37,9 @@ def test_pose_quick_plot(tmp_path, capsys: pytest.CaptureFixture[str]) -> None: 
     assert "silent_wrong" in capsys.readouterr().out
     estimator_rows = [r for r in rows if r["kind"] in ("accuracy", "basin", "hard")]
     assert all("silent_wrong" in r for r in estimator_rows)
+    assert all("coverage95" in r for r in rows if r["kind"] == "accuracy")
+    # A warm seed beside one solve and a cold start, each with its cost ratio.
+    warm = {r["start"]: r for r in rows if r["kind"] == "warm_cost"}
+    assert set(warm) == {"one_solve", "warm_seed", "cold"}
+    assert warm["one_solve"]["cost_vs_one_solve"] == 1.0
+    assert warm["warm_seed"]["seeds_mean"] <= warm["cold"]["seeds_mean"]
