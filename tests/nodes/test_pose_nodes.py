@@ -88,6 +88,11 @@ def test_pose_nodes_estimate_and_take_the_newest_patch(cls, extra) -> None:  # n
     if cls is not IcpPoseNode:  # the baseline is judged in the bench, not here
         assert est.status in ("ok", "recovered")
         assert metrics.axis_error_deg(est.tool_from_object, truth, flip_symmetric=True) < 2.0
+    if est.status in ("ok", "recovered"):  # how sure, on the wire
+        assert est.covariance.shape == (6, 6) and np.all(np.isfinite(est.covariance))
+        assert len(est.translation_std_m) == 3 and len(est.rotation_std_deg) == 3
+        assert 0.0 < est.region95_deg <= 2.0 and 0.0 < est.region95_m <= 0.002
+        assert est.rotation_std_deg[2] < 1e-9 and not est.observable[5]  # a mug body's yaw
 
 
 def test_pose_node_bad_patches_never_raise() -> None:
