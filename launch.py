@@ -68,6 +68,14 @@ def run_parser() -> argparse.ArgumentParser:
     add_run_options(parser, swap_metavar="NODE=IMPL", swap_help="another implementation")
     parser.add_argument("--only", default="", metavar="NODE,NODE", help="run only these nodes")
     parser.add_argument(
+        "--emulate",
+        action="store_true",
+        help="run a hardware graph against emulated devices driven by the simulated world",
+    )
+    parser.add_argument(
+        "--rig", default=None, metavar="FILE", help="with --emulate: the as-built rig (rigs/*.yaml)"
+    )
+    parser.add_argument(
         "--view",
         nargs="?",
         const="spawn",
@@ -77,6 +85,18 @@ def run_parser() -> argparse.ArgumentParser:
     )
     add_deprecated(parser, "--topics", "--record-topics", "record_topics")
     return parser
+
+
+def emulated(doc: dict, rig_file: str | None) -> dict:
+    """The graph on an emulated rig (``sim.rig_launch``); errors as graph errors."""
+    from messages.errors import GraphError
+    from sim.rig_launch import activate, emulate
+
+    try:
+        rig, feed, _ = activate(rig_file)
+        return emulate(doc, rig=rig, feed=feed)
+    except ValueError as err:
+        raise GraphError(str(err)) from err
 
 
 def run_main(argv: list[str]) -> int:
@@ -90,6 +110,10 @@ def run_main(argv: list[str]) -> int:
     source = str(args.graph)
     try:
         doc = graphs.load_document(args.graph)
+        if args.emulate:
+            doc = emulated(doc, args.rig)
+        elif args.rig:
+            raise GraphError(f"{source}: --rig needs --emulate")
         only = [n for n in args.only.split(",") if n]
         doc = graphs.apply_overrides(
             doc, sets=args.sets, swaps=args.swaps, only=only, source=source

@@ -11,7 +11,7 @@ from devices.royale import convert
 from messages.errors import NodeError
 from nodes.bubble_camera import RoyaleBubbleCamera
 from runtime.testing import make_node
-from tests.devices import fake_roypy
+from sim.royale_sdk import roypy as fake_roypy
 
 
 def _points(height: int = 171, width: int = 224) -> np.ndarray:
