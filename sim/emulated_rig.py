@@ -54,6 +54,7 @@ from geometry.se3 import make_pose, rotation_angle
 from messages.codec import decode
 from messages.sim import WorldState
 from sim.mcp2221_emulator import EmulatedBackend, EmulatedBridge, abp_bytes
+from sim.scene import load_scene
 from sim.wire import from_message, scene_of
 
 SESSION_ENV = "SOFTBUBBLE_EMULATED_RIG"
@@ -191,6 +192,7 @@ class Session:
     feed: str
     rig: AsBuiltRig
     plugs: Path
+    scene: str
 
     def plugged(self, device: str) -> bool:
         return not (self.plugs / "unplugged" / device).exists()
@@ -210,7 +212,7 @@ def session() -> Session:
             )
         doc = json.loads(Path(path).read_text())
         rig = load_rig(doc["rig"]) if doc.get("rig") else NOMINAL
-        _session = Session(doc["feed"], rig, Path(doc["plugs"]))
+        _session = Session(doc["feed"], rig, Path(doc["plugs"]), doc["scene"])
     return _session
 
 
@@ -320,18 +322,17 @@ class CameraEmulator:
         return self._renderers[key]
 
     def _run(self) -> None:
-        period = 1.0 / self.fps
-        last_stamp = -1
-        next_at = time.monotonic()
+        # A frame per 1/fps of world time (the first state of each slot), so two cameras
+        # at one rate take the same instants, as cameras on one trigger would.
+        last_slot = -1
         while not self._stop.is_set():
             msg = feed().poll(timeout_ms=20)
-            now = time.monotonic()
-            if msg is None or now < next_at or msg.header.stamp_nanos == last_stamp:
+            if msg is None:
                 continue
-            if not session().plugged(self.device):
-                continue  # unplugged: no frames (the driver notices the silence)
-            next_at = max(next_at + period, now)
-            last_stamp = msg.header.stamp_nanos
+            slot = int(msg.time_secs * self.fps + 1e-6)
+            if slot == last_slot or not session().plugged(self.device):
+                continue  # no new slot; or unplugged: no frames (the driver notices)
+            last_slot = slot
             renderer = self._renderer(msg)
             frame = renderer.render(from_message(msg))
             points = sdk_points(frame.arrays, renderer.camera)
@@ -346,12 +347,14 @@ class WorldBridge(EmulatedBridge):
     def __init__(self, side: str, spec: AsBuiltSensor, device: str, *, pmax_pa: float) -> None:
         super().__init__(serial=spec.serial)
         self.side, self.spec, self.device, self.pmax_pa = side, spec, device, pmax_pa
-        self.rng = np.random.default_rng(abs(hash(spec.serial)) % 2**32)
+        self.rng = np.random.default_rng(list(spec.serial.encode()))
+        # Before the world's first state the bubble is inflated and free.
+        self.rest_pa = load_scene(session().scene).bubble.inflation_pa
 
     def answer(self, report: bytes) -> bytes:
         if report[0] == 0x91:
             msg = feed().poll()
-            true_pa = 0.0 if msg is None else msg.pressure_pa[SIDES.index(self.side)]
+            true_pa = self.rest_pa if msg is None else msg.pressure_pa[SIDES.index(self.side)]
             s = self.spec
             reading = s.gain * true_pa + s.offset_pa + s.noise_pa * self.rng.standard_normal()
             self.sensor_bytes = abp_bytes(reading, pmin_pa=0.0, pmax_pa=self.pmax_pa)

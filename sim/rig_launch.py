@@ -32,7 +32,7 @@ from sim.emulated_rig import NOMINAL, SESSION_ENV, AsBuiltRig, load_rig
 
 ROYALE_STANDIN = Path(__file__).resolve().parent / "royale_sdk"
 USB_BACKEND = "sim.emulated_rig:usb_backend"
-DEFAULT_SCENE = "scenes/handover_task.yaml"
+DEFAULT_SCENE = "scenes/rig_handover.yaml"
 WORLD = "rig_world"
 DEVICE_IMPLS = ("gripper.wsg50", "bubble_camera.royale", "pressure.usb")
 
@@ -81,7 +81,7 @@ def emulate(
     return doc
 
 
-def activate(rig_file: str | None) -> tuple[AsBuiltRig, str, Path]:
+def activate(rig_file: str | None, scene: str = DEFAULT_SCENE) -> tuple[AsBuiltRig, str, Path]:
     """Set up this process for an emulated rig: ``(rig, feed endpoint, session folder)``.
 
     The session folder holds the session file and the plugs (``unplugged/<node>``).
@@ -91,6 +91,7 @@ def activate(rig_file: str | None) -> tuple[AsBuiltRig, str, Path]:
     (folder / "unplugged").mkdir()
     feed = f"ipc://{folder / 'feed'}"
     session = {
+        "scene": str(Path(scene).resolve()),
         "feed": feed,
         "rig": str(Path(rig_file).resolve()) if rig_file else "",
         "plugs": str(folder),
