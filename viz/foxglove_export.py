@@ -5,7 +5,8 @@ converted: depth and IR images to ``foxglove.RawImage`` (``32FC1`` metres, ``mon
 with a ``foxglove.CameraCalibration`` next to them, masks and overlays to ``RawImage``
 (``mono8``, ``bgr8``), the contact patch to ``foxglove.PointCloud`` (x, y, z float32 and
 the bubble index, tool frame), poses to ``foxglove.FrameTransform`` (``tool`` ->
-``object_estimate`` / ``object_true``, and ``tool`` -> each camera at the measured opening),
+``object_estimate`` / ``object_true``, and ``tool`` -> each camera where each of its frames
+was taken, ``ToFImage.tool_from_sensor``),
 and every message, those included, to JSON on its own topic (arrays of more than
 :data:`JSON_ARRAY_LIMIT` values are left out of the JSON: they are in the images).
 
@@ -24,17 +25,16 @@ import numpy as np
 from foxglove import channels as fc
 from foxglove import messages as fm
 
-from geometry.gripper import tool_from_sensor
 from geometry.se3 import quat_from_matrix
 from messages.base import Message
 from messages.types import (
     ContactPatch,
-    GripperState,
     GroundTruth,
     MaskImage,
     OverlayImage,
     PoseEstimate,
     ToFImage,
+    pose_is_known,
 )
 
 JSON_ARRAY_LIMIT = 64
@@ -139,6 +139,11 @@ def convert(topic: str, msg: Message) -> list[tuple[str, str, Any]]:
             P=[msg.fx_px, 0.0, msg.cx_px, 0.0, 0.0, msg.fy_px, msg.cy_px, 0.0, 0.0, 0.0, 1.0, 0.0],
         )
         out.append((f"{topic}/calibration", "CameraCalibration", calibration))
+        if pose_is_known(msg.tool_from_sensor):
+            # Where this frame was taken (its source placed it: the scene's or the rig
+            # calibration's mount at the opening of its stamp).
+            camera = frame_transform("tool", frame, msg.tool_from_sensor, nanos)
+            out.append((f"/tf/{msg.sensor}_sensor", "FrameTransform", camera))
     elif isinstance(msg, MaskImage):
         out.append((topic, "RawImage", raw_image(msg.mask, "mono8", frame, nanos)))
     elif isinstance(msg, OverlayImage):
@@ -151,16 +156,6 @@ def convert(topic: str, msg: Message) -> list[tuple[str, str, Any]]:
     elif isinstance(msg, GroundTruth):
         pose = frame_transform("tool", "object_true", msg.tool_from_object, nanos)
         out.append((f"{topic}/transform", "FrameTransform", pose))
-    elif isinstance(msg, GripperState):
-        for side in ("left", "right"):
-            camera = tool_from_sensor(side, msg.width_m)
-            out.append(
-                (
-                    f"/tf/{side}_sensor",
-                    "FrameTransform",
-                    frame_transform("tool", f"{side}_sensor", camera, nanos),
-                )
-            )
     if not isinstance(msg, ToFImage | MaskImage | OverlayImage):
         out.append((f"{topic}/json" if out else topic, "json", to_json(msg)))
     return out
