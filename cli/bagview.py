@@ -1,4 +1,4 @@
-"""``launch.py bag view|export|video``; the ``--view`` option is ``runtime.taps``.
+"""``launch.py bag view|export|video``; the ``--view`` option is ``cli.taps``.
 
     python launch.py bag view run.mcap [--out run.rrd]        # Rerun viewer, or a file
     python launch.py bag export run.mcap --foxglove out.mcap  # Foxglove's schemas
@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections import Counter
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -161,21 +161,9 @@ def video_bag(
     return frames, size
 
 
-def main(command: str, argv: Sequence[str]) -> int:
+def main(args: argparse.Namespace) -> int:
     """``launch.py bag view|export|video ARGS`` (exit code 0, or 2 on a bad bag)."""
-    parser = argparse.ArgumentParser(prog=f"python launch.py bag {command}")
-    parser.add_argument("file", type=Path, help="the bag (MCAP)")
-    parser.add_argument("--object", default="", help="object drawn under the estimated pose")
-    if command == "view":
-        parser.add_argument("--out", type=Path, default=None, metavar="FILE.rrd")
-    elif command == "export":
-        parser.add_argument("--foxglove", type=Path, required=True, metavar="OUT.mcap")
-    else:
-        parser.add_argument("--out", type=Path, required=True, metavar="FILE.mp4")
-        parser.add_argument("--fps", type=float, default=0.0, help="0: the cameras' rate")
-        parser.add_argument("--scale", type=int, default=2)
-        parser.add_argument("--stills", type=Path, default=None, metavar="DIR")
-    args = parser.parse_args(list(argv))
+    command = args.bag_command
     try:
         if command == "view":
             counts = view_bag(args.file, args.out, object_name=args.object)
