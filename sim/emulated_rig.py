@@ -40,7 +40,7 @@ import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
@@ -53,8 +53,11 @@ from geometry.se3 import make_pose, rotation_angle
 from messages.codec import decode
 from messages.sim import WorldState
 from sim.mcp2221_emulator import EmulatedBackend, EmulatedBridge, abp_bytes
-from sim.scene import load_scene
+from sim.scene import Scene, load_scene
 from sim.wire import from_message, scene_of
+
+if TYPE_CHECKING:
+    from sim.tof import BubbleRenderer
 
 SESSION_ENV = "SOFTBUBBLE_EMULATED_RIG"
 MAX_MOUNT_ERROR_DEG = 3.0
@@ -273,6 +276,19 @@ def sdk_points(frame_arrays: Mapping[str, np.ndarray], camera: PinholeCamera) ->
     return pts
 
 
+def as_built_renderer(scene: Scene, side: str, spec: AsBuiltCamera) -> BubbleRenderer:
+    """A renderer of ``side``'s camera as built: its true mount and intrinsics."""
+    from sim.tof import BubbleRenderer
+
+    nominal = scene.gripper_geometry().finger_from_sensor()
+    return BubbleRenderer(
+        scene,
+        side,
+        finger_from_sensor=nominal @ spec.mount_error,
+        camera=spec.camera(scene.camera.intrinsics()),
+    )
+
+
 class CameraEmulator:
     """One emulated pico flexx: renders the world's newest state at the use case's rate and
     hands the points to ``deliver(points, stamp_us)`` on its own thread (as the SDK does)."""
@@ -286,9 +302,8 @@ class CameraEmulator:
         self._renderers: dict[Any, Any] = {}
 
     def camera(self) -> PinholeCamera:
-        from sim.scene import CameraSpec
-
-        return self.spec.camera(CameraSpec().intrinsics())
+        """The intrinsics the camera reports (its as-built ones, at the scene's size)."""
+        return self.spec.camera(load_scene(session().scene).camera.intrinsics())
 
     def start(self, use_case: str, deliver: Callable[[np.ndarray, int], None]) -> None:
         self.fps = USE_CASE_FPS.get(use_case, 10.0)
@@ -306,18 +321,10 @@ class CameraEmulator:
         self._thread = None
 
     def _renderer(self, msg: WorldState) -> Any:
-        from sim.tof import BubbleRenderer
-
         scene = scene_of(msg)
         key = (scene.path, scene.seed, tuple(scene.effects))
         if key not in self._renderers:
-            nominal = scene.gripper_geometry().finger_from_sensor()
-            self._renderers[key] = BubbleRenderer(
-                scene,
-                self.side,
-                finger_from_sensor=nominal @ self.spec.mount_error,
-                camera=self.spec.camera(scene.camera.intrinsics()),
-            )
+            self._renderers[key] = as_built_renderer(scene, self.side, self.spec)
         return self._renderers[key]
 
     def _run(self) -> None:

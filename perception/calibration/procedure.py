@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 import queue
 import time
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -81,9 +82,9 @@ def reference_stats(depths: Sequence[np.ndarray]) -> tuple[np.ndarray, dict[str,
     more than half the frames), ``frames``."""
     stack = np.stack([np.asarray(d, np.float32) for d in depths])
     valid = np.isfinite(stack)
-    with np.errstate(invalid="ignore"), np.testing.suppress_warnings() as sup:
-        sup.filter(RuntimeWarning)
-        mean = np.nanmean(stack, axis=0)
+    mean = nanmean(stack)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a pixel NaN in every frame
         std = np.nanstd(stack, axis=0)
     mostly = valid.mean(axis=0) > 0.5
     mean = np.where(mostly, mean, np.nan).astype(np.float32)
@@ -93,6 +94,13 @@ def reference_stats(depths: Sequence[np.ndarray]) -> tuple[np.ndarray, dict[str,
         "invalid_fraction": float(1.0 - mostly.mean()),
         "frames": float(len(depths)),
     }
+
+
+def nanmean(stack: np.ndarray) -> np.ndarray:
+    """The per-pixel mean over frames of the valid values (NaN where none is)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a pixel NaN in every frame
+        return np.nanmean(stack, axis=0)
 
 
 def _subsample(points: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -230,7 +238,7 @@ def calibrate(
             _drain(cameras[side].frames)
             depths = mean_depth(cameras[side].frames, plan.grasp_frames, after_nanos=settled)
             points[side] = contact_points(
-                np.nanmean(np.stack(depths), axis=0),
+                nanmean(np.stack(depths)),
                 free_depth[side],
                 lenses[side],
                 min_indent_m=plan.min_indent_m,
