@@ -30,8 +30,10 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import threading
 from dataclasses import dataclass
+from typing import Any
 
 import zmq
 
@@ -132,7 +134,13 @@ class WorldNode(Node):
             )
             self.prestart_thread.start()
         self.feed: zmq.Socket | None = None
+        self.gripper_faults: list[Any] = []  # sim.emulated_rig.Fault
         if self.params.rig_feed:
+            from sim.emulated_rig import SESSION_ENV, session
+
+            if os.environ.get(SESSION_ENV):
+                faults = session().rig.faults
+                self.gripper_faults = [f for f in faults if f.device == "gripper"]
             self.feed = zmq.Context.instance().socket(zmq.PUB)
             self.feed.setsockopt(zmq.LINGER, 0)
             try:
@@ -177,6 +185,7 @@ class WorldNode(Node):
                 self.prestart.set()
                 self.prestart_thread.join()
         snap = self.server.stepped(self.world.step) if self.server else self.world.step()
+        self._drop_gripper(snap.time_secs)
         stamp = stamp_of(snap, self.start_nanos)
         self.max_force_n = max(self.max_force_n, snap.force_n)
         self.contact_frames += any(snap.in_contact.values())
@@ -201,6 +210,19 @@ class WorldNode(Node):
                 f" {snap.frame_index + 1} frames ({contact}, peak grip force"
                 f" {self.max_force_n:.1f} N, final width {snap.width_m * 1000:.1f} mm,"
                 f" gripper {snap.gripper_state})"
+            )
+
+    def _drop_gripper(self, t_secs: float) -> None:
+        """An emulated rig's scripted fault: the WSG 50 drops its clients' connections."""
+        due = [f for f in self.gripper_faults if f.at_secs <= t_secs]
+        if due and self.server is not None:
+            self.gripper_faults = [f for f in self.gripper_faults if f not in due]
+            dropped = self.server.drop_clients()
+            self.io.log.warning(
+                "%s: emulated fault: the WSG 50 dropped %d connection(s) at t=%.2f s",
+                self.name,
+                dropped,
+                t_secs,
             )
 
     def _publish_placement(self, stamp: int) -> None:

@@ -28,7 +28,17 @@ An as-built rig file (``rigs/*.yaml``, :func:`load_rig`)::
       left: {serial: EMU-BUBBLE-L, offset_pa: 35.0, gain: 1.02, noise_pa: 0.3}
 
 A camera's ``rpy_deg``/``xyz_mm`` is its mount error in its own frame (true mount = CAD
-mount @ error), at most 3 degrees and 3 mm; missing sections are nominal.
+mount @ error), at most 3 degrees and 3 mm; missing sections are nominal. A rig file may
+also script faults, by the world's clock::
+
+    faults:
+      - {device: left_camera, at_secs: 1.2, for_secs: 1.5}    # unplugged, then back
+      - {device: right_pressure, at_secs: 1.5, for_secs: 0.6}
+      - {device: gripper, at_secs: 0.5}                       # its TCP connection dropped
+
+(``left_camera``/``right_camera`` stop delivering and vanish from the SDK's list; a
+``*_pressure`` bridge vanishes from the USB bus; ``gripper``: the WSG 50 closes its
+clients' connections once and keeps listening.)
 """
 
 from __future__ import annotations
@@ -116,6 +126,24 @@ class AsBuiltSensor:
     noise_pa: float = 0.0
 
 
+DEVICES = ("left_camera", "right_camera", "left_pressure", "right_pressure", "gripper")
+
+
+@dataclass(frozen=True)
+class Fault:
+    """A scripted fault: ``device`` unplugged (or, the gripper, dropped) from ``at_secs`` of
+    world time for ``for_secs`` (0: for good; the gripper's drop is instant)."""
+
+    device: str
+    at_secs: float
+    for_secs: float = 0.0
+
+    def active(self, t_secs: float) -> bool:
+        return t_secs >= self.at_secs and (
+            self.for_secs <= 0 or t_secs < self.at_secs + self.for_secs
+        )
+
+
 @dataclass(frozen=True)
 class AsBuiltRig:
     """A rig as built (see the module docstring); :data:`NOMINAL` without a file."""
@@ -128,6 +156,7 @@ class AsBuiltRig:
         default_factory=lambda: {s: AsBuiltSensor(f"EMU-BUBBLE-{s[0].upper()}") for s in SIDES}
     )
     source: str = ""
+    faults: tuple[Fault, ...] = ()
 
 
 NOMINAL = AsBuiltRig()
@@ -184,7 +213,21 @@ def load_rig(path: str | Path) -> AsBuiltRig:
             _num(f"{where}.gain", raw.get("gain", 1.0)),
             _num(f"{where}.noise_pa", raw.get("noise_pa", 0.0)),
         )
-    return AsBuiltRig(str(doc.get("rig", Path(path).stem)), cameras, pressure, source)
+    faults = []
+    for k, raw in enumerate(doc.get("faults") or []):
+        where = f"{source}: faults[{k}]"
+        if not isinstance(raw, dict) or raw.get("device") not in DEVICES:
+            raise ValueError(f"{where}: `device` must be one of {', '.join(DEVICES)}")
+        faults.append(
+            Fault(
+                raw["device"],
+                _num(f"{where}.at_secs", raw.get("at_secs")),
+                _num(f"{where}.for_secs", raw.get("for_secs", 0.0)),
+            )
+        )
+    return AsBuiltRig(
+        str(doc.get("rig", Path(path).stem)), cameras, pressure, source, tuple(faults)
+    )
 
 
 @dataclass(frozen=True)
@@ -196,8 +239,17 @@ class Session:
     plugs: Path
     scene: str
 
-    def plugged(self, device: str) -> bool:
-        return not (self.plugs / "unplugged" / device).exists()
+    def plugged(self, device: str, t_secs: float | None = None) -> bool:
+        """Whether ``device`` is plugged in: no plug file says otherwise, and no scripted
+        fault is on at world time ``t_secs`` (None: the newest state's on the feed)."""
+        if (self.plugs / "unplugged" / device).exists():
+            return False
+        if t_secs is None:
+            latest = feed().poll()
+            t_secs = None if latest is None else latest.time_secs
+        return t_secs is None or not any(
+            f.device == device and f.active(t_secs) for f in self.rig.faults
+        )
 
 
 _session: Session | None = None
@@ -336,7 +388,7 @@ class CameraEmulator:
             if msg is None:
                 continue
             slot = int(msg.time_secs * self.fps + 1e-6)
-            if slot == last_slot or not session().plugged(self.device):
+            if slot == last_slot or not session().plugged(self.device, msg.time_secs):
                 continue  # no new slot; or unplugged: no frames (the driver notices)
             last_slot = slot
             renderer = self._renderer(msg)
