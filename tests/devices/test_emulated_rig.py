@@ -80,3 +80,51 @@ def test_the_hardware_graph_hands_over_on_emulated_devices_and_replays(tmp_path:
     assert proc.returncode == 0, proc.stdout[-3000:]
     again = [e.event for e in topics(replayed)["supervisor/event"]]
     assert again == names
+
+
+FAULTS = """
+rig: faulty
+faults:
+  - {device: gripper, at_secs: 0.5}
+  - {device: left_camera, at_secs: 1.2, for_secs: 1.5}
+  - {device: right_pressure, at_secs: 1.5, for_secs: 0.6}
+"""
+
+
+def test_faults_on_the_emulated_rig_are_named_recovered_and_recorded(tmp_path: Path) -> None:
+    rig = tmp_path / "faulty.yaml"
+    rig.write_text(FAULTS)
+    bag = tmp_path / "faults.mcap"
+    proc = launch("graphs/hardware.yaml", "--emulate", "--rig", str(rig), "--record", str(bag))
+    out = proc.stdout
+    assert proc.returncode == 0, out[-3000:]
+    assert "Traceback" not in out, out[-3000:]
+    lines = out.splitlines()
+
+    def one(pattern: str) -> str:
+        (line,) = [line for line in lines if pattern in line]
+        return line
+
+    # Each fault: one line naming the device, then one when it recovered.
+    assert "[gripper] WARNING gripper: WSG 50 at 127.0.0.1" in one("connection lost")
+    assert "[gripper] WARNING gripper: WSG 50 at 127.0.0.1" in one("reconnected after")
+    assert "'EMU-CAM-L' delivered no frame" in one("[left_camera] ERROR")
+    assert "'EMU-CAM-L' is back after" in one("[left_camera] WARNING")
+    assert "'EMU-BUBBLE-R'" in one("[right_pressure] ERROR") and "gone" in one("gone (unplugged?)")
+    assert "'EMU-BUBBLE-R' is back after" in one("[right_pressure] WARNING")
+    assert "handover: done" in out  # the task went on
+
+    # The recording holds each device's data before its fault and after it recovered.
+    t = topics(bag)
+    start = t["rig_world/state"][0].header.stamp_nanos
+
+    def secs(msgs: list) -> np.ndarray:
+        return np.array([(m.header.stamp_nanos - start) / 1e9 for m in msgs])
+
+    left = secs(t["left_camera/image"])
+    assert (left < 1.2).sum() >= 5 and (left > 2.7).sum() >= 5
+    assert not ((left > 1.25) & (left < 2.7)).any()  # unplugged: no frame
+    right = secs(t["right_pressure/pressure"])
+    assert (right < 1.5).sum() >= 50 and (right > 2.1).sum() >= 50
+    gripper = secs(t["gripper/state"])
+    assert (gripper < 0.5).sum() >= 5 and (gripper > 1.0).sum() >= 50
