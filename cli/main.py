@@ -83,14 +83,7 @@ def _run(commands: Commands) -> None:
     )
     add_run_options(parser, swap_metavar="NODE=IMPL", swap_help="another implementation")
     parser.add_argument("--only", default="", metavar="NODE,NODE", help="run only these nodes")
-    parser.add_argument(
-        "--emulate",
-        action="store_true",
-        help="run a hardware graph against emulated devices driven by the simulated world",
-    )
-    parser.add_argument(
-        "--rig", default=None, metavar="FILE", help="with --emulate: an as-built rig (rigs/*.yaml)"
-    )
+    _add_emulate(parser, "run a hardware graph against emulated devices driven by the world")
     parser.add_argument(
         "--view",
         nargs="?",
@@ -248,13 +241,14 @@ def _calibrate(commands: Commands) -> None:
         "--radius-mm", type=float, default=30.0, help="the calibration cylinder's radius"
     )
     parser.add_argument("--grasps", type=int, default=6, help="how many grasps (3 to 6)")
-    parser.add_argument(
-        "--emulate",
-        action="store_true",
-        help="calibrate the emulated rig (its lab places the cylinder)",
-    )
-    parser.add_argument(
-        "--rig", default=None, metavar="FILE", help="with --emulate: an as-built rig"
-    )
+    _add_emulate(parser, "calibrate the emulated rig (its lab places the cylinder)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing file")
     parser.set_defaults(handler="cli.calibrate", parser=parser)
+
+
+def _add_emulate(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--emulate`` and ``--rig FILE`` (``sim.rig_launch``)."""
+    parser.add_argument("--emulate", action="store_true", help=what)
+    parser.add_argument(
+        "--rig", default=None, metavar="FILE", help="with --emulate: an as-built rig (rigs/*.yaml)"
+    )

@@ -255,6 +255,14 @@ class Session:
 _session: Session | None = None
 
 
+def forget_session() -> None:
+    """Drop this process's session and feed (a new session starts: ``sim.rig_launch``)."""
+    global _session, _feed
+    if _feed is not None:
+        _feed.close()
+    _session = _feed = None
+
+
 def session() -> Session:
     """This process's emulated rig session (read once)."""
     global _session

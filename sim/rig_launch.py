@@ -19,8 +19,10 @@ parameters, same wiring.
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
+import shutil
 import socket
 import sys
 import tempfile
@@ -28,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from devices.mcp2221 import BACKEND_ENV
-from sim.emulated_rig import NOMINAL, SESSION_ENV, AsBuiltRig, load_rig
+from sim.emulated_rig import NOMINAL, SESSION_ENV, AsBuiltRig, forget_session, load_rig
 
 ROYALE_STANDIN = Path(__file__).resolve().parent / "royale_sdk"
 USB_BACKEND = "sim.emulated_rig:usb_backend"
@@ -84,10 +86,14 @@ def emulate(
 def activate(rig_file: str | None, scene: str = DEFAULT_SCENE) -> tuple[AsBuiltRig, str, Path]:
     """Set up this process for an emulated rig: ``(rig, feed endpoint, session folder)``.
 
-    The session folder holds the session file and the plugs (``unplugged/<node>``).
+    The session folder holds the session file, the feed's socket and the plugs
+    (``unplugged/<device>``); it is removed when this process exits.
     """
     rig = load_rig(rig_file) if rig_file else NOMINAL
     folder = Path(tempfile.mkdtemp(prefix="softbubble-rig-"))
+    owner = os.getpid()  # forks (the nodes) inherit the handler: only this process removes it
+    atexit.register(lambda: os.getpid() == owner and shutil.rmtree(folder, ignore_errors=True))
+    forget_session()
     (folder / "unplugged").mkdir()
     feed = f"ipc://{folder / 'feed'}"
     session = {

@@ -79,29 +79,29 @@ class RigCalibration:
     def camera(self, side: str, camera_id: str) -> CameraCalibration:
         """``side``'s camera calibration, checked against the camera plugged in."""
         cal = self.cameras.get(side)
-        if cal is None:
-            raise CalibrationError(f"{self.source}: no `cameras.{side}` in this calibration")
-        if cal.camera_id != camera_id:
-            raise CalibrationError(
-                f"{self.source}: made for {side} camera {cal.camera_id!r} (rig {self.rig!r},"
-                f" {self.date}), but camera {camera_id!r} is plugged in: its mount is not"
-                " this one's; calibrate this rig (launch.py calibrate) or give its own file"
-            )
+        self._check("cameras", side, "camera", None if cal is None else cal.camera_id, camera_id)
+        assert cal is not None
         return cal
 
     def pressure_sensor(self, side: str, serial: str) -> PressureCalibration:
         """``side``'s pressure calibration, checked against the bridge plugged in."""
         cal = self.pressure.get(side)
-        if cal is None:
-            raise CalibrationError(f"{self.source}: no `pressure.{side}` in this calibration")
-        if cal.serial != serial:
-            raise CalibrationError(
-                f"{self.source}: made for {side} pressure bridge {cal.serial!r} (rig"
-                f" {self.rig!r}, {self.date}), but bridge {serial!r} is plugged in: its zero"
-                " is not this one's; calibrate this rig (launch.py calibrate) or give its own"
-                " file"
-            )
+        self._check(
+            "pressure", side, "pressure bridge", None if cal is None else cal.serial, serial
+        )
+        assert cal is not None
         return cal
+
+    def _check(self, section: str, side: str, what: str, made_for: str | None, here: str) -> None:
+        if made_for is None:
+            raise CalibrationError(f"{self.source}: no `{section}.{side}` in this calibration")
+        if made_for != here:
+            raise CalibrationError(
+                f"{self.source}: made for {side} {what} {made_for!r} (rig {self.rig!r},"
+                f" {self.date}), but {what} {here!r} is plugged in: what was measured on"
+                " one device says nothing about another; calibrate this rig (launch.py"
+                " calibrate) or give its own file"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         return {
