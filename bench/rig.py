@@ -191,7 +191,7 @@ def run(quick: bool) -> list[Row]:
                 bridges={s: rig.pressure[s].serial for s in SIDES},
                 cameras={s: rig.cameras[s].camera_id for s in SIDES},
                 address=lab.wsg50_address,
-                use_case="MODE_9_15FPS_700",
+                use_case="MODE_9_5FPS_2000",
             )
             try:
                 plan = Plan(

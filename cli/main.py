@@ -236,7 +236,11 @@ def _calibrate(commands: Commands) -> None:
         parser.add_argument(
             f"--{side}-bridge", default="", metavar="SERIAL", help=f"the {side} bridge's serial"
         )
-    parser.add_argument("--use-case", default="MODE_9_15FPS_700", help="the cameras' use case")
+    parser.add_argument(
+        "--use-case",
+        default="MODE_9_5FPS_2000",
+        help="the cameras' use case (the longest exposure: the least noise)",
+    )
     parser.add_argument(
         "--radius-mm", type=float, default=30.0, help="the calibration cylinder's radius"
     )

@@ -63,6 +63,7 @@ class Plan:
     points_per_grasp: int = 600
     free_points: int = 1500
     seed: int = 0
+    motion_timeout_secs: float = 30.0
 
 
 def pressure_zero(readings_pa: Sequence[float], resolution_pa: float) -> tuple[float, float, float]:
@@ -131,11 +132,14 @@ def contact_points(
     return _subsample(pts[np.isfinite(pts).all(axis=1)].astype(np.float64), n, rng)
 
 
-def mean_depth(
-    frames: queue.Queue[Any], count: int, *, after_nanos: int = 0, timeout_secs: float = 10.0
+def fresh_depths(
+    frames: queue.Queue[Any], count: int, *, timeout_secs: float = 10.0
 ) -> list[np.ndarray]:
-    """``count`` depth images from a camera's frame queue, stamped after ``after_nanos``."""
+    """``count`` depth images from a camera's frame queue, taken from now on: what was
+    queued is dropped, and so is the next frame (it may have been exposed before now)."""
+    after_nanos = _drain(frames)
     out: list[np.ndarray] = []
+    skip = 1
     end = time.monotonic() + timeout_secs
     while len(out) < count:
         try:
@@ -144,17 +148,23 @@ def mean_depth(
             raise TimeoutError(
                 f"calibration: {len(out)} of {count} frames in {timeout_secs} s"
             ) from err
-        if frame.stamp_nanos > after_nanos:
-            out.append(frame.depth_m)
+        if frame.stamp_nanos <= after_nanos:
+            continue
+        if skip:
+            skip -= 1
+            continue
+        out.append(frame.depth_m)
     return out
 
 
-def _drain(frames: queue.Queue[Any]) -> None:
+def _drain(frames: queue.Queue[Any]) -> int:
+    """Empty the queue; the newest stamp it held (0 when empty)."""
+    newest = 0
     while True:
         try:
-            frames.get_nowait()
+            newest = max(newest, frames.get_nowait().stamp_nanos)
         except queue.Empty:
-            return
+            return newest
 
 
 def calibrate(
@@ -194,15 +204,14 @@ def calibrate(
 
     say("2/4 free bubble: inflated, gripper open, nothing touching")
     lab.place(None)
-    gripper.move(0.11, 0.1).wait(10.0)
+    gripper.move(0.11, 0.1).wait(plan.motion_timeout_secs)
     time.sleep(0.3)
     free_depth: dict[str, np.ndarray] = {}
     stats: dict[str, dict[str, float]] = {}
     lenses: dict[str, PinholeCamera] = {}
     for side in SIDES:
         cam = cameras[side]
-        _drain(cam.frames)
-        depths = mean_depth(cam.frames, plan.free_frames)
+        depths = fresh_depths(cam.frames, plan.free_frames, timeout_secs=60.0)
         free_depth[side], stats[side] = reference_stats(depths)
         k = cam.intrinsics
         h, w = depths[0].shape
@@ -229,14 +238,12 @@ def calibrate(
     for k, (pose, force_n) in enumerate(plan.poses):
         lab.place(pose)
         gripper.set_force_limit(force_n)
-        gripper.grasp(0.0, 0.1).wait(10.0)
+        gripper.grasp(0.0, 0.1).wait(plan.motion_timeout_secs)
         time.sleep(0.2)
-        settled = time.time_ns()
         width = gripper.opening_m()
         points = {}
         for side in SIDES:
-            _drain(cameras[side].frames)
-            depths = mean_depth(cameras[side].frames, plan.grasp_frames, after_nanos=settled)
+            depths = fresh_depths(cameras[side].frames, plan.grasp_frames, timeout_secs=30.0)
             points[side] = contact_points(
                 nanmean(np.stack(depths)),
                 free_depth[side],
@@ -250,7 +257,7 @@ def calibrate(
             f"    grasp {k + 1}: {force_n:.0f} N, opening {width * 1000:.1f} mm, contact points"
             f" {len(points['left'])}/{len(points['right'])}"
         )
-        gripper.release(0.11, 0.1).wait(10.0)
+        gripper.release(0.11, 0.1).wait(plan.motion_timeout_secs)
     lab.place(None)
     free = {s: free_points(free_depth[s], lenses[s], plan.free_points, rng) for s in SIDES}
     solution = solve_mounts(free, grasps, plan.radius_m)
