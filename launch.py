@@ -81,6 +81,14 @@ def run_parser() -> argparse.ArgumentParser:
 
 def run_main(argv: list[str]) -> int:
     args = run_parser().parse_args(argv)
+    if args.view == "spawn" and not args.check:
+        from viz.display import NoDisplay, require_display
+
+        try:
+            require_display("use `--view FILE.rrd` (saved here) or `--view foxglove`")
+        except NoDisplay as err:
+            print(f"launch.py --view: {err}", file=sys.stderr)
+            return 2
     import nodes  # noqa: F401 - the index of node implementations (no node module)
     from messages.errors import GraphError
     from runtime import graph as graphs

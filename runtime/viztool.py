@@ -12,9 +12,11 @@ The command-line layer of ``viz``: it reads bags (through ``runtime.bag``'s read
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections import Counter
 from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -54,22 +56,45 @@ def bag_messages(path: Path, skipped: Decoded) -> Iterator[tuple[str, int, Messa
             yield msg.topic, msg.log_time_nanos, decoded
 
 
+@contextmanager
+def ends_at_once_when_interrupted() -> Iterator[None]:
+    """Ctrl-C or SIGTERM (raised as ``SystemExit``) inside: the process ends at once, with
+    its exit code. Rerun's stream to a viewer that takes nothing waits 5 s when dropped,
+    and its exit handler waits again."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        code: object = 130
+    except SystemExit as stop:
+        code = stop.code
+    else:
+        return
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code if isinstance(code, int) else 1)
+
+
 def view_bag(path: Path, out: Path | None, *, object_name: str = "") -> Counter[str]:
     """Log a bag into Rerun: into ``out`` (.rrd) or a spawned viewer. Returns counts per type."""
     import rerun as rr
 
-    from viz.rerun_log import RerunLogger, spawn_viewer
+    from viz.rerun_log import RerunLogger, flush, spawn_viewer
 
     rec = rr.RecordingStream("softbubble", recording_id=path.stem)
     if out is not None:
         rec.save(out)
     else:
-        spawn_viewer(rec)
+        spawn_viewer(
+            rec,
+            instead=f"save a file with `bag view {path} --out FILE.rrd` (open it with "
+            f"`rerun FILE.rrd` where there is one), or `bag export {path} --foxglove OUT.mcap`",
+        )
     logger = RerunLogger(rec, object_name=object_name)
     skipped = Decoded(Counter())
-    for topic, _, msg in bag_messages(path, skipped):
-        logger.log(topic, msg)
-    rec.flush()
+    with ends_at_once_when_interrupted():
+        for topic, _, msg in bag_messages(path, skipped):
+            logger.log(topic, msg)
+        flush(rec)
     rec.disconnect()
     skipped.report(path)
     return logger.logged
