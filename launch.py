@@ -167,10 +167,6 @@ def nodes_main(argv: list[str]) -> int:
 
 
 def bag_main(argv: list[str]) -> int:
-    if argv[:1] in (["view"], ["export"], ["video"]):
-        from runtime.viztool import main as viz_main
-
-        return viz_main(argv[0], argv[1:])
     from runtime.bagtool import main as bag_tool
 
     return bag_tool(argv)

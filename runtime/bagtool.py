@@ -1,5 +1,5 @@
 """The bag command line: ``bag info|echo|diff|recover`` (see docs/bags.md; ``launch.py
-replay`` is :mod:`runtime.replaytool`).
+replay`` is :mod:`runtime.replaytool`; ``bag view|export|video`` :mod:`runtime.viztool`).
 
 python launch.py bag info FILE [--graph]
 python launch.py bag recover FILE OUT
@@ -343,8 +343,13 @@ def diff_bags(
 
 
 def main(argv: Sequence[str]) -> int:
-    """``launch.py bag info|echo|diff ...`` (exit code: 0 ok, 1 differences, 2 error)."""
-    parser = argparse.ArgumentParser(prog="python launch.py bag", description="Inspect MCAP bags.")
+    """``launch.py bag COMMAND ...`` (exit code: 0 ok, 1 differences, 2 error); ``view``,
+    ``export`` and ``video`` are :mod:`runtime.viztool`'s."""
+    from runtime import viztool
+
+    parser = argparse.ArgumentParser(
+        prog="python launch.py bag", description="Inspect, look at and convert MCAP bags."
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     p_info = sub.add_parser("info", help="topics, types, counts, rates, duration, drops, graph")
     p_info.add_argument("file", type=Path)
@@ -373,7 +378,11 @@ def main(argv: Sequence[str]) -> int:
     p_diff.add_argument(
         "--strict", action="store_true", help="stop at a message that cannot be decoded"
     )
+    for name, summary in viztool.VIEWS.items():
+        viztool.add_arguments(sub.add_parser(name, help=summary, description=summary), name)
     args = parser.parse_args(list(argv))
+    if args.command in viztool.VIEWS:
+        return viztool.run(args.command, args)
     try:
         if args.command == "info":
             print(info_text(args.file, show_graph=args.graph))
