@@ -183,7 +183,7 @@ def test_replay_in_a_fresh_process_knows_the_registered_implementations(tmp_path
     import subprocess
     import sys
 
-    bag = make_bag(tmp_path / "a.mcap")
+    bag = make_bag(tmp_path / "a.mcap", topics=("contact_patch/patch",))
     root = Path(launch.__file__).parent
     command = [sys.executable, str(root / "launch.py"), "replay", str(bag)]
     command += ["--graph", str(root / "graph.yaml"), "--swap", "pose=pose_estimator.lm"]
