@@ -115,7 +115,7 @@ import rerun as rr
 import launch  # its Ctrl-C and SIGTERM handlers
 signal.signal(signal.SIGINT, launch._interrupted)
 signal.signal(signal.SIGTERM, launch._interrupted)
-from runtime.viztool import ends_at_once_when_interrupted
+from cli.bagview import ends_at_once_when_interrupted
 from viz.rerun_log import flush
 rec = rr.RecordingStream("t")
 rec.connect_grpc("rerun+http://127.0.0.1:9/proxy")  # nothing listens there

@@ -1,4 +1,4 @@
-"""``launch.py bag view|export|video``; the ``--view`` option is ``runtime.taps``.
+"""``launch.py bag view|export|video``; the ``--view`` option is ``cli.taps``.
 
     python launch.py bag view run.mcap [--out run.rrd]        # Rerun viewer, or a file
     python launch.py bag export run.mcap --foxglove out.mcap  # Foxglove's schemas
@@ -207,30 +207,9 @@ def video_bag(
     return frames, size
 
 
-VIEWS = {
-    "view": "log a bag into the Rerun viewer, or an .rrd file (docs/viewing.md)",
-    "export": "write a bag in Foxglove's schemas (docs/viewing.md)",
-    "video": "render a bag's cameras as an MP4 mosaic, and PNG stills (docs/viewing.md)",
-}
-
-
-def add_arguments(parser: argparse.ArgumentParser, command: str) -> None:
-    """The arguments of ``bag view|export|video``."""
-    parser.add_argument("file", type=Path, help="the bag (MCAP)")
-    parser.add_argument("--object", default="", help="object drawn under the estimated pose")
-    if command == "view":
-        parser.add_argument("--out", type=Path, default=None, metavar="FILE.rrd")
-    elif command == "export":
-        parser.add_argument("--foxglove", type=Path, required=True, metavar="OUT.mcap")
-    else:
-        parser.add_argument("--out", type=Path, required=True, metavar="FILE.mp4")
-        parser.add_argument("--fps", type=float, default=0.0, help="0: the cameras' rate")
-        parser.add_argument("--scale", type=int, default=2)
-        parser.add_argument("--stills", type=Path, default=None, metavar="DIR")
-
-
-def run(command: str, args: argparse.Namespace) -> int:
+def main(args: argparse.Namespace) -> int:
     """``launch.py bag view|export|video ARGS`` (exit code 0, or 2 on a bad bag)."""
+    command = args.bag_command
     try:
         if command == "view":
             counts = view_bag(args.file, args.out, object_name=args.object)
