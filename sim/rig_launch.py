@@ -34,7 +34,7 @@ from sim.emulated_rig import NOMINAL, SESSION_ENV, AsBuiltRig, forget_session, l
 
 ROYALE_STANDIN = Path(__file__).resolve().parent / "royale_sdk"
 USB_BACKEND = "sim.emulated_rig:usb_backend"
-DEFAULT_SCENE = "scenes/rig_handover.yaml"
+DEFAULT_SCENE = str(Path(__file__).resolve().parent.parent / "scenes" / "rig_handover.yaml")
 WORLD = "rig_world"
 DEVICE_IMPLS = ("gripper.wsg50", "bubble_camera.royale", "pressure.usb")
 
