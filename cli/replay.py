@@ -35,6 +35,8 @@ def _pairs(values: Sequence[str], flag: str, *, allow_bare: bool = False) -> dic
 
 def main(args: argparse.Namespace) -> int:
     """``launch.py replay ...``: build the replay graph and run it (exit code)."""
+    import nodes  # noqa: F401 - the index of node implementations (no node module)
+
     try:
         if args.graph is not None:
             from runtime.graph import load_document
