@@ -175,3 +175,20 @@ def test_every_error_names_the_file_the_node_and_the_field(
         assert line.startswith(f"{path}: node '"), line
         node_and_field = line.split(": ")[1]
         assert "'." in node_and_field or "unknown key" in line, line
+
+
+def test_replay_in_a_fresh_process_knows_the_registered_implementations(tmp_path: Path) -> None:
+    """A fresh ``launch.py replay`` resolves registered names (it imports the node index
+    itself, as ``run`` does; in-process tests above import it through the suite)."""
+    import subprocess
+    import sys
+
+    bag = make_bag(tmp_path / "a.mcap", topics=("contact_patch/patch",))
+    root = Path(launch.__file__).parent
+    command = [sys.executable, str(root / "launch.py"), "replay", str(bag)]
+    command += ["--graph", str(root / "graph.yaml"), "--swap", "pose=pose_estimator.lm"]
+    done = subprocess.run(
+        [*command, "--print-graph"], capture_output=True, text=True, timeout=120, cwd=root
+    )
+    assert done.returncode == 0, done.stderr
+    assert "pose_estimator.lm" in done.stdout
