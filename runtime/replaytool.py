@@ -30,6 +30,7 @@ import yaml
 from messages.errors import BagError, GraphError
 from runtime.bag import BagReader, topic_filter
 from runtime.cli import add_deprecated, add_run_options, shared_command_line
+from runtime.graphfile import load_document, parse_yaml
 from runtime.hosts import without_hosts
 
 log = logging.getLogger(__name__)
@@ -245,8 +246,6 @@ def replay_main(argv: Sequence[str]) -> int:
     args = parser.parse_args(list(argv))
     try:
         if args.graph is not None:
-            from runtime.graph import load_document
-
             graph = load_document(args.graph)
         else:
             with BagReader(args.bag) as reader:
@@ -254,7 +253,7 @@ def replay_main(argv: Sequence[str]) -> int:
             if not text:
                 print(f"{args.bag}: the bag stores no graph; pass --graph", file=sys.stderr)
                 return 2
-            graph = yaml.safe_load(text)
+            graph = parse_yaml(text, f"{args.bag}: the stored graph")
         if args.no_hosts:
             if args.host is not None:
                 raise GraphError("--no-hosts and --host: give one of them")
