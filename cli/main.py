@@ -33,7 +33,7 @@ if TYPE_CHECKING:
 
 BAG_VIEW = {
     "view": "log a bag to the Rerun viewer, or to an .rrd file (docs/viewing.md)",
-    "export": "write a bag's messages in Foxglove's schemas (docs/viewing.md)",
+    "export": "write a bag for Foxglove, or as a ROS 2 bag (docs/viewing.md)",
     "video": "a video (and stills) of a bag's cameras, overlays and task (docs/viewing.md)",
 }
 
@@ -153,7 +153,14 @@ def _bag_view(bag_commands: Commands) -> None:
         if command == "view":
             parser.add_argument("--out", type=Path, default=None, metavar="FILE.rrd")
         elif command == "export":
-            parser.add_argument("--foxglove", type=Path, required=True, metavar="OUT.mcap")
+            to = parser.add_mutually_exclusive_group(required=True)
+            to.add_argument("--foxglove", type=Path, metavar="OUT.mcap", help="Foxglove's schemas")
+            to.add_argument(
+                "--ros2",
+                type=Path,
+                metavar="OUT_DIR",
+                help="a ROS 2 bag (MCAP, CDR): standard messages, and the project's own",
+            )
         else:
             parser.add_argument("--out", type=Path, required=True, metavar="FILE.mp4")
             parser.add_argument("--fps", type=float, default=0.0, help="0: the cameras' rate")

@@ -8,9 +8,6 @@ viewer node and the bag commands see the same messages.
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -53,19 +50,6 @@ ENTITY_OF = {
     "TaskEvent": "/events/task",
 }
 NOT_DRAWN = {"WorldState", "GripperCommand"}
-
-
-@pytest.fixture(scope="module")
-def run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    tmp = tmp_path_factory.mktemp("viz")
-    bag, live = tmp / "run.mcap", tmp / "live.rrd"
-    cmd = [sys.executable, "launch.py", "graph.yaml", "--record", str(bag), "--view", str(live)]
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.run(
-        [*cmd, "--duration", "20"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=180
-    )
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    return bag, live
 
 
 def rrd_rows(path: Path) -> Counter[str]:
