@@ -8,11 +8,13 @@ python launch.py nodes [IMPL]                list implementations, or one's port
 python launch.py bag info|echo|diff ...      inspect bags (see docs/bags.md)
 python launch.py bag view|export|video ...   look at bags (see docs/viewing.md)
 python launch.py replay BAG [--swap NODE[=IMPL] ...] [...]
+python launch.py topic list|echo|hz|nodes ...  look into a running graph (docs/runtime.md)
 python launch.py keys make HOST | list [--keys DIR]   CURVE keys of hosts (docs/hosts.md)
 
 ``run`` is the default command: ``launch.py GRAPH ...`` is ``launch.py run GRAPH ...``.
 The tree is declared here, whole; each command's work is its module's ``main(args)``
-(``cli.run``, ``cli.nodes``, ``cli.bag``, ``cli.bagview``, ``cli.replay``, ``cli.keys``),
+(``cli.run``, ``cli.nodes``, ``cli.bag``, ``cli.bagview``, ``cli.replay``, ``cli.topic``,
+``cli.keys``),
 imported when that command runs: ``--help`` imports neither numpy nor ZeroMQ, ``bag
 info`` no node module, ``--check`` only those the graph names (docs/runtime.md).
 """
@@ -26,7 +28,13 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from cli.options import add_deprecated, add_keys_option, add_run_options, shared_command_line
+from cli.options import (
+    add_deprecated,
+    add_keys_option,
+    add_run_options,
+    positive_secs,
+    shared_command_line,
+)
 
 if TYPE_CHECKING:
     Commands = argparse._SubParsersAction[argparse.ArgumentParser]  # add_subparsers' result
@@ -47,7 +55,7 @@ def parser() -> tuple[argparse.ArgumentParser, list[str]]:
         epilog="`python launch.py GRAPH ...` runs a graph (`run` is the default command).",
     )
     commands = top.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for add in (_run, _nodes, _bag, _replay, _keys):
+    for add in (_run, _nodes, _bag, _replay, _topic, _keys):
         add(commands)
     return top, list(commands.choices)
 
@@ -205,6 +213,36 @@ def _replay(commands: Commands) -> None:
     add_deprecated(parser, "--replace", "--swap", "swaps", append=True)
     add_deprecated(parser, "--topics", "--replay-topics", "replay_topics")
     parser.set_defaults(handler="cli.replay")
+
+
+def _topic(commands: Commands) -> None:
+    """``topic list|echo|hz|nodes`` (``cli.topic``): look into a running graph."""
+    parser = commands.add_parser(
+        "topic",
+        help="a running graph: its topics, their messages and rates, its nodes (docs/runtime.md)",
+        description="Look into a running graph, read-only: its topics, a topic's messages "
+        "and rate, its nodes.",
+    )
+    sub = parser.add_subparsers(dest="topic_command", metavar="COMMAND", required=True)
+    run_help = "a run folder, launcher PID or graph name (default: the only running graph)"
+    made = {
+        "list": sub.add_parser("list", help="topics: type, rate, publisher, subscribers"),
+        "echo": sub.add_parser("echo", help="print a topic's messages as `bag echo` does"),
+        "hz": sub.add_parser("hz", help="a topic's rate, once a second"),
+        "nodes": sub.add_parser("nodes", help="nodes: state, restarts, CPU seconds, drops"),
+    }
+    for name, each in made.items():
+        each.add_argument("--run", default=None, metavar="RUN", help=run_help)
+        if name in ("echo", "hz"):
+            each.add_argument("topic", help="node/output, as `topic list` names it")
+        each.set_defaults(handler="cli.topic")
+    made["echo"].add_argument("--limit", type=int, default=None, help="stop after N messages")
+    made["echo"].add_argument("--full", action="store_true", help="print arrays in full")
+    made["echo"].add_argument(
+        "--timeout", type=float, default=10.0, metavar="SECS", help="stop after SECS without one"
+    )
+    made["hz"].add_argument("--secs", type=positive_secs, default=None, help="stop after SECS")
+    made["hz"].add_argument("--window", type=int, default=1000, help="periods in the window")
 
 
 def _keys(commands: Commands) -> None:
