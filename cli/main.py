@@ -233,6 +233,13 @@ def _topic(commands: Commands) -> None:
     }
     for name, each in made.items():
         each.add_argument("--run", default=None, metavar="RUN", help=run_help)
+        each.add_argument(
+            "--wait",
+            type=float,
+            default=0.0,
+            metavar="SECS",
+            help="wait up to SECS for the graph to be running (default: not at all)",
+        )
         if name in ("echo", "hz"):
             each.add_argument("topic", help="node/output, as `topic list` names it")
         each.set_defaults(handler="cli.topic")
@@ -240,6 +247,18 @@ def _topic(commands: Commands) -> None:
     made["echo"].add_argument("--full", action="store_true", help="print arrays in full")
     made["echo"].add_argument(
         "--timeout", type=float, default=10.0, metavar="SECS", help="stop after SECS without one"
+    )
+    pace = made["echo"].add_mutually_exclusive_group()
+    pace.add_argument(
+        "--max-hz",
+        type=float,
+        default=10.0,
+        metavar="HZ",
+        help="print a fresh message at most HZ times a second (default 10; between them the "
+        "publisher sends this client nothing)",
+    )
+    pace.add_argument(
+        "--every", action="store_true", help="print every message (costs a copy of each)"
     )
     made["hz"].add_argument("--secs", type=positive_secs, default=None, help="stop after SECS")
     made["hz"].add_argument("--window", type=int, default=1000, help="periods in the window")

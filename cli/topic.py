@@ -1,7 +1,7 @@
 """``launch.py topic list|echo|hz|nodes``: look into a running graph, read-only.
 
     python launch.py topic list [--run RUN]            topics: type, rate, publisher, subscribers
-    python launch.py topic echo TOPIC [--run RUN] [--limit N] [--full]
+    python launch.py topic echo TOPIC [--run RUN] [--limit N] [--full] [--max-hz HZ | --every]
     python launch.py topic hz TOPIC [--run RUN] [--secs S] [--window N]
     python launch.py topic nodes [--run RUN]           nodes: state, restarts, CPU, drops
 
@@ -57,13 +57,28 @@ def tap(run: Run, topic: str) -> Tap:
     return Tap(run.endpoint(topic), topic, others=run.status.get("topics", {}))
 
 
-def echo(run: Run, topic: str, *, limit: int | None, full: bool, timeout_secs: float) -> int:
-    """Print each message of ``topic`` as ``bag echo`` does; returns how many."""
+def echo(
+    run: Run,
+    topic: str,
+    *,
+    limit: int | None,
+    full: bool,
+    timeout_secs: float,
+    max_hz: float | None,
+) -> int:
+    """Print messages of ``topic`` as ``bag echo`` does: every one (``max_hz`` None), or a
+    fresh one at most ``max_hz`` times a second; returns how many."""
     shown = 0
     type_name = run.status["topics"][topic]["type"]
+    due = time.monotonic()
     with tap(run, topic) as source:
         while limit is None or shown < limit:
-            frames = source.receive(timeout_secs)
+            if max_hz is None:
+                frames = source.receive(timeout_secs)
+            else:
+                time.sleep(max(0.0, due - time.monotonic()))
+                due = time.monotonic() + 1.0 / max_hz
+                frames = source.sample(timeout_secs)
             if frames is None:
                 break
             try:
@@ -116,7 +131,7 @@ def _rate_line(topic: str, summary: dict[str, float] | None, count: int) -> str:
 def main(args: argparse.Namespace) -> int:
     """``launch.py topic COMMAND ...``: 0, or 1 when echo/hz saw nothing, 2 on an error."""
     try:
-        run = pick_run(args.run)
+        run = pick_run(args.run, wait_secs=args.wait)
         if args.topic_command == "list":
             print(list_text(run))
         elif args.topic_command == "nodes":
@@ -124,7 +139,12 @@ def main(args: argparse.Namespace) -> int:
         elif args.topic_command == "echo":
             run.endpoint(args.topic)
             shown = echo(
-                run, args.topic, limit=args.limit, full=args.full, timeout_secs=args.timeout
+                run,
+                args.topic,
+                limit=args.limit,
+                full=args.full,
+                timeout_secs=args.timeout,
+                max_hz=None if args.every else args.max_hz,
             )
             return 0 if shown else 1
         else:

@@ -132,13 +132,26 @@ def find_runs() -> list[Run]:
     return sorted(runs, key=lambda r: -float(r.status.get("written_unix", 0)))
 
 
-def pick_run(which: str | None) -> Run:
+def pick_run(which: str | None, *, wait_secs: float = 0.0) -> Run:
     """The run named by ``which``: a run folder, a launcher PID or a graph name (the graph
-    file's stem, ``graph`` for graph.yaml); None: the only running graph.
+    file's stem, ``graph`` for graph.yaml); None: the only running graph. ``wait_secs``:
+    how long to wait for it to be running.
 
     Raises:
-        GraphError: no such run, or several and ``which`` does not choose one.
+        GraphError: no such run (after ``wait_secs``), or several and ``which`` does not
+            choose one.
     """
+    end = time.monotonic() + wait_secs
+    while True:
+        try:
+            return _pick(which)
+        except GraphError:
+            if time.monotonic() >= end:
+                raise
+            time.sleep(0.1)
+
+
+def _pick(which: str | None) -> Run:
     if which and Path(which).is_dir():
         run = read(Path(which))
         if run is None:

@@ -27,6 +27,16 @@ def wait_for_run(pid: int, timeout: float = 60.0) -> None:
     raise AssertionError(f"launcher {pid} wrote no status within {timeout} s")
 
 
+def echoed_seqs(out: str) -> list[int]:
+    """The seq of each message ``topic echo`` printed; checks what it printed of each."""
+    lines = out.splitlines()
+    heads = [line for line in lines if line.startswith("--- src/tick #")]
+    assert heads and all(" Tick seq " in h for h in heads), out
+    assert sum(line.startswith("value: ") for line in lines) == len(heads)
+    assert sum(line.startswith("header: {'stamp_nanos': ") for line in lines) == len(heads)
+    return [int(h.split(" seq ")[1].split()[0]) for h in heads]
+
+
 def table_rate(log: str, topic: str) -> float:
     match = re.search(rf"\[launch\] {re.escape(topic)}\s+(\d+)\s+([\d.]+)", log)
     assert match, log
@@ -65,14 +75,14 @@ def test_topic_tools_against_a_running_graph(
         last = capsys.readouterr().out.strip().splitlines()[-1]
         hz_rate = float(re.search(r"rate ([\d.]+) Hz", last).group(1))  # type: ignore[union-attr]
 
-        assert launch.main(["topic", "echo", "src/tick", "--run", run, "--limit", "3"]) == 0
-        echoed = capsys.readouterr().out.splitlines()
-        heads = [line for line in echoed if line.startswith("--- src/tick #")]
-        assert len(heads) == 3 and all(" Tick seq " in h for h in heads)
-        seqs = [int(h.split(" seq ")[1].split()[0]) for h in heads]
-        assert seqs == list(range(seqs[0], seqs[0] + 3))
-        assert any(line.startswith("value: ") for line in echoed)
-        assert any(line.startswith("header: {'stamp_nanos': ") for line in echoed)
+        every = ["topic", "echo", "src/tick", "--run", run, "--limit", "3", "--every"]
+        assert launch.main(every) == 0
+        seqs = echoed_seqs(capsys.readouterr().out)
+        assert seqs == list(range(seqs[0], seqs[0] + 3))  # every message, in order
+        sampled = ["topic", "echo", "src/tick", "--run", run, "--limit", "3", "--max-hz", "4"]
+        assert launch.main(sampled) == 0
+        seqs = echoed_seqs(capsys.readouterr().out)
+        assert all(b - a >= 3 for a, b in zip(seqs, seqs[1:], strict=False)), seqs  # 40/4 Hz
         log, _ = proc.communicate(timeout=90)
     finally:
         if proc.poll() is None:
