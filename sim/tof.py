@@ -25,6 +25,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from geometry.camera import PinholeCamera
 from geometry.se3 import invert
 from messages.base import Header
 from messages.types import MaskImage, ToFImage
@@ -79,21 +80,35 @@ class BubbleFrame:
 class BubbleRenderer:
     """Renders one bubble of one scene (see the module docstring)."""
 
-    def __init__(self, scene: Scene, side: str) -> None:
+    def __init__(
+        self,
+        scene: Scene,
+        side: str,
+        *,
+        finger_from_sensor: np.ndarray | None = None,
+        camera: PinholeCamera | None = None,
+    ) -> None:
+        """``finger_from_sensor`` and ``camera`` replace the scene's nominal camera mount
+        and intrinsics (an as-built rig's camera, ``sim.emulated_rig``)."""
         if side not in SIDE_INDEX:
             raise ValueError(f"`side` must be 'left' or 'right', got {side!r}")
         self.scene = scene
         self.side = side
         self.effects = camera_effects(scene.resolved_effects)
         self.calls: Counter[str] = Counter()
-        self.camera = scene.camera.intrinsics()
+        self.camera = camera if camera is not None else scene.camera.intrinsics()
         self.geometry = scene.gripper_geometry()
         self.model = scene.object_model()
         self.field = CulledField(self.model.field)
         self.bounds = self.field.bounds
         self.need_normals = "ir" in self.effects
         bubble = self.geometry.bubble
-        f_from_s = self.geometry.finger_from_sensor()
+        f_from_s = (
+            self.geometry.finger_from_sensor()
+            if finger_from_sensor is None
+            else np.asarray(finger_from_sensor, np.float64)
+        )
+        self.finger_from_sensor = f_from_s
         self._r_fs = f_from_s[:3, :3]
         self._o_f = f_from_s[:3, 3]
 
@@ -157,7 +172,7 @@ class BubbleRenderer:
         return BubbleFrame(self.side, frame, self.tool_from_sensor(snap.width_m))
 
     def tool_from_sensor(self, width_m: float) -> np.ndarray:
-        return self.geometry.tool_from_sensor(self.side, width_m)
+        return self.geometry.tool_from_finger(self.side, width_m) @ self.finger_from_sensor
 
     def _membrane(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
         # The membrane is a pure function of the object's pose and the opening: a held,
@@ -319,6 +334,7 @@ class BubbleRenderer:
             np.float32
         )
         frame["invalid"] = invalid
+        frame["noise_m"] = sigma.astype(np.float32)  # the range noise's sigma, per pixel
 
     def texture(self) -> tuple[np.ndarray, tuple[float, float]]:
         """The printed sheet's albedo raster (built on first use) and its size in mm."""

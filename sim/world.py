@@ -79,6 +79,7 @@ class World:
             else None
         )
         self._release_due = False
+        self.placed: np.ndarray | None = None  # see place()
 
     @property
     def done(self) -> bool:
@@ -93,6 +94,11 @@ class World:
         self.dynamics.command(
             command, width_m=width_m, speed_m_per_s=speed_m_per_s, force_n=force_n
         )
+
+    def place(self, tool_from_object: np.ndarray | None) -> None:
+        """Hold the object at a pose from the next step on (a hand placing it, as the
+        emulated lab of a calibration does); None: back to the scene's trajectory."""
+        self.placed = None if tool_from_object is None else np.array(tool_from_object, float)
 
     def contact(
         self,
@@ -139,7 +145,7 @@ class World:
         """Advance to the next frame and return its snapshot."""
         self.frame_index += 1
         t = self.frame_index * self.scene.frame_period_secs
-        pose = self.scene.tool_from_object(t)
+        pose = self.scene.tool_from_object(t) if self.placed is None else self.placed
         while (
             self._next_command < len(self._script)
             and self._script[self._next_command].t_secs <= t + 1e-9
