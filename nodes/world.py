@@ -14,7 +14,8 @@ Ports:
         the scene lists ``ground_truth``. ``placement`` (TaskEvent, task ``world``, event
         ``placed`` or ``dropped``, detail JSON: ``t_secs``, ``touch_secs``, ``gap_mm``,
         ``push_mm``, ``tilt_deg``): once, when the jaws open over a scene's ``support``
-        (``sim.support``): the stacking task's truth.
+        (``sim.support``): the stacking task's truth. ``wrench`` (WrenchTruth, source
+        ``sim``): each bubble's true contact wrench, when the scene lists ``wrench``.
 
 Only this node integrates anything (the jaws' motion, the contacts' anchors), so no two
 processes keep their own copy of the world. When the scene's trajectory ends it asks
@@ -29,12 +30,13 @@ from dataclasses import dataclass
 
 from messages.base import Header
 from messages.errors import NodeError
+from messages.force import WrenchTruth
 from messages.sim import WorldState
 from messages.types import GripperCommand, GroundTruth, TaskEvent
 from runtime.node import Node
 from runtime.params import ExistingFile
 from runtime.registry import register
-from sim import World, ground_truth, load_scene, stamp_of
+from sim import World, ground_truth, load_scene, stamp_of, wrench_truth
 from sim.effects import resolve
 from sim.scene import Scene, SceneError
 from sim.wire import apply_command, to_message
@@ -90,7 +92,12 @@ class WorldNode(Node):
     Params = WorldParams
     inputs = {"command": GripperCommand}
     optional_inputs = frozenset({"command"})
-    outputs = {"state": WorldState, "ground_truth": GroundTruth, "placement": TaskEvent}
+    outputs = {
+        "state": WorldState,
+        "ground_truth": GroundTruth,
+        "placement": TaskEvent,
+        "wrench": WrenchTruth,
+    }
 
     def setup(self) -> None:
         self.scene = self.params.load()
@@ -149,6 +156,8 @@ class WorldNode(Node):
                 snap, self.world.model.class_label, stamp, noise_seed=self.scene.seed
             )
             self.io.publish("ground_truth", truth)
+        if "wrench" in self.world.effects:
+            self.io.publish("wrench", wrench_truth(snap, stamp))
         self._publish_placement(stamp)
         if self.world.done:
             contact = (
