@@ -6,7 +6,7 @@ Three implementations run side by side, in the same run, alternating per repeat:
 
 ``runtime``  the real path: a graph of ``bench.image_source`` -> ``bench.image_sink``
              (``bench/nodes.py``) started by :class:`runtime.launcher.Launcher`;
-             each node is a ``runtime.process`` child (XPUB publisher, SUB input, poll
+             each node is a ``runtime.runner`` child (XPUB publisher, SUB input, poll
              loop, timers, the codec). tcp places both nodes on ``host: 127.0.0.1``.
 ``codec``    two bare processes with pyzmq PUB/SUB that encode and decode with
              ``messages.codec`` (no node runner): splits the runtime's cost between

@@ -3,7 +3,7 @@
 The node binds one XPUB (verbose, so it sees every subscription) and publishes the
 codec's multipart frames on it without copying the arrays; control messages to and
 from the launcher are signed with the run's secret (``runtime.protocol``). The loop
-that reads inputs and runs timers is :class:`runtime.process.Runner`'s.
+that reads inputs and runs timers is :class:`runtime.runner.Runner`'s.
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ contact mask (the contact-patch estimate filled, the simulator's true mask, publ
 best class with its probability.
 
 :class:`MosaicState` keeps the latest message of each kind; :meth:`MosaicState.render`
-draws it. ``runtime.viztool`` renders one frame per camera instant of a bag.
+draws it. ``cli.bagview`` renders one frame per camera instant of a bag.
 """
 
 from __future__ import annotations

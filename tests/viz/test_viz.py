@@ -24,6 +24,7 @@ from rerun.chunk import RrdReader
 
 import launch
 import nodes  # noqa: F401 - the index of node implementations
+from cli.taps import add_viewer
 from geometry.camera import PinholeCamera
 from geometry.objects import NAMES, make
 from messages.base import Header
@@ -31,7 +32,6 @@ from messages.errors import GraphError
 from messages.types import ContactPatch, GraspState, ToFImage
 from runtime.bag import BagReader, BagWriter
 from runtime.graph import check, load_document
-from runtime.taps import add_viewer
 from viz.foxglove_export import convert, to_json
 from viz.mosaic import BAR_PX, MosaicState, outline_px
 from viz.shapes import object_mesh

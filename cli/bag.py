@@ -1,5 +1,5 @@
 """The bag command line: ``bag info|echo|diff|recover`` (see docs/bags.md; ``launch.py
-replay`` is :mod:`runtime.replaytool`).
+replay`` is :mod:`runtime.replaygraph`).
 
 python launch.py bag info FILE [--graph]
 python launch.py bag recover FILE OUT
@@ -342,49 +342,19 @@ def diff_bags(
 # -- bag main ------------------------------------------------------------------------------------
 
 
-def main(argv: Sequence[str]) -> int:
-    """``launch.py bag info|echo|diff ...`` (exit code: 0 ok, 1 differences, 2 error)."""
-    parser = argparse.ArgumentParser(prog="python launch.py bag", description="Inspect MCAP bags.")
-    sub = parser.add_subparsers(dest="command", required=True)
-    p_info = sub.add_parser("info", help="topics, types, counts, rates, duration, drops, graph")
-    p_info.add_argument("file", type=Path)
-    p_info.add_argument("--graph", action="store_true", help="also print the stored graph")
-    p_echo = sub.add_parser("echo", help="print a topic's messages, arrays summarized")
-    p_echo.add_argument("file", type=Path)
-    p_echo.add_argument("--topic", required=True)
-    p_echo.add_argument("--limit", type=int, default=None)
-    p_echo.add_argument("--full", action="store_true", help="print arrays in full")
-    p_echo.add_argument(
-        "--strict", action="store_true", help="stop at a message that cannot be decoded"
-    )
-    p_recover = sub.add_parser("recover", help="rewrite a damaged or cut bag with a summary")
-    p_recover.add_argument("file", type=Path)
-    p_recover.add_argument("out", type=Path)
-    p_diff = sub.add_parser("diff", help="per-message differences; exit 0 only when none")
-    p_diff.add_argument("a", type=Path)
-    p_diff.add_argument("b", type=Path)
-    p_diff.add_argument("--topic", action="append", default=[], help="repeatable; default all")
-    p_diff.add_argument("--rtol", type=float, default=1e-9)
-    p_diff.add_argument("--atol", type=float, default=0.0)
-    p_diff.add_argument(
-        "--ignore", action="append", default=[], metavar="FIELD", help="e.g. header.stamp_nanos"
-    )
-    p_diff.add_argument("--max-lines", type=int, default=50)
-    p_diff.add_argument(
-        "--strict", action="store_true", help="stop at a message that cannot be decoded"
-    )
-    args = parser.parse_args(list(argv))
+def main(args: argparse.Namespace) -> int:
+    """``launch.py bag info|echo|diff|recover ...`` (exit code: 0 ok, 1 differences, 2 error)."""
     try:
-        if args.command == "info":
+        if args.bag_command == "info":
             print(info_text(args.file, show_graph=args.graph))
             return 0
-        if args.command == "recover":
+        if args.bag_command == "recover":
             copied, problems = recover(args.file, args.out)
             for problem in problems:
                 print(f"warning: {problem}", file=sys.stderr)
             print(f"{args.out}: {copied} message(s) recovered from {args.file}")
             return 0
-        if args.command == "echo":
+        if args.bag_command == "echo":
             skipped: list[str] = []
             lines = echo_lines(
                 args.file,
@@ -409,7 +379,7 @@ def main(argv: Sequence[str]) -> int:
             strict=args.strict,
         )
     except BagError as err:
-        print(f"bag {args.command}: {err}", file=sys.stderr)
+        print(f"bag {args.bag_command}: {err}", file=sys.stderr)
         return 2
     except BrokenPipeError:
         return 0
