@@ -149,8 +149,10 @@ def wrench_rows(cal_recs: list[Recorded], test_recs: list[Recorded], secs: dict[
     for setting in SETTINGS:
         data = []
         for rec in cal_recs:
-            frames = [dataclasses.replace(f, features=feats) for f, feats in zip(
-                rec.frames, rec.by_setting[setting], strict=True)]
+            frames = [
+                dataclasses.replace(f, features=feats)
+                for f, feats in zip(rec.frames, rec.by_setting[setting], strict=True)
+            ]
             data += samples(frames)
         cal = calibrate(data, rig="sim", source="bench.force")
         cals[setting] = cal
@@ -203,7 +205,12 @@ def slip_rows(test_recs: list[Recorded], cal: Calibration, period_secs: float) -
             stable = False
             for i, f in enumerate(rec.frames):
                 feats = f.features[side]
-                if not stable and feats.tracked and i > 0 and rec.frames[i - 1].features[side].tracked:
+                if (
+                    not stable
+                    and feats.tracked
+                    and i > 0
+                    and rec.frames[i - 1].features[side].tracked
+                ):
                     detector.reference()  # the tare and a frame more: the grasp is held
                     stable = True
                 w = estimate(feats, side, cal, "physics")
@@ -284,9 +291,7 @@ def closed_loop(seed: int, duration_secs: float, cal: Calibration, *, reflex: bo
             if reflex and report.onset:
                 force = grip.on_slip(snap.time_secs, load)
                 if force is not None:
-                    simulator.world.command(
-                        "grasp", width_m=0.0, speed_m_per_s=0.08, force_n=force
-                    )
+                    simulator.world.command("grasp", width_m=0.0, speed_m_per_s=0.08, force_n=force)
     slide = float(np.linalg.norm(simulator.world.snapshot.slide_m))
     return {
         "object": spec.object,
@@ -312,7 +317,9 @@ def reflex_rows(seeds: list[int], duration_secs: float, cal: Calibration) -> lis
                 "dropped": sum(not r["kept"] for r in runs),
                 "slide_mm_median": median([r["slide_mm"] for r in runs]),
                 "raises_median": median([float(r["raises"]) for r in runs]),
-                "objects": ",".join(f"{r['object']}:{'kept' if r['kept'] else 'dropped'}" for r in runs),
+                "objects": ",".join(
+                    f"{r['object']}:{'kept' if r['kept'] else 'dropped'}" for r in runs
+                ),
             }
         )
     return rows

@@ -73,7 +73,11 @@ class SlipNode(Node):
         report = detector.update(features_of(msg), msg.force_n, stamp / 1e9)
         if report.onset:
             self.io.log.info(
-                "%s: %s bubble slips (%s; use %.2f)", self.name, msg.sensor, report.onset, report.use
+                "%s: %s bubble slips (%s; use %.2f)",
+                self.name,
+                msg.sensor,
+                report.onset,
+                report.use,
             )
         self.io.publish(
             "slip",

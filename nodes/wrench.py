@@ -6,7 +6,8 @@ Ports:
         (GripperState).
     outputs: ``wrench`` (messages.force.WrenchEstimate: per bubble and on the object,
         tool frame, N and N m, with one-sigma uncertainties), once per pair of frames
-        of one instant (stamps within ``max_skew_secs``), or per frame with one bubble;
+        of one instant (stamps within ``max_skew_secs``), or per frame with one bubble
+        (from its third frame with none of the other's);
         ``contact`` (messages.force.BubbleContact: what each bubble measured, for the
         ``slip`` node), one per frame.
 
@@ -40,6 +41,7 @@ from runtime.params import ExistingFile
 from runtime.registry import register
 
 DEFAULT_CALIBRATION = "models/force/sim.json"
+SINGLE_AFTER_FRAMES = 3  # frames of one bubble with none of the other: a one-bubble graph
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -101,6 +103,7 @@ class WrenchNode(Node):
         # The gripper at each stamp: "free" (open and still), "holding", or "" (else).
         self.gripper = StampedHistory("", 64)
         self.latest: dict[str, tuple[int, ContactFeatures, BubbleWrench]] = {}
+        self.frames = dict.fromkeys(SIDES, 0)
         self.warned: set[str] = set()
 
     def on_left_pressure(self, msg: Pressure) -> None:
@@ -153,11 +156,13 @@ class WrenchNode(Node):
         wrench = estimate(features, side, self.calibration, self.params.method)
         self.latest[side] = (stamp, features, wrench)
         self.io.publish("contact", _contact(side, msg.header, features, wrench))
+        self.frames[side] += 1
         other = "right" if side == "left" else "left"
         if other in self.latest:
-            skew = abs(self.latest[other][0] - stamp) / 1e9
-            if skew > self.params.max_skew_secs:
+            if abs(self.latest[other][0] - stamp) / 1e9 > self.params.max_skew_secs:
                 return
+        elif self.frames[side] < SINGLE_AFTER_FRAMES:
+            return  # the other bubble's first frame may still be on its way
         self.io.publish("wrench", self._estimate(stamp))
 
     def _estimate(self, stamp: int) -> WrenchEstimate:
@@ -207,4 +212,3 @@ def _contact(side: str, header: Header, f: ContactFeatures, w: BubbleWrench) -> 
         patch_px=int(f.patch_px),
         force_n=np.asarray(w.force_n, np.float64),
     )
-

@@ -33,13 +33,11 @@ def fill_frames() -> list[sim.Instant]:
 def drive_wrench(frames: list[sim.Instant]) -> tuple[WrenchNode, object]:
     node, io = make_node(WrenchNode, {})
     for inst in frames:
-        stamp = inst.stamp_nanos
         feed(node, "gripper", inst.gripper)
         for side in ("left", "right"):
             feed(node, f"{side}_pressure", inst.pressures[side])
         for side in ("left", "right"):
             feed(node, side, inst.images[side])
-        assert stamp
     return node, io
 
 
@@ -67,7 +65,9 @@ def test_slip_node_reports_an_onset_once_the_patch_slips(fill_frames: list[sim.I
     _, wio = drive_wrench(fill_frames)
     node, io = make_node(SlipNode, {})
     stable_at = next(i for i in fill_frames if i.snapshot.time_secs >= 0.9).stamp_nanos
-    feed(node, "grasp", GraspState(header=Header(stamp_nanos=stable_at), stable=True, event="stable"))
+    feed(
+        node, "grasp", GraspState(header=Header(stamp_nanos=stable_at), stable=True, event="stable")
+    )
     for msg in wio.published["contact"]:
         if msg.header.stamp_nanos >= stable_at:
             feed(node, "contact", msg)
@@ -75,7 +75,9 @@ def test_slip_node_reports_an_onset_once_the_patch_slips(fill_frames: list[sim.I
     onsets = [(s.header.stamp_nanos, s.sensor, s.onset) for s in states if s.onset]
     assert onsets, "the filled mug slips"
     true_edge = next(
-        i.stamp_nanos for i in fill_frames if i.snapshot.wrench and i.snapshot.wrench["left"].slipping_fraction > 0
+        i.stamp_nanos
+        for i in fill_frames
+        if i.snapshot.wrench and i.snapshot.wrench["left"].slipping_fraction > 0
     )
     # Detected within half a second of the truth's first slipping point (either side).
     assert abs(onsets[0][0] - true_edge) / 1e9 < 0.5

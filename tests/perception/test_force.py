@@ -82,7 +82,9 @@ def test_calibration_file_round_trips_and_a_bad_one_names_the_file(tmp_path: Pat
     rng = np.random.default_rng(1)
     data = []
     for i in range(80):
-        f = features(area_m2=float(rng.uniform(0.001, 0.003)), shift_m=tuple(rng.uniform(-0.002, 0.002, 2)))
+        f = features(
+            area_m2=float(rng.uniform(0.001, 0.003)), shift_m=tuple(rng.uniform(-0.002, 0.002, 2))
+        )
         force = np.array([f.pressure_pa * f.area_m2, *(1e6 * f.area_m2 * f.shift_m)])
         data.append(Sample("left" if i % 2 else "right", f, force, np.zeros(3)))
     cal = calibrate(data, rig="test", source="synthetic")
