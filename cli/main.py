@@ -9,12 +9,14 @@ python launch.py nodes [IMPL]                list implementations, or one's port
 python launch.py bag info|echo|diff ...      inspect bags (see docs/bags.md)
 python launch.py bag view|export|video ...   look at bags (see docs/viewing.md)
 python launch.py replay BAG [--swap NODE[=IMPL] ...] [...]
+python launch.py topic list|echo|hz|nodes ...  look into a running graph (docs/runtime.md)
 python launch.py keys make HOST | list [--keys DIR]   CURVE keys of hosts (docs/hosts.md)
 python launch.py calibrate --out rigs/NAME.yaml [...]   calibrate a rig (docs/devices.md)
 
 ``run`` is the default command: ``launch.py GRAPH ...`` is ``launch.py run GRAPH ...``.
 The tree is declared here, whole; each command's work is its module's ``main(args)``
-(``cli.run``, ``cli.nodes``, ``cli.bag``, ``cli.bagview``, ``cli.replay``, ``cli.keys``),
+(``cli.run``, ``cli.nodes``, ``cli.bag``, ``cli.bagview``, ``cli.replay``, ``cli.topic``,
+``cli.keys``),
 imported when that command runs: ``--help`` imports neither numpy nor ZeroMQ, ``bag
 info`` no node module, ``--check`` only those the graph names (docs/runtime.md).
 """
@@ -28,14 +30,20 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from cli.options import add_deprecated, add_keys_option, add_run_options, shared_command_line
+from cli.options import (
+    add_deprecated,
+    add_keys_option,
+    add_run_options,
+    positive_secs,
+    shared_command_line,
+)
 
 if TYPE_CHECKING:
     Commands = argparse._SubParsersAction[argparse.ArgumentParser]  # add_subparsers' result
 
 BAG_VIEW = {
     "view": "log a bag to the Rerun viewer, or to an .rrd file (docs/viewing.md)",
-    "export": "write a bag's messages in Foxglove's schemas (docs/viewing.md)",
+    "export": "write a bag for Foxglove, or as a ROS 2 bag (docs/viewing.md)",
     "video": "a video (and stills) of a bag's cameras, overlays and task (docs/viewing.md)",
 }
 
@@ -49,7 +57,7 @@ def parser() -> tuple[argparse.ArgumentParser, list[str]]:
         epilog="`python launch.py GRAPH ...` runs a graph (`run` is the default command).",
     )
     commands = top.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for add in (_run, _nodes, _bag, _replay, _keys, _calibrate):
+    for add in (_run, _nodes, _bag, _replay, _topic, _keys, _calibrate):
         add(commands)
     return top, list(commands.choices)
 
@@ -156,7 +164,14 @@ def _bag_view(bag_commands: Commands) -> None:
         if command == "view":
             parser.add_argument("--out", type=Path, default=None, metavar="FILE.rrd")
         elif command == "export":
-            parser.add_argument("--foxglove", type=Path, required=True, metavar="OUT.mcap")
+            to = parser.add_mutually_exclusive_group(required=True)
+            to.add_argument("--foxglove", type=Path, metavar="OUT.mcap", help="Foxglove's schemas")
+            to.add_argument(
+                "--ros2",
+                type=Path,
+                metavar="OUT_DIR",
+                help="a ROS 2 bag (MCAP, CDR): standard messages, and the project's own",
+            )
         else:
             parser.add_argument("--out", type=Path, required=True, metavar="FILE.mp4")
             parser.add_argument("--fps", type=float, default=0.0, help="0: the cameras' rate")
@@ -201,6 +216,55 @@ def _replay(commands: Commands) -> None:
     add_deprecated(parser, "--replace", "--swap", "swaps", append=True)
     add_deprecated(parser, "--topics", "--replay-topics", "replay_topics")
     parser.set_defaults(handler="cli.replay")
+
+
+def _topic(commands: Commands) -> None:
+    """``topic list|echo|hz|nodes`` (``cli.topic``): look into a running graph."""
+    parser = commands.add_parser(
+        "topic",
+        help="a running graph: its topics, their messages and rates, its nodes (docs/runtime.md)",
+        description="Look into a running graph, read-only: its topics, a topic's messages "
+        "and rate, its nodes.",
+    )
+    sub = parser.add_subparsers(dest="topic_command", metavar="COMMAND", required=True)
+    run_help = "a run folder, launcher PID or graph name (default: the only running graph)"
+    made = {
+        "list": sub.add_parser("list", help="topics: type, rate, publisher, subscribers"),
+        "echo": sub.add_parser("echo", help="print a topic's messages as `bag echo` does"),
+        "hz": sub.add_parser("hz", help="a topic's rate, once a second"),
+        "nodes": sub.add_parser("nodes", help="nodes: state, restarts, CPU seconds, drops"),
+    }
+    for name, each in made.items():
+        each.add_argument("--run", default=None, metavar="RUN", help=run_help)
+        each.add_argument(
+            "--wait",
+            type=float,
+            default=0.0,
+            metavar="SECS",
+            help="wait up to SECS for the graph to be running (default: not at all)",
+        )
+        if name in ("echo", "hz"):
+            each.add_argument("topic", help="node/output, as `topic list` names it")
+        each.set_defaults(handler="cli.topic")
+    made["echo"].add_argument("--limit", type=int, default=None, help="stop after N messages")
+    made["echo"].add_argument("--full", action="store_true", help="print arrays in full")
+    made["echo"].add_argument(
+        "--timeout", type=float, default=10.0, metavar="SECS", help="stop after SECS without one"
+    )
+    pace = made["echo"].add_mutually_exclusive_group()
+    pace.add_argument(
+        "--max-hz",
+        type=float,
+        default=10.0,
+        metavar="HZ",
+        help="print a fresh message at most HZ times a second (default 10; between them the "
+        "publisher sends this client nothing)",
+    )
+    pace.add_argument(
+        "--every", action="store_true", help="print every message (costs a copy of each)"
+    )
+    made["hz"].add_argument("--secs", type=positive_secs, default=None, help="stop after SECS")
+    made["hz"].add_argument("--window", type=int, default=1000, help="periods in the window")
 
 
 def _keys(commands: Commands) -> None:

@@ -14,7 +14,8 @@ Ports:
         the scene lists ``ground_truth``. ``placement`` (TaskEvent, task ``world``, event
         ``placed`` or ``dropped``, detail JSON: ``t_secs``, ``touch_secs``, ``gap_mm``,
         ``push_mm``, ``tilt_deg``): once, when the jaws open over a scene's ``support``
-        (``sim.support``): the stacking task's truth.
+        (``sim.support``): the stacking task's truth. ``wrench`` (WrenchTruth, source
+        ``sim``): each bubble's true contact wrench, when the scene lists ``wrench``.
 
 With ``rig_feed`` (a ZeroMQ endpoint) the world also publishes each state there for the
 emulated devices of an emulated rig (``sim.emulated_rig``: the camera and pressure
@@ -40,12 +41,13 @@ import zmq
 from messages.base import Header
 from messages.codec import encode
 from messages.errors import NodeError
+from messages.force import WrenchTruth
 from messages.sim import WorldState
 from messages.types import GripperCommand, GroundTruth, TaskEvent
 from runtime.node import Node
 from runtime.params import ExistingFile
 from runtime.registry import register
-from sim import World, ground_truth, load_scene, stamp_of
+from sim import World, ground_truth, load_scene, stamp_of, wrench_truth
 from sim.effects import resolve
 from sim.scene import Scene, SceneError
 from sim.wire import apply_command, to_message
@@ -102,7 +104,12 @@ class WorldNode(Node):
     Params = WorldParams
     inputs = {"command": GripperCommand}
     optional_inputs = frozenset({"command"})
-    outputs = {"state": WorldState, "ground_truth": GroundTruth, "placement": TaskEvent}
+    outputs = {
+        "state": WorldState,
+        "ground_truth": GroundTruth,
+        "placement": TaskEvent,
+        "wrench": WrenchTruth,
+    }
 
     def setup(self) -> None:
         self.scene = self.params.load()
@@ -198,6 +205,8 @@ class WorldNode(Node):
                 snap, self.world.model.class_label, stamp, noise_seed=self.scene.seed
             )
             self.io.publish("ground_truth", truth)
+        if "wrench" in self.world.effects:
+            self.io.publish("wrench", wrench_truth(snap, stamp))
         self._publish_placement(stamp)
         if self.world.done:
             contact = (

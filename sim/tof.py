@@ -30,6 +30,7 @@ from geometry.se3 import invert
 from messages.base import Header
 from messages.types import MaskImage, ToFImage
 from sim.effects import EFFECTS, camera_effects
+from sim.friction import slip_shift_m, stiffening
 from sim.membrane import CulledField, cull_to_bounds, march_to_surface
 from sim.scene import Scene
 from sim.world import WorldSnapshot
@@ -95,6 +96,7 @@ class BubbleRenderer:
         self.scene = scene
         self.side = side
         self.effects = camera_effects(scene.resolved_effects)
+        self.friction = "wrench" in scene.resolved_effects
         self.calls: Counter[str] = Counter()
         self.camera = camera if camera is not None else scene.camera.intrinsics()
         self.geometry = scene.gripper_geometry()
@@ -285,7 +287,14 @@ class BubbleRenderer:
         r = np.nan_to_num(frame["range_m"], nan=0.0)
         shift = r[..., None] * (self._unit32 @ lin.T.astype(np.float32)) + off.astype(np.float32)
         norm = np.sqrt(shift[..., 0] ** 2 + shift[..., 1] ** 2)
-        scale = np.minimum(1.0, self.scene.bubble.max_shear_m / np.maximum(norm, 1e-12))
+        limit: float | np.ndarray = self.scene.bubble.max_shear_m
+        if self.friction:
+            # Each point's friction limit (sim.friction): smaller towards the patch's edge.
+            indent = frame["indentation_m"]
+            g = stiffening(np.where(contact, indent, 0.0), self.scene.bubble.edge_stiffening)
+            pressure = snap.pressure_pa.get(self.side, 0.0)
+            limit = slip_shift_m(pressure, np.where(contact, g, 1.0), self.scene.bubble)
+        scale = np.minimum(1.0, limit / np.maximum(norm, 1e-12))
         frame["material_shift_m"] = shift * (scale * weight)[..., None].astype(np.float32)
 
     def _dot_pattern(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
