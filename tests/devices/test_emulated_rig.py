@@ -44,7 +44,7 @@ def test_the_hardware_graph_hands_over_on_emulated_devices_and_replays(tmp_path:
     start = t["rig_world/state"][0].header.stamp_nanos
     events = [(e.event, (e.header.stamp_nanos - start) / 1e9) for e in t["supervisor/event"]]
     names = [name for name, _ in events]
-    assert names == ["grasping", "stable", "release", "done"], events
+    assert names == ["grasping", "stable", "release", "done", "summary"], events
     release_secs = dict(events)["release"]
     assert PULL_SECS < release_secs < PULL_SECS + 1.0, events
 
