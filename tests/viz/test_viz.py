@@ -8,6 +8,9 @@ viewer node and the bag commands see the same messages.
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -305,3 +308,22 @@ def test_foxglove_json_of_a_pose_fits_its_schema() -> None:
     jsonschema.validate(value, schema)
     assert schema["properties"]["residual_rms_m"]["description"].startswith("unit: m")
     assert "ok" in schema["properties"]["status"]["enum"]
+
+
+def test_replay_shows_what_it_plays(run: tuple[Path, Path], tmp_path: Path) -> None:
+    bag, _ = run
+    out = tmp_path / "replay.rrd"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.run(
+        [sys.executable, "launch.py", "replay", str(bag), "--fast", "--view", str(out)],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    rows = rrd_rows(out)
+    counts = bag_counts(bag)
+    assert rows["/tool/left_sensor/depth"] == counts["left_camera/image"]
+    assert rows["/pressure/left"] == counts["left_pressure/pressure"]
