@@ -28,6 +28,7 @@ import numpy as np
 import yaml
 
 from messages.errors import BagError
+from messages.files import load_yaml
 from runtime.bag import BagMessage, BagReader, BagWriter
 
 log = logging.getLogger(__name__)
@@ -145,7 +146,7 @@ def info_text(path: Path, *, show_graph: bool = False) -> str:
 
 def _graph_nodes(text: str) -> list[str]:
     try:
-        doc = yaml.safe_load(text)
+        doc = load_yaml(text)
     except yaml.YAMLError:
         return []
     if isinstance(doc, dict) and isinstance(doc.get("nodes"), dict):

@@ -4,6 +4,7 @@ python launch.py [run] GRAPH [--check] [--set NODE.PARAM=VALUE ...] [--swap NODE
                        [--only NODE,NODE] [--duration SECS] [--log-level LEVEL]
                        [--record OUT.mcap [--record-topics REGEX] [--overwrite]] [--lockstep]
                        [--view [OUT.rrd | foxglove]] [--host NAME [--keys DIR]]
+                       [--emulate [--rig FILE]]
 python launch.py nodes [IMPL]                list implementations, or one's ports and params
 python launch.py graph GRAPH --draw OUT.svg  a picture of a graph file (docs/graphs.md)
 python launch.py bag info|echo|diff ...      inspect bags (see docs/bags.md)
@@ -11,6 +12,7 @@ python launch.py bag view|export|video ...   look at bags (see docs/viewing.md)
 python launch.py replay BAG [--swap NODE[=IMPL] ...] [...]
 python launch.py topic list|echo|hz|nodes ...  look into a running graph (docs/runtime.md)
 python launch.py keys make HOST | list [--keys DIR]   CURVE keys of hosts (docs/hosts.md)
+python launch.py calibrate --out rigs/NAME.yaml [...]   calibrate a rig (docs/devices.md)
 
 ``run`` is the default command: ``launch.py GRAPH ...`` is ``launch.py run GRAPH ...``.
 The tree is declared here, whole; each command's work is its module's ``main(args)``
@@ -57,7 +59,7 @@ def parser() -> tuple[argparse.ArgumentParser, list[str]]:
         epilog="`python launch.py GRAPH ...` runs a graph (`run` is the default command).",
     )
     commands = top.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for add in (_run, _nodes, _graph, _bag, _replay, _topic, _keys):
+    for add in (_run, _nodes, _graph, _bag, _replay, _topic, _keys, _calibrate):
         add(commands)
     return top, list(commands.choices)
 
@@ -91,6 +93,7 @@ def _run(commands: Commands) -> None:
     )
     add_run_options(parser, swap_metavar="NODE=IMPL", swap_help="another implementation")
     parser.add_argument("--only", default="", metavar="NODE,NODE", help="run only these nodes")
+    _add_emulate(parser, "run a hardware graph against emulated devices driven by the world")
     add_view_option(parser)
     add_deprecated(parser, "--topics", "--record-topics", "record_topics")
     parser.set_defaults(handler="cli.run")
@@ -297,3 +300,44 @@ def _keys(commands: Commands) -> None:
     parser.add_argument("--overwrite", action="store_true", help="make: replace a host's key")
     add_keys_option(parser)
     parser.set_defaults(handler="cli.keys", parser=parser)
+
+
+def _calibrate(commands: Commands) -> None:
+    parser = commands.add_parser(
+        "calibrate",
+        help="calibrate a rig: pressure zero, free bubble, intrinsics, camera mounts (docs/devices.md)",
+        description="Calibrate a rig once, and after a bubble swap: the pressure sensors' "
+        "zero, the free bubbles' statistics, the cameras' intrinsics and their mounts from "
+        "grasps of a known cylinder. Writes the calibration file the hardware graph reads.",
+    )
+    parser.add_argument("--out", type=Path, required=True, help="the calibration file to write")
+    parser.add_argument("--name", default="", help="the rig's name (default: the file's stem)")
+    parser.add_argument("--address", default="192.168.1.20", help="the WSG 50's address")
+    parser.add_argument("--port", type=int, default=1000, help="the WSG 50's TCP port")
+    for side in ("left", "right"):
+        parser.add_argument(
+            f"--{side}-camera", default="", metavar="ID", help=f"the {side} camera's id"
+        )
+        parser.add_argument(
+            f"--{side}-bridge", default="", metavar="SERIAL", help=f"the {side} bridge's serial"
+        )
+    parser.add_argument(
+        "--use-case",
+        default="MODE_9_5FPS_2000",
+        help="the cameras' use case (the longest exposure: the least noise)",
+    )
+    parser.add_argument(
+        "--radius-mm", type=float, default=30.0, help="the calibration cylinder's radius"
+    )
+    parser.add_argument("--grasps", type=int, default=6, help="how many grasps (3 to 6)")
+    _add_emulate(parser, "calibrate the emulated rig (its lab places the cylinder)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    parser.set_defaults(handler="cli.calibrate", parser=parser)
+
+
+def _add_emulate(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--emulate`` and ``--rig FILE`` (``sim.rig_launch``)."""
+    parser.add_argument("--emulate", action="store_true", help=what)
+    parser.add_argument(
+        "--rig", default=None, metavar="FILE", help="with --emulate: an as-built rig (rigs/*.yaml)"
+    )

@@ -213,7 +213,7 @@ class Launcher:
         name = proc.spec.name
         policy = proc.spec.restart
         if policy.policy == "on-failure" and proc.restarts < policy.max_restarts:
-            delay = min(policy.backoff_secs * 2**proc.restarts, policy.backoff_max_secs)
+            delay = min(policy.backoff_secs * 2 ** min(proc.restarts, 64), policy.backoff_max_secs)
             proc.restarts += 1
             proc.state = "waiting_restart"
             proc.restart_at = time.monotonic() + delay

@@ -10,7 +10,8 @@ topic, with a JSON schema that gives each field's type, unit and meaning
 (:func:`json_schema`; arrays of more than :data:`JSON_ARRAY_LIMIT` values are left out).
 Poses also go to ``/tf`` as ``foxglove.FrameTransform`` (``tool`` -> ``object_estimate``
 for an estimate with status ``ok`` or ``recovered``, ``object_true`` from ground truth,
-and each camera at the measured opening), where Foxglove's 3D panel looks for them.
+and ``tool`` -> each camera where each of its frames was taken,
+``ToFImage.tool_from_sensor``), where Foxglove's 3D panel looks for them.
 
 :class:`FoxgloveSink` logs into a ``foxglove.Context``: an MCAP writer opened on that
 context (``foxglove.open_mcap``) or a WebSocket server (``foxglove.start_server``).
@@ -27,18 +28,17 @@ import numpy as np
 from foxglove import channels as fc
 from foxglove import messages as fm
 
-from geometry.gripper import tool_from_sensor
 from geometry.se3 import quat_from_matrix
 from messages.base import Message, describe
 from messages.meaning import meaning
 from messages.types import (
     ContactPatch,
-    GripperState,
     GroundTruth,
     MaskImage,
     OverlayImage,
     PoseEstimate,
     ToFImage,
+    pose_is_known,
 )
 
 JSON_ARRAY_LIMIT = 64
@@ -190,6 +190,11 @@ def convert(topic: str, msg: Message) -> list[tuple[str, str, Any]]:
             P=[msg.fx_px, 0.0, msg.cx_px, 0.0, 0.0, msg.fy_px, msg.cy_px, 0.0, 0.0, 0.0, 1.0, 0.0],
         )
         images.append((f"{topic}/calibration", "CameraCalibration", calibration))
+        if pose_is_known(msg.tool_from_sensor):
+            # Where this frame was taken (its source placed it: the scene's or the rig
+            # calibration's mount at the opening of its stamp).
+            camera = frame_transform("tool", frame, msg.tool_from_sensor, nanos)
+            images.append((TF, "FrameTransform", camera))
         return images
     if isinstance(msg, MaskImage):
         return [(topic, "RawImage", raw_image(msg.mask, "mono8", frame, nanos))]
@@ -204,12 +209,6 @@ def convert(topic: str, msg: Message) -> list[tuple[str, str, Any]]:
     elif isinstance(msg, GroundTruth):
         pose = frame_transform("tool", "object_true", msg.tool_from_object, nanos)
         out.append((TF, "FrameTransform", pose))
-    elif isinstance(msg, GripperState):
-        for side in ("left", "right"):
-            camera = frame_transform(
-                "tool", f"{side}_sensor", tool_from_sensor(side, msg.width_m), nanos
-            )
-            out.append((TF, "FrameTransform", camera))
     return out
 
 
