@@ -97,12 +97,15 @@ class Bubbles:
         return out
 
 
-def record_all(seed: int, duration_secs: float) -> Recorded:
-    """Render one grasp once; every setting extracts its features from the same frames."""
-    spec = draw(seed, duration_secs=duration_secs)
+def record_all(
+    seed: int, duration_secs: float, *, load: str | None = None, settings: tuple[str, ...] = ()
+) -> Recorded:
+    """Render one grasp once; every setting (default: all) extracts its features from
+    the same frames."""
+    spec = draw(seed, duration_secs=duration_secs, load=load)
     simulator = sim.Simulator(spec.scene)
-    bubbles = {name: Bubbles(flow) for name, flow in SETTINGS.items()}
-    rec = Recorded([], {name: [] for name in SETTINGS})
+    bubbles = {name: Bubbles(SETTINGS[name]) for name in settings or SETTINGS}
+    rec = Recorded([], {name: [] for name in bubbles})
     none = sim.friction.BubbleWrench.none()
     while not simulator.world.done:
         inst = simulator.step()
@@ -123,16 +126,18 @@ def record_all(seed: int, duration_secs: float) -> Recorded:
     return rec
 
 
-def time_setting(seed: int, duration_secs: float, setting: str, cal: Calibration) -> float:
-    """Seconds per frame (both bubbles: features and both methods' estimates), the least
-    of ``TIMING_REPEATS`` runs over one grasp's frames, thread CPU time."""
+def time_setting(
+    seed: int, duration_secs: float, setting: str, cal: Calibration, repeats: int
+) -> float:
+    """Seconds per frame (both bubbles: features and the physics estimate), the least
+    of ``repeats`` runs over one grasp's frames, thread CPU time."""
     spec = draw(seed, duration_secs=duration_secs)
     simulator = sim.Simulator(spec.scene)
     instants = []
     while not simulator.world.done:
         instants.append(simulator.step())
     best = float("inf")
-    for _ in range(TIMING_REPEATS):
+    for _ in range(repeats):
         bubbles = Bubbles(SETTINGS[setting])
         start = time.thread_time()
         for inst in instants:
@@ -411,24 +416,30 @@ def handover_rows(seeds: list[int], cal: Calibration, period_secs: float) -> lis
 
 def run(quick: bool) -> list[Row]:
     one_core()
-    n = 2 if quick else 8
-    duration = 2.0 if quick else 3.0
+    n = 2 if quick else 9
+    duration = 1.8 if quick else 3.0
     cal_seeds, test_seeds = list(range(n)), list(range(n, 2 * n))
     cal_recs = [record_all(s, duration) for s in progress(cal_seeds, "bench.force calibration")]
     test_recs = [record_all(s, duration) for s in progress(test_seeds, "bench.force held-out")]
     placeholder = calibrate(
         [s for rec in cal_recs for s in samples(rec.frames)], rig="sim", source="timing"
     )
+    repeats = 1 if quick else TIMING_REPEATS
     secs = {
-        setting: time_setting(test_seeds[0], min(duration, 2.0), setting, placeholder)
+        setting: time_setting(test_seeds[0], min(duration, 2.0), setting, placeholder, repeats)
         for setting in progress(list(SETTINGS), "bench.force timing")
     }
     rows, cals = wrench_rows(cal_recs, test_recs, secs)
     cal = cals[DEFAULT_SETTING]
     period = draw(0).scene.frame_period_secs
-    rows += slip_rows(test_recs, cal, period)
+    # Long still holds for the false alarms (the default setting only).
+    still = [
+        record_all(100 + i, 3.0 if quick else 15.0, load="still", settings=(DEFAULT_SETTING,))
+        for i in progress(range(1 if quick else 4), "bench.force still holds")
+    ]
+    rows += slip_rows(test_recs + still, cal, period)
     reflex_seeds = [n * 2 + i for i in range(1 if quick else 8)]
-    rows += reflex_rows(reflex_seeds, 4.0 if not quick else 3.0, cal)
+    rows += reflex_rows(reflex_seeds, 4.0 if not quick else 2.5, cal)
     rows += handover_rows([0] if quick else [0, 1, 2, 3], cal, period)
     return rows
 
