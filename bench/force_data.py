@@ -176,11 +176,20 @@ def record(spec: GraspSpec) -> list[Frame]:
     return frames
 
 
+DROP_M = 0.010  # an object that slid this far in the hand is lost: its frames do not count
+
+
+def held(frame: Frame) -> bool:
+    """The object is still in the hand (slid less than ``DROP_M``)."""
+    return float(np.hypot(*frame.slide_m)) < DROP_M
+
+
 def samples(frames: list[Frame]) -> list[Sample]:
-    """Every bubble of every frame as a calibration sample."""
+    """Every bubble of every frame while the object is held, as a calibration sample."""
     return [
         Sample(s, f.features[s], f.force_n[s], f.torque_nm[s], f.slipping[s] >= 1.0)
         for f in frames
+        if held(f)
         for s in SIDES
     ]
 
