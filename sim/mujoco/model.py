@@ -81,7 +81,6 @@ class ShellSpec:
 OBJECT_MASS_KG = {"mug": 0.35, "pet_bottle": 0.5, "square_bottle": 0.6, "wine_glass": 0.2}
 
 
-
 def _fmt(values: np.ndarray | list[float] | tuple[float, ...]) -> str:
     return " ".join(f"{float(v):.9g}" for v in np.ravel(values))
 
@@ -110,7 +109,9 @@ def object_geoms(field: object) -> tuple[list[str], list[str]]:
             visit(f.child, pose @ f.parent_from_child)
         elif isinstance(f, CappedCylinder):
             size = _fmt([f.radius_m, f.height_m / 2])
-            geoms.append(f'<geom type="cylinder" size="{size}" {_pose_attrs(pose)} {_OBJECT_BITS}/>')
+            geoms.append(
+                f'<geom type="cylinder" size="{size}" {_pose_attrs(pose)} {_OBJECT_BITS}/>'
+            )
         elif isinstance(f, Capsule):
             size = _fmt([f.radius_m, f.length_m / 2])
             geoms.append(f'<geom type="capsule" size="{size}" {_pose_attrs(pose)} {_OBJECT_BITS}/>')

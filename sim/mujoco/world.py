@@ -76,7 +76,9 @@ class MujocoWorld:
             tool_from_object=scene.tool_from_object(0.0),
             shell=self.shell,
             air=AirSpec(
-                inflation_pa=b.inflation_pa, ambient_pa=b.ambient_pa, dead_volume_m3=b.dead_volume_m3
+                inflation_pa=b.inflation_pa,
+                ambient_pa=b.ambient_pa,
+                dead_volume_m3=b.dead_volume_m3,
             ),
         )
         self.physics.inflate()
@@ -189,7 +191,9 @@ class MujocoWorld:
         assert anchor is not None
         return (points[contact] - anchor[contact])[:, 1:].mean(axis=0)
 
-    def contact_vertices(self, points_in_tool: np.ndarray, tool_from_object: np.ndarray) -> np.ndarray:
+    def contact_vertices(
+        self, points_in_tool: np.ndarray, tool_from_object: np.ndarray
+    ) -> np.ndarray:
         """Which membrane points lie on the object (within ``CONTACT_TOLERANCE_M``)."""
         object_from_tool = invert(tool_from_object)
         local = points_in_tool @ object_from_tool[:3, :3].T + object_from_tool[:3, 3]
