@@ -1,4 +1,4 @@
-"""``world.sim``: the one scene clock and the shared simulated world.
+"""``world.sim`` and ``world.mujoco``: the one scene clock and the shared world.
 
 Ports:
     inputs: ``command`` (GripperCommand, optional): commands from a supervisor move
@@ -19,6 +19,17 @@ Ports:
 Only this node integrates anything (the jaws' motion, the contacts' anchors), so no two
 processes keep their own copy of the world. When the scene's trajectory ends it asks
 the graph to stop, with a one-line summary. A hardware graph drops this node.
+
+``world.mujoco`` (``--swap world=world.mujoco``) runs the same scene in MuJoCo
+(``sim.mujoco``, docs/mujoco.md): the same inputs and outputs (each ``state`` also
+carries both membranes' deformed surfaces, which the camera nodes ray-cast), plus
+``wrench`` (messages.force.WrenchTruth, ``source`` ``mujoco``): the engine's contact
+wrenches on each bubble and on the object, each bubble's pressure and air volume, one
+per frame with the frame's stamp. Params as ``world.sim``'s plus ``mesh_spacing_m``
+(the membrane mesh's edge length). It publishes as fast as the physics runs (several
+CPU seconds per simulated second): every message keeps the scene time of its frame, so
+the graph downstream gives the answers it gives on ``world.sim`` in real time, only
+later. Scenes with a ``support`` are refused when the graph is checked.
 """
 
 from __future__ import annotations
@@ -29,6 +40,7 @@ from dataclasses import dataclass
 
 from messages.base import Header
 from messages.errors import NodeError
+from messages.force import WrenchTruth
 from messages.sim import WorldState
 from messages.types import GripperCommand, GroundTruth, TaskEvent
 from runtime.node import Node
@@ -92,10 +104,13 @@ class WorldNode(Node):
     optional_inputs = frozenset({"command"})
     outputs = {"state": WorldState, "ground_truth": GroundTruth, "placement": TaskEvent}
 
+    def make_world(self, scene: Scene) -> World:
+        return World(scene)
+
     def setup(self) -> None:
         self.scene = self.params.load()
         self.placement_sent = False
-        self.world = World(self.scene)
+        self.world = self.make_world(self.scene)
         self.start_nanos: int | None = None
         self.max_force_n = 0.0
         self.contact_frames = 0
@@ -144,6 +159,7 @@ class WorldNode(Node):
         self.max_force_n = max(self.max_force_n, snap.force_n)
         self.contact_frames += any(snap.in_contact.values())
         self.io.publish("state", to_message(snap, self.scene, stamp))
+        self.publish_truth(stamp)
         if "ground_truth" in self.world.effects:
             truth = ground_truth(
                 snap, self.world.model.class_label, stamp, noise_seed=self.scene.seed
@@ -162,6 +178,9 @@ class WorldNode(Node):
                 f" {self.max_force_n:.1f} N, final width {snap.width_m * 1000:.1f} mm,"
                 f" gripper {snap.gripper_state})"
             )
+
+    def publish_truth(self, stamp: int) -> None:
+        """What a world knows beyond the state (none for ``world.sim``)."""
 
     def _publish_placement(self, stamp: int) -> None:
         """The support's verdict, once, when the jaws open over it (``sim.support``)."""
@@ -183,5 +202,55 @@ class WorldNode(Node):
                 task="world",
                 event="placed" if placement.placed else "dropped",
                 detail=json.dumps(detail, sort_keys=True),
+            ),
+        )
+
+
+@dataclass(frozen=True, kw_only=True)
+class MujocoWorldParams(WorldParams):
+    """``world.sim``'s parameters plus ``mesh_spacing_m``: the membrane mesh's edge length
+    (8 mm: 169 vertices a bubble, about 7 CPU s per simulated second; 3 mm: 1,100)."""
+
+    mesh_spacing_m: float = 0.008
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        from sim.mujoco.model import ShellSpec
+
+        ShellSpec(mesh_spacing_m=self.mesh_spacing_m)
+        if not 0.003 <= self.mesh_spacing_m <= 0.02:
+            raise ValueError(f"`mesh_spacing_m` must be in [0.003, 0.02], got {self.mesh_spacing_m!r}")
+        if self.load().support is not None:
+            raise ValueError(f"`scene`: {self.scene}: world.mujoco has no support surface")
+
+
+@register("world.mujoco")
+class MujocoWorldNode(WorldNode):
+    """The scene in MuJoCo (see the module docstring)."""
+
+    Params = MujocoWorldParams
+    outputs = {**WorldNode.outputs, "wrench": WrenchTruth}
+
+    def make_world(self, scene: Scene) -> World:
+        from sim.mujoco.model import ShellSpec
+        from sim.mujoco.world import MujocoWorld
+
+        self.io.log.info("%s: building and inflating the MuJoCo bubbles", self.name)
+        return MujocoWorld(scene, ShellSpec(mesh_spacing_m=self.params.mesh_spacing_m))  # type: ignore[return-value]
+
+    def publish_truth(self, stamp: int) -> None:
+        truth = self.world.truth  # type: ignore[attr-defined]
+        c = truth.contacts
+        self.io.publish(
+            "wrench",
+            WrenchTruth(
+                header=Header(stamp_nanos=stamp, frame_id="tool"),
+                source="mujoco",
+                bubble_force_n=c.bubble_force_n,
+                bubble_torque_nm=c.bubble_torque_nm,
+                object_force_n=c.object_force_n,
+                object_torque_nm=c.object_torque_nm,
+                pressure_pa=[float(p) for p in truth.pressure_pa],
+                volume_m3=[float(v) for v in truth.volume_m3],
             ),
         )

@@ -92,6 +92,10 @@ def _cap_mesh(bubble: BubbleGeometry, spacing_m: float) -> CapMesh:
     return CapMesh(rest, np.ascontiguousarray(triangles), pinned, spacing_m)
 
 
+# A membrane point is in contact where the object's field is under this (m): MuJoCo's
+# contacts sit on the flex radius's surface, within a fraction of a millimetre.
+CONTACT_TOLERANCE_M = 0.0005
+
 # The shell's reference (stress-free) cap is this fraction of the rest cap's height: the
 # air stretches the latex to about the rest cap's 25 mm (measured with the default
 # latex, docs/mujoco.md).

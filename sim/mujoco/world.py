@@ -30,14 +30,11 @@ import numpy as np
 from geometry.gripper import SIDES
 from geometry.se3 import invert
 from sim.gripper import GripperDynamics
+from sim.mujoco.mesh import CONTACT_TOLERANCE_M
 from sim.mujoco.model import ShellSpec
 from sim.mujoco.physics import AirSpec, Contacts, GraspPhysics
 from sim.scene import Scene
 from sim.world import WorldSnapshot
-
-# A membrane point is in contact where the object's field is under this (m): the flex
-# radius is the contact surface, MuJoCo's contact margin a fraction of a millimetre.
-CONTACT_TOLERANCE_M = 0.0005
 
 
 @dataclass(frozen=True)
@@ -46,7 +43,7 @@ class Truth:
 
     contacts: Contacts
     pressure_pa: np.ndarray  # (2,) gauge
-    volume_m3: np.ndarray  # (2,) enclosed air, cap plus dead volume
+    volume_m3: np.ndarray  # (2,) air enclosed by membrane and plate (no dead volume)
 
 
 class MujocoWorld:
@@ -148,7 +145,7 @@ class MujocoWorld:
         self.truth = Truth(
             contacts=contacts,
             pressure_pa=ph.pressure_pa.copy(),
-            volume_m3=ph.volume_m3 + self.physics.air.dead_volume_m3,
+            volume_m3=ph.volume_m3.copy(),
         )
         self.snapshot = WorldSnapshot(
             frame_index=self.frame_index,
