@@ -219,7 +219,9 @@ class MujocoWorldParams(WorldParams):
 
         ShellSpec(mesh_spacing_m=self.mesh_spacing_m)
         if not 0.003 <= self.mesh_spacing_m <= 0.02:
-            raise ValueError(f"`mesh_spacing_m` must be in [0.003, 0.02], got {self.mesh_spacing_m!r}")
+            raise ValueError(
+                f"`mesh_spacing_m` must be in [0.003, 0.02], got {self.mesh_spacing_m!r}"
+            )
         if self.load().support is not None:
             raise ValueError(f"`scene`: {self.scene}: world.mujoco has no support surface")
 
