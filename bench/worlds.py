@@ -31,6 +31,9 @@ on each, side by side:
   (``models/tactile_resnet18.pt``, trained on ``world.sim`` only), majority of the held
   frames; ``world_cpu_s_per_sim_s``: the world's stepping, CPU seconds per simulated
   second (one process; the MuJoCo figure is the recording's).
+- cost rows (``mujoco (cost)``): MuJoCo's CPU seconds per simulated second against the
+  membrane mesh (12, 8, 5 and 3 mm edges; 12 mm only with ``--quick``) while the jaws
+  hold the mug.
 
     python -m bench.worlds [--quick] [--json]
 
@@ -70,6 +73,8 @@ OBJECTS = ("mug", "pet_bottle", "square_bottle", "wine_glass")
 HOLD_SECS = 0.9
 SLIDE_M = 0.004
 END_SECS = 1.4
+COST_FROM_SECS = 0.6
+COST_SECS = 0.3
 AXIS_OK_DEG = 2.0
 OFFAXIS_OK_M = 0.002
 MODEL = Path("models/tactile_resnet18.pt")
@@ -292,6 +297,45 @@ def _summary(world: str, scores: list[dict[str, Any]], cpu: list[float]) -> Row:
     }
 
 
+def cost_rows(spacings_m: tuple[float, ...]) -> list[Row]:
+    """MuJoCo's CPU seconds per simulated second against the membrane mesh, in contact.
+
+    The first grasp (the mug) runs to :data:`COST_FROM_SECS` (the jaws hold it), then
+    :data:`COST_SECS` more of holding are timed (process CPU time of the stepping, not
+    the model's construction and inflation).
+    """
+    from sim.mujoco.model import ShellSpec
+    from sim.mujoco.world import MujocoWorld
+    from sim.scene import scene_from_dict
+
+    scene = scene_from_dict(grasp_scene(0, np.random.default_rng(SEED)))
+    rows = []
+    for spacing in spacings_m:
+        world = MujocoWorld(scene, ShellSpec(mesh_spacing_m=spacing))
+        while world.frame_index * scene.frame_period_secs < COST_FROM_SECS:
+            world.step()
+        start, t0 = time.process_time(), world.frame_index * scene.frame_period_secs
+        while world.frame_index * scene.frame_period_secs < COST_FROM_SECS + COST_SECS:
+            world.step()
+        sim_secs = world.frame_index * scene.frame_period_secs - t0
+        rows.append(
+            {
+                "world": "mujoco (cost)",
+                "mesh_mm": spacing * 1000.0,
+                "vertices_per_bubble": len(world.physics.mesh.rest_m),
+                "world_cpu_s_per_sim_s": (time.process_time() - start) / sim_secs,
+            }
+        )
+    return rows
+
+
+def _vertices(spacing_m: float) -> int:
+    from geometry.gripper import BubbleGeometry
+    from sim.mujoco.mesh import membrane_mesh
+
+    return len(membrane_mesh(BubbleGeometry(), spacing_m).rest_m)
+
+
 def run(quick: bool) -> list[Row]:
     grasps = 1 if quick else 8
     spacing = 0.012 if quick else 0.008
@@ -323,10 +367,14 @@ def run(quick: bool) -> list[Row]:
         if tmp is not None:
             tmp.cleanup()
     rows = [
-        _summary(w, s, c) | {"mesh_mm": spacing * 1000 if w == "mujoco" else None}
+        _summary(w, s, c)
+        | {
+            "mesh_mm": spacing * 1000 if w == "mujoco" else None,
+            "vertices_per_bubble": _vertices(spacing) if w == "mujoco" else None,
+        }
         for w, (s, c) in results.items()
     ]
-    return rows
+    return rows + cost_rows((0.012,) if quick else (0.012, 0.008, 0.005, 0.003))
 
 
 if __name__ == "__main__":
