@@ -6,12 +6,13 @@ on each, side by side:
 
 - grasps: the four objects in turn (mug, PET bottle, square bottle, wine glass), each
   held with its axis along tool y at a random offset (up to 4 mm along tool y and z) and
-  roll about the grasp axis (up to 8 degrees), seed :data:`SEED`; the gripper grasps at
-  12 N from 0.05 s; from :data:`HOLD_SECS` the hand slides the object
+  roll about the grasp axis (up to 8 degrees), seed :data:`SEED`, by its middle (the wine
+  glass by its bowl); the gripper grasps at 12 N from 0.05 s; from :data:`HOLD_SECS` the hand slides the object
   :data:`SLIDE_M` along tool z (the pull of a handover); the scene ends at
   :data:`END_SECS`. Each grasp is a scene file written next to its recording.
 - the MuJoCo run of a grasp is recorded once to an MCAP bag
-  (``<workdir>/grasp_<k>.mcap``: ``world/state``, with both membranes' surfaces, and
+  (``<workdir>/grasp_<k>_<digest>.mcap``, the digest of the scene and the mesh:
+  ``world/state``, with both membranes' surfaces, and
   ``world/wrench`` per frame, the messages the ``world.mujoco`` node publishes) and the
   evaluation replays the bag (the cameras render its states); a bag already there is
   reused, so the physics runs once per grasp and mesh. ``world.sim`` is cheap and runs
@@ -43,6 +44,7 @@ grasps, an 8 mm mesh, recordings in ``out/worlds`` (``WORLDS_DIR`` overrides).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import tempfile
@@ -70,9 +72,12 @@ from sim.world import World
 
 SEED = 29
 OBJECTS = ("mug", "pet_bottle", "square_bottle", "wine_glass")
-HOLD_SECS = 0.9
+HOLD_SECS = 1.2
 SLIDE_M = 0.004
-END_SECS = 1.4
+END_SECS = 1.7
+# Where along its axis each object is grasped (object z, m): the middle, but the wine
+# glass by its bowl (its middle is the thin stem).
+GRASP_AT_M = {"wine_glass": 0.0375}
 COST_FROM_SECS = 0.6
 COST_SECS = 0.3
 AXIS_OK_DEG = 2.0
@@ -84,16 +89,22 @@ EFFECTS += ["gripper", "ground_truth"]
 
 def grasp_scene(k: int, rng: np.random.Generator) -> dict[str, Any]:
     """The ``k``-th grasp as a scene document."""
+    from sim.scene import rotation_from_rpy_deg
+
     dy, dz = rng.uniform(-0.004, 0.004, 2)
     roll = float(rng.uniform(-8.0, 8.0))
-    start = [0.0, float(dy), 0.005 + float(dz)]
+    name = OBJECTS[k % len(OBJECTS)]
+    # The held frame's position that puts the grasped point of the axis at the target.
+    rot = rotation_from_rpy_deg((roll, 0.0, 0.0)) @ rotation_from_rpy_deg((0.0, -90.0, -90.0))
+    grasped = rot @ np.array([0.0, 0.0, GRASP_AT_M.get(name, 0.0)])
+    start = [float(v) for v in np.array([0.0, dy, 0.005 + dz]) - grasped]
     end = [start[0], start[1], start[2] + SLIDE_M]
     return {
         "name": f"worlds_grasp_{k}",
         "seed": SEED * 100 + k,
         "duration_secs": END_SECS,
         "effects": EFFECTS,
-        "object": {"name": OBJECTS[k % len(OBJECTS)]},
+        "object": {"name": name},
         "mount_rpy_deg": [0, -90, -90],
         "gripper": {
             "commands": [
@@ -270,7 +281,9 @@ def score(frames: list[Instant], classifier: Classifier) -> dict[str, Any]:
             ir_right=inst.images["right"].ir,
         )
         votes.append(classifier.meta.classes[int(np.argmax(p))])
-    out["classifier_right"] = int(max(set(votes), key=votes.count) == name) if votes else 0
+    said = max(set(votes), key=votes.count) if votes else ""
+    out["classifier_said"] = said
+    out["classifier_right"] = int(said == name)
     return out
 
 
@@ -293,6 +306,9 @@ def _summary(world: str, scores: list[dict[str, Any]], cpu: list[float]) -> Row:
         "stable_detected_fraction": sum(s["stable_detected"] for s in scores) / n,
         "stable_delay_s_median": med("stable_delay_s"),
         "classifier_right_fraction": sum(s["classifier_right"] for s in scores) / n,
+        "classifier_wrong": " ".join(
+            f"{s['object']}->{s['classifier_said']}" for s in scores if not s["classifier_right"]
+        ),
         "world_cpu_s_per_sim_s": median(cpu),
     }
 
@@ -351,12 +367,16 @@ def run(quick: bool) -> list[Row]:
     try:
         for k in progress(range(grasps), "bench.worlds", label=lambda k: f"grasp {k}"):
             doc = grasp_scene(k, rng)
-            scene_path = workdir / f"grasp_{k}.yaml"
-            scene_path.write_text(yaml.safe_dump(doc, sort_keys=False))
+            text = yaml.safe_dump(doc, sort_keys=False)
+            key = hashlib.sha256(f"{text}{spacing}".encode()).hexdigest()[:10]
+            scene_path = workdir / f"grasp_{k}_{key}.yaml"
+            scene_path.write_text(text)
             frames, cpu = run_sim(scene_path)
             results["sim"][0].append(score(frames, classifier))
             results["sim"][1].append(cpu)
-            bag = workdir / f"grasp_{k}_mesh{round(spacing * 1000)}mm.mcap"
+            # The bag's name holds the scene's and the mesh's digest: a changed grasp or
+            # mesh is recorded again, an unchanged one replayed.
+            bag = scene_path.with_suffix(".mcap")
             if bag.exists() and bag.with_suffix(".json").exists():
                 cpu = json.loads(bag.with_suffix(".json").read_text())["cpu_s_per_sim_s"]
             else:
