@@ -51,6 +51,8 @@ class Contacts:
     object_force_n: np.ndarray  # (3,)
     object_torque_nm: np.ndarray  # (3,)
     count: tuple[int, int]  # contacts per bubble
+    # Share of each bubble's contacts whose friction force is at its cone's limit.
+    slipping_fraction: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -274,13 +276,21 @@ class GraspPhysics:
         t_obj = np.cross(np.asarray(con.pos[:n]), f_obj)
         other = np.where(on_obj[:, 1], flex[:, 0], flex[:, 1])
         counts = [0, 0]
+        slipping = [0.0, 0.0]
+        at_limit = np.hypot(local[:, 1], local[:, 2]) >= 0.95 * self.shell.friction * local[:, 0]
         for i, fid in enumerate(self._flex_ids):
             mine = keep & (other == fid)
             bubble_f[i] = -f_obj[mine].sum(axis=0)
             bubble_t[i] = -t_obj[mine].sum(axis=0)
             counts[i] = int(mine.sum())
+            slipping[i] = float((at_limit & mine).sum() / counts[i]) if counts[i] else 0.0
         return Contacts(
-            bubble_f, bubble_t, f_obj.sum(axis=0), t_obj.sum(axis=0), (counts[0], counts[1])
+            bubble_f,
+            bubble_t,
+            f_obj.sum(axis=0),
+            t_obj.sum(axis=0),
+            (counts[0], counts[1]),
+            (slipping[0], slipping[1]),
         )
 
 

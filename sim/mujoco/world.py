@@ -29,8 +29,9 @@ import numpy as np
 
 from geometry.gripper import SIDES
 from geometry.se3 import invert
+from sim.friction import BubbleWrench
 from sim.gripper import GripperDynamics
-from sim.mujoco.mesh import CONTACT_TOLERANCE_M
+from sim.mujoco.mesh import CONTACT_TOLERANCE_M, vertex_area_vectors
 from sim.mujoco.model import ShellSpec
 from sim.mujoco.physics import AirSpec, Contacts, GraspPhysics
 from sim.scene import Scene
@@ -164,6 +165,16 @@ class MujocoWorld:
             shear_in_tool_m=shear,
             membranes_f=surfaces,
             membrane_spacing_m=self.shell.mesh_spacing_m,
+            wrench={
+                s: BubbleWrench(
+                    contacts.bubble_force_n[i].copy(),
+                    contacts.bubble_torque_nm[i].copy(),
+                    contacts.slipping_fraction[i],
+                    self._contact_area_m2(s, pose, surfaces[s]),
+                )
+                for i, s in enumerate(SIDES)
+            },
+            volume_m3={s: float(ph.volume_m3[i]) for i, s in enumerate(SIDES)},
         )
         return self.snapshot
 
@@ -187,6 +198,16 @@ class MujocoWorld:
         anchor = self._anchor_points[side]
         assert anchor is not None
         return (points[contact] - anchor[contact])[:, 1:].mean(axis=0)
+
+    def _contact_area_m2(self, side: str, pose: np.ndarray, surface_f: np.ndarray) -> float:
+        """The membrane area on the object: a third of each touching triangle per vertex."""
+        tool_from_finger = self.physics.tool_from_finger(side)
+        points = surface_f @ tool_from_finger[:3, :3].T + tool_from_finger[:3, 3]
+        touching = self.contact_vertices(points, pose)
+        if not touching.any():
+            return 0.0
+        area = np.linalg.norm(vertex_area_vectors(surface_f, self.physics.mesh.triangles), axis=1)
+        return float(area[touching].sum())
 
     def contact_vertices(
         self, points_in_tool: np.ndarray, tool_from_object: np.ndarray
