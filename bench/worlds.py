@@ -127,8 +127,6 @@ def grasp_scene(k: int, rng: np.random.Generator) -> dict[str, Any]:
 
 def record_mujoco(scene_path: Path, bag: Path, mesh_spacing_m: float) -> float:
     """Run a scene in MuJoCo and record what ``world.mujoco`` publishes; CPU s per sim s."""
-    from messages.base import Header
-    from messages.force import WrenchTruth
     from runtime.bag import BagWriter
     from sim import stamp_of
     from sim.mujoco.model import ShellSpec
@@ -147,20 +145,7 @@ def record_mujoco(scene_path: Path, bag: Path, mesh_spacing_m: float) -> float:
             snap = world.step()
             stamp = stamp_of(snap)
             writer.write_message("world/state", to_message(snap, scene, stamp), stamp)
-            truth = world.truth
-            assert truth is not None
-            c = truth.contacts
-            wrench = WrenchTruth(
-                header=Header(stamp_nanos=stamp, frame_id="tool"),
-                source="mujoco",
-                bubble_force_n=c.bubble_force_n,
-                bubble_torque_nm=c.bubble_torque_nm,
-                object_force_n=c.object_force_n,
-                object_torque_nm=c.object_torque_nm,
-                pressure_pa=[float(p) for p in truth.pressure_pa],
-                volume_m3=[float(v) for v in truth.volume_m3],
-            )
-            writer.write_message("world/wrench", wrench, stamp)
+            writer.write_message("world/wrench", world.wrench_truth(stamp), stamp)
     cpu = (time.process_time() - start) / scene.duration_secs
     part.replace(bag)
     bag.with_suffix(".json").write_text(json.dumps({"cpu_s_per_sim_s": cpu}))

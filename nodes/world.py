@@ -311,18 +311,4 @@ class MujocoWorldNode(WorldNode):
 
     def publish_wrench(self, snap: WorldSnapshot, stamp: int) -> None:
         """The engine's contact wrenches, pressures and volumes, every frame."""
-        truth = self.world.truth  # type: ignore[attr-defined]
-        c = truth.contacts
-        self.io.publish(
-            "wrench",
-            WrenchTruth(
-                header=Header(stamp_nanos=stamp, frame_id="tool"),
-                source="mujoco",
-                bubble_force_n=c.bubble_force_n,
-                bubble_torque_nm=c.bubble_torque_nm,
-                object_force_n=c.object_force_n,
-                object_torque_nm=c.object_torque_nm,
-                pressure_pa=[float(p) for p in truth.pressure_pa],
-                volume_m3=[float(v) for v in truth.volume_m3],
-            ),
-        )
+        self.io.publish("wrench", self.world.wrench_truth(stamp))  # type: ignore[attr-defined]

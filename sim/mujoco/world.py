@@ -29,6 +29,8 @@ import numpy as np
 
 from geometry.gripper import SIDES
 from geometry.se3 import invert
+from messages.base import Header
+from messages.force import WrenchTruth
 from sim.friction import BubbleWrench
 from sim.gripper import GripperDynamics
 from sim.mujoco.mesh import CONTACT_TOLERANCE_M, vertex_area_vectors
@@ -177,6 +179,23 @@ class MujocoWorld:
             volume_m3={s: float(ph.volume_m3[i]) for i, s in enumerate(SIDES)},
         )
         return self.snapshot
+
+    def wrench_truth(self, stamp_nanos: int) -> WrenchTruth:
+        """The last frame's engine truth as the ``wrench`` message (``source`` mujoco)."""
+        truth = self.truth
+        if truth is None:
+            raise RuntimeError("wrench_truth before the first step")
+        c = truth.contacts
+        return WrenchTruth(
+            header=Header(stamp_nanos=stamp_nanos, frame_id="tool"),
+            source="mujoco",
+            bubble_force_n=c.bubble_force_n,
+            bubble_torque_nm=c.bubble_torque_nm,
+            object_force_n=c.object_force_n,
+            object_torque_nm=c.object_torque_nm,
+            pressure_pa=[float(p) for p in truth.pressure_pa],
+            volume_m3=[float(v) for v in truth.volume_m3],
+        )
 
     def _shear(
         self, side: str, touching: bool, pose: np.ndarray, surface_f: np.ndarray
