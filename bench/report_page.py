@@ -14,7 +14,7 @@ import dataclasses
 import datetime
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -24,7 +24,19 @@ from bench.common import Row
 
 if TYPE_CHECKING:
     from bench.heldout import HeldOut
-    from bench.report import Sweep
+
+
+@dataclass
+class Sweep:
+    """One sweep's result: its rows, how long it took, the command, what went wrong."""
+
+    name: str
+    command: str
+    rows: list[Row] = field(default_factory=list)
+    machine: dict[str, Any] = field(default_factory=dict)
+    secs: float = 0.0
+    error: str = ""
+    columns: list[str] | None = None
 
 
 @dataclass(frozen=True)

@@ -41,6 +41,7 @@ class WorldSnapshot:
 
     ``anchors`` and ``shear_in_tool_m`` are keyed by side; an anchor is None while that
     bubble is out of contact. Pressures are gauge pascals. Speed is a magnitude.
+    ``membranes_f`` (when a world simulates the membrane) is keyed by side too.
     """
 
     frame_index: int
@@ -56,6 +57,11 @@ class WorldSnapshot:
     shear_in_tool_m: dict[str, np.ndarray] = field(
         default_factory=lambda: {s: np.zeros(2) for s in SIDES}
     )
+    # A world that simulates the membrane as a mesh (``sim.mujoco``) gives each bubble's
+    # outer surface, (N, 3) in its finger frame F, and the mesh's edge length; the
+    # cameras then ray-cast it (``sim.mujoco.render``) instead of the geometric model.
+    membranes_f: dict[str, np.ndarray] | None = None
+    membrane_spacing_m: float = 0.0
     # With ``wrench``: each bubble's true wrench and enclosed air volume.
     wrench: dict[str, BubbleWrench] = field(default_factory=dict)
     volume_m3: dict[str, float] = field(default_factory=dict)
@@ -95,6 +101,7 @@ class World:
             else None
         )
         self._release_due = False
+        self.placed: np.ndarray | None = None  # see place()
 
     @property
     def done(self) -> bool:
@@ -109,6 +116,11 @@ class World:
         self.dynamics.command(
             command, width_m=width_m, speed_m_per_s=speed_m_per_s, force_n=force_n
         )
+
+    def place(self, tool_from_object: np.ndarray | None) -> None:
+        """Hold the object at a pose from the next step on (a hand placing it, as the
+        emulated lab of a calibration does); None: back to the scene's trajectory."""
+        self.placed = None if tool_from_object is None else np.array(tool_from_object, float)
 
     def contact(
         self,
@@ -156,7 +168,7 @@ class World:
         """Advance to the next frame and return its snapshot."""
         self.frame_index += 1
         t = self.frame_index * self.scene.frame_period_secs
-        pose = self.scene.tool_from_object(t)
+        pose = self.scene.tool_from_object(t) if self.placed is None else self.placed
         while (
             self._next_command < len(self._script)
             and self._script[self._next_command].t_secs <= t + 1e-9
