@@ -4,9 +4,16 @@ Four sweeps on simulated grasps (``bench.force_data``: random objects, grips and
 every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` effects):
 
 * ``wrench``: error against time per method (``physics``, ``ridge``) and per dot-flow
-  setting (Farneback at half and quarter resolution, DIS at half): each setting's
-  features of the *calibration* grasps (seeds ``0 .. n-1``) fit both methods, which are
-  scored on *held-out* grasps (seeds ``n .. 2n-1``: other objects, grips and loads).
+  setting (Farneback at half and quarter resolution, DIS at half), on both worlds: each
+  setting's features of the *calibration* grasps fit both methods, which are scored on
+  *held-out* grasps. ``world.sim``: seeds ``0 .. n-1`` against ``n .. 2n-1`` (other
+  objects, grips and loads). MuJoCo (``world.mujoco``, whose engine computes the
+  contact forces): ``bench.worlds``' grasps (the four objects in turn, a 12 N grasp,
+  a 4 mm slide along the fingers; recorded once per scene and mesh in ``out/worlds``
+  or ``WORLDS_DIR``, shared with ``bench.worlds``), the first half against the second,
+  an 8 mm membrane mesh (12 mm with ``--quick``). The slip, reflex and handover sweeps
+  are ``world.sim``'s only (MuJoCo's object is held by a hand, without gravity: it
+  cannot slip out).
   Errors per bubble and frame in contact while the object is held (slid less than
   ``DROP_M``): force (N), torque (N m), force in percent of
   the bubble's true load; median and p90; plus the share of frames within the goal
@@ -36,16 +43,22 @@ every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` e
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import os
+import tempfile
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
+import yaml
 
 import sim
 from bench.common import Row, main, median, one_core, percentile, progress
 from bench.force_data import DROP_M, OBJECTS, Frame, draw, free_and_still, held, samples
 from geometry.camera import PinholeCamera
 from geometry.gripper import SIDES
+from messages.force import WrenchTruth
 from perception.force.estimators import METHODS, Calibration, calibrate, estimate
 from perception.force.features import BubbleFeatures, ContactFeatures, FeatureParams
 from perception.force.reflex import GripReflex, PullWatch, ReflexParams
@@ -97,33 +110,71 @@ class Bubbles:
         return out
 
 
-def record_all(
-    seed: int, duration_secs: float, *, load: str | None = None, settings: tuple[str, ...] = ()
+def features_of(
+    instants: list[sim.Instant],
+    scene: sim.Scene,
+    truths: list[WrenchTruth],
+    settings: tuple[str, ...] = (),
 ) -> Recorded:
-    """Render one grasp once; every setting (default: all) extracts its features from
-    the same frames."""
-    spec = draw(seed, duration_secs=duration_secs, load=load)
-    simulator = sim.Simulator(spec.scene)
+    """Every setting's (default: all) features of one grasp's frames, beside the truth."""
     bubbles = {name: Bubbles(SETTINGS[name]) for name in settings or SETTINGS}
     rec = Recorded([], {name: [] for name in bubbles})
-    none = sim.friction.BubbleWrench.none()
-    while not simulator.world.done:
-        inst = simulator.step()
+    for inst, truth in zip(instants, truths, strict=True):
         snap = inst.snapshot
         for name, b in bubbles.items():
-            rec.by_setting[name].append(b.frame(inst, spec.scene))
+            rec.by_setting[name].append(b.frame(inst, scene))
+        none = sim.friction.BubbleWrench.none()
         rec.frames.append(
             Frame(
                 t_secs=snap.time_secs,
-                features=rec.by_setting[DEFAULT_SETTING][-1],
-                force_n={s: snap.wrench.get(s, none).force_n for s in SIDES},
-                torque_nm={s: snap.wrench.get(s, none).torque_nm for s in SIDES},
+                features=rec.by_setting[next(iter(bubbles))][-1],
+                force_n={s: truth.bubble_force_n[i] for i, s in enumerate(SIDES)},
+                torque_nm={s: truth.bubble_torque_nm[i] for i, s in enumerate(SIDES)},
                 slipping={s: snap.wrench.get(s, none).slipping_fraction for s in SIDES},
                 slide_m=snap.slide_m.copy(),
                 feature_secs=0.0,
             )
         )
     return rec
+
+
+def record_all(
+    seed: int, duration_secs: float, *, load: str | None = None, settings: tuple[str, ...] = ()
+) -> Recorded:
+    """Render one grasp of the simulated world once; every setting (default: all)
+    extracts its features from the same frames."""
+    spec = draw(seed, duration_secs=duration_secs, load=load)
+    simulator = sim.Simulator(spec.scene)
+    instants = []
+    while not simulator.world.done:
+        instants.append(simulator.step())
+    truths = [inst.wrench for inst in instants]
+    assert all(t is not None for t in truths)
+    return features_of(instants, spec.scene, truths, settings)  # type: ignore[arg-type]
+
+
+def mujoco_grasps(count: int, spacing_m: float, workdir: Path) -> list[Recorded]:
+    """``bench.worlds``' grasps on the MuJoCo world (recorded once per scene and mesh in
+    ``workdir``, shared with ``bench.worlds``), with the engine's wrench as the truth."""
+    from bench import worlds
+    from runtime.bag import BagReader
+
+    rng = np.random.default_rng(worlds.SEED)
+    out = []
+    for k in progress(range(count), "bench.force mujoco"):
+        doc = worlds.grasp_scene(k, rng)
+        text = yaml.safe_dump(doc, sort_keys=False)
+        key = hashlib.sha256(f"{text}{spacing_m}".encode()).hexdigest()[:10]
+        scene_path = workdir / f"grasp_{k}_{key}.yaml"
+        scene_path.write_text(text)
+        bag = scene_path.with_suffix(".mcap")
+        if not (bag.exists() and bag.with_suffix(".json").exists()):
+            worlds.record_mujoco(scene_path, bag, spacing_m)
+        instants = worlds.replay_mujoco(scene_path, bag)
+        with BagReader(bag) as reader:
+            truths = [m.decode() for m in reader.messages(["world/wrench"])]
+        out.append(features_of(instants, sim.load_scene(scene_path), truths))
+    return out
 
 
 def time_setting(
@@ -148,7 +199,10 @@ def time_setting(
     return best
 
 
-def wrench_rows(cal_recs: list[Recorded], test_recs: list[Recorded], secs: dict[str, float]):
+def wrench_rows(
+    world: str, cal_recs: list[Recorded], test_recs: list[Recorded], secs: dict[str, float]
+) -> tuple[list[Row], dict[str, Calibration]]:
+    """Each setting's calibration on ``cal_recs``, each method scored on ``test_recs``."""
     rows: list[Row] = []
     cals: dict[str, Calibration] = {}
     for setting in SETTINGS:
@@ -159,7 +213,7 @@ def wrench_rows(cal_recs: list[Recorded], test_recs: list[Recorded], secs: dict[
                 for f, feats in zip(rec.frames, rec.by_setting[setting], strict=True)
             ]
             data += samples(frames)
-        cal = calibrate(data, rig="sim", source="bench.force")
+        cal = calibrate(data, rig=world, source="bench.force")
         cals[setting] = cal
         for method in METHODS:
             ferr, terr, pct, within = [], [], [], []
@@ -178,6 +232,7 @@ def wrench_rows(cal_recs: list[Recorded], test_recs: list[Recorded], secs: dict[
             rows.append(
                 {
                     "sweep": "wrench",
+                    "world": world,
                     "setting": setting,
                     "method": method,
                     "samples": len(ferr),
@@ -250,6 +305,7 @@ def slip_rows(test_recs: list[Recorded], cal: Calibration, period_secs: float) -
         rows.append(
             {
                 "sweep": "slip",
+                "world": "sim",
                 "setting": DEFAULT_SETTING,
                 "method": f"onset_{phase}",
                 "samples": total,
@@ -315,6 +371,7 @@ def reflex_rows(seeds: list[int], duration_secs: float, cal: Calibration) -> lis
         rows.append(
             {
                 "sweep": "reflex",
+                "world": "sim",
                 "setting": "on" if reflex else "off",
                 "method": "physics",
                 "samples": len(runs),
@@ -402,6 +459,7 @@ def handover_rows(seeds: list[int], cal: Calibration, period_secs: float) -> lis
         rows.append(
             {
                 "sweep": "handover",
+                "world": "sim",
                 "setting": "decision",
                 "method": rule,
                 "samples": len(runs),
@@ -429,8 +487,16 @@ def run(quick: bool) -> list[Row]:
         setting: time_setting(test_seeds[0], min(duration, 2.0), setting, placeholder, repeats)
         for setting in progress(list(SETTINGS), "bench.force timing")
     }
-    rows, cals = wrench_rows(cal_recs, test_recs, secs)
+    rows, cals = wrench_rows("sim", cal_recs, test_recs, secs)
     cal = cals[DEFAULT_SETTING]
+    # The second world: the engine's contact forces, calibrated on its own grasps.
+    count = 2 if quick else 8
+    with tempfile.TemporaryDirectory() as tmp:
+        workdir = Path(tmp) if quick else Path(os.environ.get("WORLDS_DIR", "out/worlds"))
+        workdir.mkdir(parents=True, exist_ok=True)
+        recs = mujoco_grasps(count, 0.012 if quick else 0.008, workdir)
+    half = count // 2
+    rows += wrench_rows("mujoco", recs[:half], recs[half:], secs)[0]
     period = draw(0).scene.frame_period_secs
     # Long still holds for the false alarms (the default setting only).
     still = [
@@ -445,7 +511,7 @@ def run(quick: bool) -> list[Row]:
 
 
 COLUMNS = [
-    "sweep", "setting", "method", "samples", "force_err_n_median", "force_err_pct_median",
+    "sweep", "world", "setting", "method", "samples", "force_err_n_median", "force_err_pct_median",
     "torque_err_nm_median", "within_goal_fraction", "ms_per_frame", "rate_hz",
     "detected_fraction", "onset_frames_median", "onset_ms_median", "false_alarms_per_min",
     "kept", "dropped", "release_latency_ms_median", "false_release_rate",

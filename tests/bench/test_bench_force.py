@@ -17,8 +17,11 @@ def test_quick_json_has_every_sweep() -> None:
     sweeps = {r["sweep"] for r in rows}
     assert sweeps == {"wrench", "slip", "reflex", "handover"}
     wrench = [r for r in rows if r["sweep"] == "wrench"]
-    assert {(r["setting"], r["method"]) for r in wrench} == {
-        (s, m) for s in ("fb_half", "fb_quarter", "dis_half") for m in ("physics", "ridge")
+    assert {(r["world"], r["setting"], r["method"]) for r in wrench} == {
+        (w, s, m)
+        for w in ("sim", "mujoco")
+        for s in ("fb_half", "fb_quarter", "dis_half")
+        for m in ("physics", "ridge")
     }
     for r in wrench:
         assert r["samples"] > 0
