@@ -1,6 +1,6 @@
 """What a node counts per input, and the launcher's end-of-run table made of it.
 
-:class:`InputCounters` live in each node process (``runtime.process``), which reports
+:class:`InputCounters` live in each node process (``runtime.runner``), which reports
 them with every heartbeat. The table, per topic: messages published, the rate, and what
 its subscribers lost (``dropped``), skipped on purpose (``superseded``), could not
 decode (``bad``) and received with a NaN or infinity where the type says a number is

@@ -1,7 +1,7 @@
 """The Node base class: declared ports, typed parameters, handlers, timers.
 
 A node's logic never builds its own transport: it receives an :class:`IO` object.
-In a graph that is the ZeroMQ process runner (``runtime.process``); in tests it is
+In a graph that is the ZeroMQ process runner (``runtime.runner``); in tests it is
 :class:`runtime.testing.FakeIO`, which feeds messages and records outputs.
 
 A node class declares::

@@ -58,7 +58,7 @@ REFUSED_LOG_FIRST = 10  # a refused message is logged for the first ten, then ev
 REFUSED_LOG_EVERY = 100
 SECRET_BYTES = 32
 TAG_BYTES = 16
-# Counters of one input in a node's stats (see ``runtime.process.InputCounters``).
+# Counters of one input in a node's stats (see ``runtime.runner.InputCounters``).
 INPUT_COUNTERS = ("received", "dropped", "superseded", "bad_frames", "nonfinite")
 
 _NUMBER = (int, float)

@@ -13,17 +13,19 @@ with other options is refused, naming the flags that differ.
 
 from __future__ import annotations
 
+import argparse
 import shlex
 import socket
 import sys
 from pathlib import Path
 from typing import Any
 
+from cli.taps import add_recorder, add_viewer, viewer_refused
 from messages.errors import GraphError
+from runtime import graph as graphs
 from runtime.graph import Graph, check
 from runtime.launcher import Launcher
 from runtime.security import KeyPair, default_key_dir, load_key
-from runtime.taps import add_recorder
 
 
 def host_keys(graph: Graph, host: str, key_dir: Path | None) -> KeyPair | None:
@@ -142,3 +144,69 @@ def launch(
         print(f"graph check failed:\n{err}", file=sys.stderr)
         return 2
     return launcher.run()
+
+
+def emulated(doc: dict[str, Any], rig_file: str | None) -> dict[str, Any]:
+    """The graph on an emulated rig (``sim.rig_launch``); its errors as graph errors."""
+    from sim.rig_launch import activate, emulate
+
+    try:
+        rig, feed, _ = activate(rig_file)
+        return emulate(doc, rig=rig, feed=feed)
+    except ValueError as err:
+        raise GraphError(str(err)) from err
+
+
+def main(args: argparse.Namespace) -> int:
+    """``launch.py [run] GRAPH ...``: check the graph, then run it or say it is OK."""
+    refused = None if args.check else viewer_refused(args.view)
+    if refused:
+        print(refused, file=sys.stderr)
+        return 2
+    import nodes  # noqa: F401 - the index of node implementations (no node module)
+
+    source = str(args.graph)
+    try:
+        doc = graphs.load_document(args.graph)
+        if args.emulate:
+            doc = emulated(doc, args.rig)
+        elif args.rig:
+            raise GraphError(f"{source}: --rig needs --emulate")
+        only = [n for n in args.only.split(",") if n]
+        doc = graphs.apply_overrides(
+            doc, sets=args.sets, swaps=args.swaps, only=only, source=source
+        )
+        if args.view is not None:
+            doc = add_viewer(doc, args.view, source=source)
+        checked = check(doc, source=source)
+    except GraphError as err:
+        print(f"graph check failed:\n{err}", file=sys.stderr)
+        return 2
+    if args.check:
+        if args.host is not None:
+            try:
+                keys = host_keys(checked, args.host, args.keys)
+                check_here(checked, args.host)
+            except GraphError as err:
+                print(f"graph check failed:\n{err}", file=sys.stderr)
+                return 2
+            on = f"; host {args.host}" + (", its key matches" if keys else "")
+        elif checked.hosts.table:
+            on = f"; hosts: {', '.join(checked.hosts.table)} (run each with --host NAME)"
+        else:
+            on = ""
+        print(f"{source}: OK, {len(checked.nodes)} nodes, {len(checked.edges())} edges{on}")
+        return 0
+    return launch(
+        doc,
+        source=source,
+        record=args.record,
+        topics=args.record_topics,
+        overwrite=args.overwrite,
+        lockstep=args.lockstep,
+        duration_secs=args.duration,
+        log_level=args.log_level,
+        command_line=args.command_line,
+        host=args.host,
+        key_dir=args.keys,
+    )

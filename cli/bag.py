@@ -1,5 +1,5 @@
 """The bag command line: ``bag info|echo|diff|recover`` (see docs/bags.md; ``launch.py
-replay`` is :mod:`runtime.replaytool`).
+replay`` is :mod:`runtime.replaygraph`).
 
 python launch.py bag info FILE [--graph]
 python launch.py bag recover FILE OUT
@@ -28,6 +28,7 @@ import numpy as np
 import yaml
 
 from messages.errors import BagError
+from messages.files import load_yaml
 from runtime.bag import BagMessage, BagReader, BagWriter
 
 log = logging.getLogger(__name__)
@@ -51,19 +52,22 @@ def summarize_array(value: np.ndarray) -> str:
     return text
 
 
-def _show(value: Any, full: bool) -> Any:
+def show_value(value: Any, full: bool) -> Any:
+    """A decoded field as ``bag echo`` and ``topic echo`` print it: small arrays as lists,
+    large ones summarized (all with ``full``)."""
     if isinstance(value, np.ndarray):
         if full or value.size <= 16:
             return value.tolist()
         return summarize_array(value)
     if isinstance(value, dict):
-        return {k: _show(v, full) for k, v in value.items()}
+        return {k: show_value(v, full) for k, v in value.items()}
     if isinstance(value, list):
-        return [_show(v, full) for v in value]
+        return [show_value(v, full) for v in value]
     return value
 
 
-def _stamp(nanos: int) -> str:
+def stamp_text(nanos: int) -> str:
+    """A stamp as UTC date and time (wall clock) or seconds (scene time)."""
     if nanos > 10**17:  # a wall-clock stamp: show it as UTC
         when = datetime.datetime.fromtimestamp(nanos / 1e9, tz=datetime.UTC)
         return when.strftime("%Y-%m-%d %H:%M:%S.%f UTC")
@@ -89,8 +93,8 @@ def info_text(path: Path, *, show_graph: bool = False) -> str:
         if counted:
             start = min(s.first_log_nanos for s in counted)
             end = max(s.last_log_nanos for s in counted)
-            lines.append(f"start:     {_stamp(start)}")
-            lines.append(f"end:       {_stamp(end)}")
+            lines.append(f"start:     {stamp_text(start)}")
+            lines.append(f"end:       {stamp_text(end)}")
             lines.append(f"duration:  {(end - start) / 1e9:.3f} s")
         lines.append(f"messages:  {total}")
         if reader.lost_messages:
@@ -142,7 +146,7 @@ def info_text(path: Path, *, show_graph: bool = False) -> str:
 
 def _graph_nodes(text: str) -> list[str]:
     try:
-        doc = yaml.safe_load(text)
+        doc = load_yaml(text)
     except yaml.YAMLError:
         return []
     if isinstance(doc, dict) and isinstance(doc.get("nodes"), dict):
@@ -174,7 +178,7 @@ def echo_lines(
                 return
             head = (
                 f"--- {topic} #{index} {msg.channel.schema.type_name} seq {msg.sequence} "
-                f"log {_stamp(msg.log_time_nanos)} {msg.position()}"
+                f"log {stamp_text(msg.log_time_nanos)} {msg.position()}"
             )
             try:
                 fields = msg.decode_plain()
@@ -187,7 +191,7 @@ def echo_lines(
                 continue
             yield head
             for name, value in fields.items():
-                yield f"{name}: {_show(value, full)}"
+                yield f"{name}: {show_value(value, full)}"
 
 
 # -- recover -------------------------------------------------------------------------------------
@@ -342,49 +346,19 @@ def diff_bags(
 # -- bag main ------------------------------------------------------------------------------------
 
 
-def main(argv: Sequence[str]) -> int:
-    """``launch.py bag info|echo|diff ...`` (exit code: 0 ok, 1 differences, 2 error)."""
-    parser = argparse.ArgumentParser(prog="python launch.py bag", description="Inspect MCAP bags.")
-    sub = parser.add_subparsers(dest="command", required=True)
-    p_info = sub.add_parser("info", help="topics, types, counts, rates, duration, drops, graph")
-    p_info.add_argument("file", type=Path)
-    p_info.add_argument("--graph", action="store_true", help="also print the stored graph")
-    p_echo = sub.add_parser("echo", help="print a topic's messages, arrays summarized")
-    p_echo.add_argument("file", type=Path)
-    p_echo.add_argument("--topic", required=True)
-    p_echo.add_argument("--limit", type=int, default=None)
-    p_echo.add_argument("--full", action="store_true", help="print arrays in full")
-    p_echo.add_argument(
-        "--strict", action="store_true", help="stop at a message that cannot be decoded"
-    )
-    p_recover = sub.add_parser("recover", help="rewrite a damaged or cut bag with a summary")
-    p_recover.add_argument("file", type=Path)
-    p_recover.add_argument("out", type=Path)
-    p_diff = sub.add_parser("diff", help="per-message differences; exit 0 only when none")
-    p_diff.add_argument("a", type=Path)
-    p_diff.add_argument("b", type=Path)
-    p_diff.add_argument("--topic", action="append", default=[], help="repeatable; default all")
-    p_diff.add_argument("--rtol", type=float, default=1e-9)
-    p_diff.add_argument("--atol", type=float, default=0.0)
-    p_diff.add_argument(
-        "--ignore", action="append", default=[], metavar="FIELD", help="e.g. header.stamp_nanos"
-    )
-    p_diff.add_argument("--max-lines", type=int, default=50)
-    p_diff.add_argument(
-        "--strict", action="store_true", help="stop at a message that cannot be decoded"
-    )
-    args = parser.parse_args(list(argv))
+def main(args: argparse.Namespace) -> int:
+    """``launch.py bag info|echo|diff|recover ...`` (exit code: 0 ok, 1 differences, 2 error)."""
     try:
-        if args.command == "info":
+        if args.bag_command == "info":
             print(info_text(args.file, show_graph=args.graph))
             return 0
-        if args.command == "recover":
+        if args.bag_command == "recover":
             copied, problems = recover(args.file, args.out)
             for problem in problems:
                 print(f"warning: {problem}", file=sys.stderr)
             print(f"{args.out}: {copied} message(s) recovered from {args.file}")
             return 0
-        if args.command == "echo":
+        if args.bag_command == "echo":
             skipped: list[str] = []
             lines = echo_lines(
                 args.file,
@@ -409,7 +383,7 @@ def main(argv: Sequence[str]) -> int:
             strict=args.strict,
         )
     except BagError as err:
-        print(f"bag {args.command}: {err}", file=sys.stderr)
+        print(f"bag {args.bag_command}: {err}", file=sys.stderr)
         return 2
     except BrokenPipeError:
         return 0

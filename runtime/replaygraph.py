@@ -1,36 +1,25 @@
-"""The replay command line: ``launch.py replay`` (see docs/bags.md).
+"""The graph that replays a bag: the recorded graph with some nodes swapped and live, and a
+``replay`` node publishing the recorded topics they need (see docs/bags.md).
 
-python launch.py replay FILE [--graph G] [--swap NODE[=IMPL] ...] [--rate X | --fast]
-                        [--loop] [--start S] [--end E] [--replay-topics RE] [--remap A=B ...]
-                        [--lockstep] [--strict] [--record OUT [--record-topics RE] [--overwrite]]
-                        [--duration S] [--host NAME [--keys DIR] | --no-hosts]
-                        [--set NODE.PARAM=VALUE ...] [--print-graph]
-
-``replay`` runs the graph stored in the bag (or ``--graph``) with the nodes named
-in ``--swap`` (and everything downstream of them) live, and a ``replay`` node publishing
-the recorded topics they need (see :func:`build_replay_graph`). A graph with a hosts
-table replays across its hosts, one launcher per host (``--host NAME``, the replay node on
-the first host), or on this machine alone with ``--no-hosts`` (docs/hosts.md).
+``launch.py replay`` (``cli.replay``) runs the graph stored in the bag (or ``--graph``)
+with the nodes named in ``--swap`` (and everything downstream of them) live (see
+:func:`build_replay_graph`). A graph with a hosts table replays across its hosts, one
+launcher per host (``--host NAME``, the replay node on the first host), or on this
+machine alone with ``--no-hosts`` (docs/hosts.md).
 """
 
 from __future__ import annotations
 
-import argparse
 import copy
 import logging
 import re
-import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from messages.errors import BagError, GraphError
+from messages.errors import GraphError
 from runtime.bag import BagReader, topic_filter
-from runtime.cli import add_deprecated, add_run_options, shared_command_line
-from runtime.hosts import without_hosts
 
 log = logging.getLogger(__name__)
 
@@ -195,108 +184,3 @@ def build_replay_graph(
     result = {k: v for k, v in doc.items() if k != "nodes"}
     result["nodes"] = out_nodes
     return result
-
-
-def _pairs(values: Sequence[str], flag: str, *, allow_bare: bool = False) -> dict[str, str]:
-    out = {}
-    for value in values:
-        key, sep, rest = value.partition("=")
-        if not key or (not sep and not allow_bare) or (sep and not rest):
-            raise SystemExit(f"{flag} {value!r}: expected NAME=VALUE")
-        out[key] = rest
-    return out
-
-
-def replay_main(argv: Sequence[str]) -> int:
-    """``launch.py replay ...``: build the replay graph and run it (exit code)."""
-    parser = argparse.ArgumentParser(
-        prog="python launch.py replay",
-        description="Replay a bag through its graph (or --graph), the nodes named in --swap "
-        "and everything downstream of them live (see docs/bags.md).",
-    )
-    parser.add_argument("bag", type=Path)
-    parser.add_argument("--graph", type=Path, default=None, help="graph file (default: the bag's)")
-    add_run_options(
-        parser,
-        swap_metavar="NODE[=IMPL]",
-        swap_help="run NODE live, with IMPL if given (repeatable)",
-    )
-    pace = parser.add_mutually_exclusive_group()
-    pace.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1)")
-    pace.add_argument("--fast", action="store_true", help="as fast as possible")
-    parser.add_argument("--loop", action="store_true")
-    parser.add_argument("--start", type=float, default=0.0, metavar="SECS")
-    parser.add_argument("--end", type=float, default=None, metavar="SECS")
-    parser.add_argument(
-        "--replay-topics", default="", metavar="REGEX", help="the bag topics to replay"
-    )
-    parser.add_argument("--remap", action="append", default=[], metavar="BAG_TOPIC=TOPIC")
-    parser.add_argument(
-        "--strict", action="store_true", help="stop at a message that cannot be decoded"
-    )
-    parser.add_argument(
-        "--no-hosts",
-        action="store_true",
-        help="drop the graph's hosts table: replay a bag recorded across hosts on this machine",
-    )
-    parser.add_argument("--print-graph", action="store_true", help="print the graph; run nothing")
-    add_deprecated(parser, "--replace", "--swap", "swaps", append=True)
-    add_deprecated(parser, "--topics", "--replay-topics", "replay_topics")
-    args = parser.parse_args(list(argv))
-    try:
-        if args.graph is not None:
-            from runtime.graph import load_document
-
-            graph = load_document(args.graph)
-        else:
-            with BagReader(args.bag) as reader:
-                text = reader.run_info().get("graph_yaml", "")
-            if not text:
-                print(f"{args.bag}: the bag stores no graph; pass --graph", file=sys.stderr)
-                return 2
-            graph = yaml.safe_load(text)
-        if args.no_hosts:
-            if args.host is not None:
-                raise GraphError("--no-hosts and --host: give one of them")
-            graph = without_hosts(graph)
-        options = ReplayOptions(
-            rate=args.rate,
-            fast=args.fast,
-            loop=args.loop,
-            start_secs=args.start,
-            end_secs=args.end,
-            topics=args.replay_topics,
-            remap=_pairs(args.remap, "--remap"),
-            lockstep=args.lockstep,
-            strict=args.strict,
-        )
-        replay_graph = build_replay_graph(
-            graph, args.bag, _pairs(args.swaps, "--swap", allow_bare=True), options
-        )
-        if args.sets:
-            from runtime.graph import apply_overrides
-
-            replay_graph = apply_overrides(replay_graph, sets=args.sets, source=str(args.bag))
-    except (BagError, GraphError, ValueError) as err:
-        print(f"replay: {err}", file=sys.stderr)
-        return 2
-    if args.print_graph:
-        print(yaml.safe_dump(replay_graph, sort_keys=False), end="")
-        return 0
-    from runtime.run import launch
-
-    return launch(
-        replay_graph,
-        source=f"{args.bag} (replay)",
-        record=args.record,
-        topics=args.record_topics,
-        overwrite=args.overwrite,
-        # Counts are tracked in every mode, so that the replay node, when it has published
-        # everything, can wait for the graph to drain before it asks it to stop.
-        lockstep=True,
-        duration_secs=args.duration,
-        log_level=args.log_level,
-        command_line=shared_command_line(["launch.py", "replay", *argv]),
-        host=args.host,
-        key_dir=args.keys,
-    )
