@@ -45,7 +45,7 @@ from geometry.se3 import invert, log_so3, make_pose, rotation_about
 from perception.calibration.procedure import Plan, calibrate
 from perception.contact import ContactParams, ContactPatcher
 from perception.pose import EstimatorParams, LMSolver, PoseEstimator
-from perception.pose.common import axis_error_deg, offaxis_error_m
+from perception.pose.metrics import axis_error_deg, offaxis_error_m
 from sim import World, render_grasp
 from sim.emulated_lab import AWAY, CALIBRATION_POSES, EmulatedLab
 from sim.emulated_rig import as_built_renderer, load_rig, sdk_points

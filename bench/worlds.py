@@ -62,7 +62,7 @@ from geometry.gripper import SIDES
 from perception.classify.checkpoint import Classifier
 from perception.contact import ContactParams, ContactPatcher, contact_mask
 from perception.grasp import GraspMonitor
-from perception.pose import common
+from perception.pose import metrics
 from perception.pose.estimator import PoseEstimator
 from perception.pose.ipopt import IpoptParams, IpoptSolver
 from perception.pose.lm import LMSolver
@@ -215,8 +215,8 @@ def score(frames: list[Instant], classifier: Classifier) -> dict[str, Any]:
     ):
         estimator = PoseEstimator(solver, symmetric_about_z=model.symmetric_about_z)
         result = estimator.estimate(cloud.points_in_tool.astype(np.float64), cloud.bubble)
-        axis = common.axis_error_deg(result.tool_from_object, truth, flip_symmetric=True)
-        off = common.offaxis_error_m(result.tool_from_object, truth)
+        axis = metrics.axis_error_deg(result.tool_from_object, truth, flip_symmetric=True)
+        off = metrics.offaxis_error_m(result.tool_from_object, truth)
         right = axis < AXIS_OK_DEG and off < OFFAXIS_OK_M
         out[f"{solver_name}_axis_deg"] = axis
         out[f"{solver_name}_offaxis_mm"] = off * 1000.0

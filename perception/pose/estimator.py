@@ -14,8 +14,9 @@ asks for around it:
   each patch's principal directions and the cardinal axes) and then the best
   minimum's turns (``seeds.turns``: 90 degrees about its x and y axes, over, and about
   z for objects that are not bodies of revolution; turns that are symmetries of the
-  object are skipped) are solved on a subsample (``screen_points``); the two best
-  distinct minima (up to the object's symmetry) are polished on the full cloud.
+  object are skipped) are solved on a subsample (``screen_points``); the best distinct
+  minimum (up to the object's symmetry) and up to three close ones are polished on the
+  full cloud.
 - Judgement (``judge``), the same whatever solver found the answer, with the noise
   measured from the cloud itself (``cloud.estimate_noise_m``) unless ``noise_m`` is
   configured. The uncertainty of the answer (``judge.uncertainty``: a covariance from
@@ -55,7 +56,14 @@ from geometry import se3
 from geometry.fields import Field
 from perception.pose import judge
 from perception.pose.cloud import clean_cloud, clean_points, estimate_noise_m
-from perception.pose.problem import MIN_POINTS, FitResult, check_rigid, residuals, spread_problem
+from perception.pose.problem import (
+    MIN_POINTS,
+    FitResult,
+    check_rigid,
+    flatness_m,
+    residuals,
+    spread_problem,
+)
 from perception.pose.seeds import seed_poses, turns
 from perception.pose.symmetry import pose_difference, symmetry_rotations
 
@@ -279,8 +287,9 @@ class PoseEstimator:
         self, pts: np.ndarray, sides: np.ndarray | None, prior: np.ndarray | None, noise: float
     ) -> tuple[list[_Minimum], int, int]:
         """Screen the prior, the data seeds and the best minimum's turns on a subsample,
-        then polish the best distinct minimum on the full cloud, and the runner-up too
-        when it was within four times the ambiguity margin on the subsample."""
+        then polish the best distinct minimum on the full cloud, and up to three more that
+        were within four times the ambiguity margin on the subsample (the alternatives
+        the judgement compares it with)."""
         prm = self.params
         screen = clean_points(pts, prm.screen_points)
         data = [se3.invert(s) for s in seed_poses(pts, sides)]
@@ -312,7 +321,7 @@ class PoseEstimator:
         polished = []
         close = 4.0 * prm.ambiguity_ratio * noise**2 * len(screen)
         for m in ranked[:1] + [
-            r for r in ranked[1:2] if r.result.cost - ranked[0].result.cost < close
+            r for r in ranked[1:4] if r.result.cost - ranked[0].result.cost < close
         ]:
             result = (
                 self._solve(pts, m.result.object_from_tool)
@@ -394,6 +403,14 @@ class PoseEstimator:
         seen = sum(unc.observable)
         if seen < prm.min_observable:
             reasons.append(f"only {seen} of 6 directions observable")
+        flat = flatness_m(pts)
+        if not had_prior and flat < 2.0 * noise:
+            # One flat patch fits any flat face of the object equally well; the search
+            # need not find every face, so without a prior it is never trusted.
+            reasons.append(
+                f"a single flat patch (thickness {1e3 * flat:.2f} mm, within twice the noise) "
+                "cannot tell which face it touches without a prior"
+            )
         alike, differ = self._alternatives(result, unc, usable[1:], noise, len(pts))
         reasons += differ
         if reasons:

@@ -56,6 +56,9 @@ CHI2_95 = (0.0, 3.841, 5.991, 7.815, 9.488, 11.070, 12.592)
 #: Fitted calibration (module docstring; measured by ``bench.pose_hard``).
 INFLATION = 1.3
 MODEL_ERROR = 2.0
+#: How far along its gradient (in residual RMS) the field must stay smooth at a point for
+#: the point to count toward what the patch observes.
+REACH = 6.0
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -152,9 +155,9 @@ def uncertainty(
     n = len(r)
     # Which directions the patch observes is decided by the points where the field is
     # smooth across the noise; a point that noise pushed past a rim or an edge (its
-    # gradient turns within two sigma along itself) would make a slide "observed".
+    # gradient turns within REACH residual RMS along itself) would make a slide "observed".
     q = points_in_tool @ object_from_tool[:3, :3].T + object_from_tool[:3, 3]
-    reach = 2.0 * float(np.sqrt(r @ r / max(n, 1)))
+    reach = REACH * float(np.sqrt(r @ r / max(n, 1)))
     grad = jac[:, :3]
     smooth = np.ones(n, dtype=bool)
     for sign in (-1.0, 1.0):

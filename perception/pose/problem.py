@@ -93,15 +93,26 @@ MIN_POINTS = 6  # six unknowns
 MIN_SPREAD_M = 1e-5  # the smallest principal standard deviation a cloud must reach
 
 
+def principal_spreads_m(points: np.ndarray) -> np.ndarray:
+    """The principal standard deviations of finite (N, 3) points, largest first."""
+    centred = points - points.mean(axis=0)
+    # Eigenvalues of the 3x3 scatter: far cheaper than an SVD of (N, 3).
+    return np.sqrt(np.maximum(np.linalg.eigvalsh(centred.T @ centred / len(points))[::-1], 0.0))
+
+
+def flatness_m(points: np.ndarray) -> float:
+    """The smallest principal standard deviation of finite (N, 3) points: about the noise
+    for a single flat patch."""
+    return float(principal_spreads_m(points)[2])
+
+
 def spread_problem(points: np.ndarray, min_spread_m: float = MIN_SPREAD_M) -> str:
     """Why finite (N, 3) points cannot fix a pose ("" if they can): too few, all at one
     point, on a line or on a plane (principal standard deviations under ``min_spread_m``)."""
     n = len(points)
     if n < MIN_POINTS:
         return f"{n} finite points, at least {MIN_POINTS} needed"
-    centred = points - points.mean(axis=0)
-    # Eigenvalues of the 3x3 scatter, largest first: far cheaper than an SVD of (N, 3).
-    std = np.sqrt(np.maximum(np.linalg.eigvalsh(centred.T @ centred / n)[::-1], 0.0))
+    std = principal_spreads_m(points)
     shape = ("at one point", "on a line", "on a plane")
     for k, name in enumerate(shape):
         if std[k] < min_spread_m:
