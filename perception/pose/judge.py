@@ -55,7 +55,7 @@ from perception.pose.problem import (
 CHI2_95 = (0.0, 3.841, 5.991, 7.815, 9.488, 11.070, 12.592)
 #: Fitted calibration (module docstring; measured by ``bench.pose_hard``).
 INFLATION = 1.3
-MODEL_ERROR = 2.0
+MODEL_ERROR = 1.0
 #: How far along its gradient (in residual RMS) the field must stay smooth at a point for
 #: the point to count toward what the patch observes.
 REACH = 6.0
