@@ -5,7 +5,8 @@
 - ``cloud``: finite rows, subsampling and the noise measured from the cloud.
 - ``seeds``: cold-start seeds from the data and the turns of a minimum.
 - ``symmetry``: the object's symmetry turns and the distance between two estimates.
-- ``metrics``: the errors benches and tests score estimates with.
+- ``judge``: the uncertainty of an estimate and what the verdict compares with it.
+- ``metrics``: the errors benches and tests score estimates with (right, covered).
 - ``lm``: Levenberg-Marquardt on SE(3) (fast path).
 - ``ipopt``: the paper's formulation with CasADi and IPOPT.
 - ``icp``: point-to-point ICP against a sampled model surface (baseline).
