@@ -411,7 +411,19 @@ class PoseEstimator:
                 f"a single flat patch (thickness {1e3 * flat:.2f} mm, within twice the noise) "
                 "cannot tell which face it touches without a prior"
             )
-        alike, differ = self._alternatives(result, unc, usable[1:], noise, len(pts))
+        close = [
+            m.result.object_from_tool
+            for m in usable[1:]
+            if (m.result.cost - result.cost) / len(pts) < prm.ambiguity_ratio * noise**2
+        ]
+        alike, differ = judge.alternatives(
+            unc,
+            result.object_from_tool,
+            close,
+            turns=self._turn_labels,
+            tolerance_deg=prm.tolerance_deg,
+            tolerance_m=prm.tolerance_m,
+        )
         reasons += differ
         if reasons:
             status = "suspect"
@@ -426,51 +438,6 @@ class PoseEstimator:
             alternatives="; ".join(alike),
         )
         return self._finish(result, status, "; ".join(reasons), iterations, tried, noise, start)
-
-    def _alternatives(
-        self,
-        result: FitResult,
-        unc: judge.Uncertainty,
-        others: list[_Minimum],
-        noise: float,
-        n: int,
-    ) -> tuple[list[str], list[str]]:
-        """Other minima that fit about as well: ``(those that agree with the answer on
-        every observable direction, those that do not)``, described."""
-        prm = self.params
-        alike: list[str] = []
-        differ: list[str] = []
-        for other in others:
-            gap = (other.result.cost - result.cost) / max(n, 1)
-            if gap >= prm.ambiguity_ratio * noise**2:
-                continue
-            angle, offset, how = np.inf, np.inf, ""
-            for turn, label in self._turn_labels:
-                coords = judge.observed_difference(
-                    unc,
-                    result.object_from_tool,
-                    se3.make_pose(turn) @ other.result.object_from_tool,
-                )
-                # End over end, the ends trade places along the axis: the axis and the
-                # position across it are what must agree.
-                a, o = judge.extent(unc, coords, ignore=(2,) if label else ())
-                if max(a / prm.tolerance_deg, o / prm.tolerance_m) < max(
-                    angle / prm.tolerance_deg, offset / prm.tolerance_m
-                ):
-                    angle, offset, how = a, o, label
-            if angle <= prm.tolerance_deg and offset <= prm.tolerance_m:
-                unseen = ", ".join(unc.unobservable) or "none"
-                alike.append(
-                    f"another minimum fits as well and differs only where the patch cannot "
-                    f"see ({how or 'unobservable directions'}: {unseen})"
-                )
-            else:
-                differ.append(
-                    f"another minimum {angle:.1f} deg / {1e3 * offset:.1f} mm away along "
-                    f"observable directions fits as well (mean square {1e6 * gap:.4f} mm^2 "
-                    f"worse, under {prm.ambiguity_ratio} x noise^2)"
-                )
-        return alike, differ
 
     def _bias_limit_m(self, noise: float, n: int) -> float:
         return (self.params.bias_ratio + 2.0 / np.sqrt(max(n, 1))) * noise

@@ -226,3 +226,42 @@ def within_region(unc: Uncertainty, coords: np.ndarray) -> float:
     if k == 0:
         return 0.0
     return float(coords @ unc.inverse @ coords / CHI2_95[k])
+
+
+def alternatives(
+    unc: Uncertainty,
+    object_from_tool: np.ndarray,
+    others: list[np.ndarray],
+    *,
+    turns: list[tuple[np.ndarray, str]],
+    tolerance_deg: float,
+    tolerance_m: float,
+) -> tuple[list[str], list[str]]:
+    """Other minima that fit about as well as the answer, sorted: ``(those that agree
+    with it on every observable direction within the tolerance, those that do not)``,
+    described. Each is compared up to ``turns`` (the object's symmetry turns, and
+    ``"end over end"`` for a body of revolution whose ends the patch may not see: then
+    the axis and the position across it must agree, not the position along it)."""
+    alike: list[str] = []
+    differ: list[str] = []
+    for other in others:
+        angle, offset, how = np.inf, np.inf, ""
+        for turn, label in turns:
+            coords = observed_difference(unc, object_from_tool, se3.make_pose(turn) @ other)
+            a, o = extent(unc, coords, ignore=(2,) if label else ())
+            if max(a / tolerance_deg, o / tolerance_m) < max(
+                angle / tolerance_deg, offset / tolerance_m
+            ):
+                angle, offset, how = a, o, label
+        if angle <= tolerance_deg and offset <= tolerance_m:
+            unseen = ", ".join(unc.unobservable) or "none"
+            alike.append(
+                "another minimum fits as well and differs only where the patch cannot see "
+                f"({how or 'unobservable directions'}: {unseen})"
+            )
+        else:
+            differ.append(
+                f"another minimum {angle:.1f} deg / {1e3 * offset:.1f} mm away along "
+                "observable directions fits as well"
+            )
+    return alike, differ
