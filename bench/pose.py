@@ -241,20 +241,25 @@ def accuracy_rows(
     return rows
 
 
+def _tight_estimator(name: str, n: int, use_jit: bool) -> tuple[Any, PoseEstimator]:
+    """A tight-tolerance solver (IPOPT prepared for ``n`` and the screening size) and an
+    estimator around it that keeps no track."""
+    _, body = _model()
+    solver = _solvers(body, "tight", use_jit)[name]()
+    if isinstance(solver, IpoptSolver):
+        solver.prepare(n)
+        solver.prepare(EstimatorParams().screen_points)
+    return solver, PoseEstimator(solver, EstimatorParams(track=False, max_points=n))
+
+
 def warm_cost_rows(cases: list[Case], n: int, solvers: list[str], use_jit: bool) -> list[Row]:
     """What a seed 3 degrees and 2 mm off costs the estimator (``warm_seed``), beside one
     local solve from the same seed (``one_solve``) and a cold start (``cold``): process
     CPU time on one thread, and its ratio to one solve."""
-    _, body = _model()
-    makers = _solvers(body, "tight", use_jit)
     synth = [c for c in cases if c["source"] == "synthetic"]
     rows: list[Row] = []
     for name in progress(solvers, "bench.pose", label=lambda s: f"warm seed cost, {s}, {n} points"):
-        solver = makers[name]()
-        if isinstance(solver, IpoptSolver):
-            solver.prepare(n)
-            solver.prepare(EstimatorParams().screen_points)
-        est = PoseEstimator(solver, EstimatorParams(track=False, max_points=n))
+        solver, est = _tight_estimator(name, n, use_jit)
         cpu: dict[str, list[float]] = {"one_solve": [], "warm_seed": [], "cold": []}
         seeds: dict[str, list[int]] = {k: [] for k in cpu}
         for case in synth:
@@ -294,15 +299,10 @@ def warm_cost_rows(cases: list[Case], n: int, solvers: list[str], use_jit: bool)
 def basin_rows(
     cases: list[Case], tilts: list[float], n: int, solvers: list[str], use_jit: bool
 ) -> list[Row]:
-    _, body = _model()
-    makers = _solvers(body, "tight", use_jit)
     synth = [c for c in cases if c["source"] == "synthetic"]
     rows: list[Row] = []
     for name in progress(solvers, "bench.pose", label=lambda s: f"basin, {s}, {n} points"):
-        solver = makers[name]()
-        if isinstance(solver, IpoptSolver):
-            solver.prepare(n)
-        est = PoseEstimator(solver, EstimatorParams(track=False, max_points=n))
+        solver, est = _tight_estimator(name, n, use_jit)
         for tilt in tilts:
             local_ok, robust_ok, claimed = [], [], []
             for case in synth:
