@@ -15,13 +15,14 @@ import argparse
 import os
 import sys
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import cv2
+import numpy as np
 
 from messages.base import Message
 from messages.errors import BagError
@@ -32,14 +33,41 @@ from viz.mosaic import MosaicState
 
 @dataclass
 class Decoded:
-    """What a bag held that today's classes could not decode, per type name."""
+    """What a bag held that could not be used, per type name: messages today's classes
+    cannot decode (``undecodable``), and decoded ones that cannot be drawn or converted
+    (``unusable``: a NaN focal length, a stamp beyond what Foxglove's time can hold), with
+    the first reason of each type."""
 
-    undecodable: Counter[str]
+    undecodable: Counter[str] = field(default_factory=Counter)
+    unusable: Counter[str] = field(default_factory=Counter)
+    why: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def total(self) -> int:
+        return sum(self.undecodable.values()) + sum(self.unusable.values())
+
+    def guard(self, topic: str, msg: Message, use: Callable[[], object]) -> None:
+        """``use()`` the message; a damaged value it cannot take is skipped and counted."""
+        try:
+            use()
+        except (ValueError, OverflowError, TypeError, ZeroDivisionError) as err:
+            self.skip(topic, msg, str(err))
+
+    def skip(self, topic: str, msg: Message, why: str) -> None:
+        name = type(msg).__name__
+        self.unusable[name] += 1
+        self.why.setdefault(name, f"{topic}: {why}")
 
     def report(self, path: Path) -> None:
         for name, count in sorted(self.undecodable.items()):
             print(
                 f"warning: {path}: {count} {name} message(s) not decodable today; skipped",
+                file=sys.stderr,
+            )
+        for name, count in sorted(self.unusable.items()):
+            print(
+                f"warning: {path}: {count} {name} message(s) with values that cannot be used "
+                f"(first: {self.why[name]}); skipped",
                 file=sys.stderr,
             )
 
@@ -89,20 +117,22 @@ def written_whole(out: Path) -> Iterator[Path]:
     part.replace(out)
 
 
-def view_bag(path: Path, out: Path | None, *, object_name: str = "") -> Counter[str]:
-    """Log a bag into Rerun: into ``out`` (.rrd) or a spawned viewer. Returns counts per type."""
+def view_bag(
+    path: Path, out: Path | None, skipped: Decoded, *, object_name: str = ""
+) -> Counter[str]:
+    """Log a bag into Rerun: into ``out`` (.rrd) or a spawned viewer. Returns counts per
+    type; what it skips is counted in ``skipped``."""
     import rerun as rr
 
     from viz.rerun_log import RerunLogger, flush, spawn_viewer
 
     rec = rr.RecordingStream("softbubble", recording_id=path.stem)
     logger = RerunLogger(rec, object_name=object_name)
-    skipped = Decoded(Counter())
     if out is not None:
         with written_whole(out) as part:
             rec.save(part)
             for topic, _, msg in bag_messages(path, skipped):
-                logger.log(topic, msg)
+                skipped.guard(topic, msg, lambda: logger.log(topic, msg))  # noqa: B023
             flush(rec)
             rec.disconnect()
     else:
@@ -113,36 +143,35 @@ def view_bag(path: Path, out: Path | None, *, object_name: str = "") -> Counter[
         )
         with ends_at_once_when_interrupted():
             for topic, _, msg in bag_messages(path, skipped):
-                logger.log(topic, msg)
+                skipped.guard(topic, msg, lambda: logger.log(topic, msg))  # noqa: B023
             flush(rec)
         rec.disconnect()
-    skipped.report(path)
     return logger.logged
 
 
-def export_bag(path: Path, out: Path) -> int:
-    """Write a bag's messages in Foxglove's schemas to ``out`` (MCAP); returns messages written."""
+def export_bag(path: Path, out: Path, skipped: Decoded) -> int:
+    """Write a bag's messages in Foxglove's schemas to ``out`` (MCAP); returns messages
+    written; what it skips is counted in ``skipped``."""
     import foxglove
 
     from viz.foxglove_export import FoxgloveSink
 
     context = foxglove.Context()
     sink = FoxgloveSink(context)
-    skipped = Decoded(Counter())
     with written_whole(out) as part:
         writer = foxglove.open_mcap(part, allow_overwrite=True, context=context)
         try:
             for topic, log_time, msg in bag_messages(path, skipped):
-                sink.log(topic, msg, log_time)
+                skipped.guard(topic, msg, lambda: sink.log(topic, msg, log_time))  # noqa: B023
         finally:
             writer.close()
-    skipped.report(path)
     return sink.written
 
 
 def video_bag(
     path: Path,
     out: Path,
+    skipped: Decoded,
     *,
     fps: float = 0.0,
     scale: int = 2,
@@ -155,16 +184,21 @@ def video_bag(
     received before it, so both bubbles' images of one instant are in the same frame.
     ``fps`` 0 takes the cameras' rate from the stamps. ``stills`` (a folder) receives
     PNG frames: the first, the first one after each grasp or task event, and the last.
+    A message that cannot be drawn (undecodable, or a NaN where a number must be finite)
+    is skipped and counted in ``skipped``.
     """
-    skipped = Decoded(Counter())
-    with BagReader(path) as reader:
-        cameras = [t for t, s in reader.topics().items() if s.type_name == ToFImage.__name__]
-        stamps = sorted({m.decode().header.stamp_nanos for m in reader.messages(cameras)})  # type: ignore[attr-defined]
+    stamps = sorted(
+        {
+            msg.header.stamp_nanos
+            for _, _, msg in bag_messages(path, Decoded())  # counted in the pass below
+            if isinstance(msg, ToFImage) and not msg.nonfinite_fields()
+        }
+    )
     if not stamps:
-        raise BagError(f"{path}: no ToFImage messages: nothing to draw")
-    if fps <= 0:
-        span = (stamps[-1] - stamps[0]) * 1e-9
-        fps = (len(stamps) - 1) / span if len(stamps) > 1 and span > 0 else 30.0
+        raise BagError(f"{path}: no drawable ToFImage messages: nothing to draw")
+    if fps <= 0:  # the cameras' rate: the median interval, which one wild stamp cannot move
+        gaps = np.diff(np.array(stamps, dtype=np.float64)) * 1e-9
+        fps = float(np.clip(1 / np.median(gaps), 1.0, 1000.0)) if len(gaps) else 30.0
     keep = {0, len(stamps) - 1}  # frame indices to save as stills; events add theirs
     state = MosaicState(object_name=object_name)
     writer: Any = None
@@ -191,37 +225,42 @@ def video_bag(
     with written_whole(out) as part:
         try:
             for topic, _, msg in bag_messages(path, skipped):
+                if bad := msg.nonfinite_fields():
+                    skipped.skip(topic, msg, f"non-finite {', '.join(bad)}")
+                    continue
                 if isinstance(msg, ToFImage):
                     if pending is not None and msg.header.stamp_nanos > pending:
-                        emit()
+                        skipped.guard(topic, msg, emit)
                     pending = max(pending or 0, msg.header.stamp_nanos)
                 elif isinstance(msg, TaskEvent) or (isinstance(msg, GraspState) and msg.event):
                     keep.add(frames)
-                state.update(topic, msg)
+                skipped.guard(topic, msg, lambda: state.update(topic, msg))  # noqa: B023
             if pending is not None:
                 emit()
         finally:
             if writer is not None:
                 writer.release()
-    skipped.report(path)
     return frames, size
 
 
 def main(args: argparse.Namespace) -> int:
-    """``launch.py bag view|export|video ARGS`` (exit code 0, or 2 on a bad bag)."""
+    """``launch.py bag view|export|video ARGS`` (exit code 0; 1 when messages were skipped,
+    counted on stderr; 2 on a bag it cannot read)."""
     command = args.bag_command
+    skipped = Decoded()
     try:
         if command == "view":
-            counts = view_bag(args.file, args.out, object_name=args.object)
+            counts = view_bag(args.file, args.out, skipped, object_name=args.object)
             where = args.out or "the Rerun viewer"
             print(f"{where}: {sum(counts.values())} messages logged ({len(counts)} types)")
         elif command == "export":
-            written = export_bag(args.file, args.foxglove)
+            written = export_bag(args.file, args.foxglove, skipped)
             print(f"{args.foxglove}: {written} Foxglove messages")
         else:
             frames, (height, width) = video_bag(
                 args.file,
                 args.out,
+                skipped,
                 fps=args.fps,
                 scale=args.scale,
                 stills=args.stills,
@@ -231,4 +270,5 @@ def main(args: argparse.Namespace) -> int:
     except (BagError, OSError) as err:
         print(f"bag {command}: {err}", file=sys.stderr)
         return 2
-    return 0
+    skipped.report(args.file)
+    return 1 if skipped.total else 0

@@ -63,7 +63,15 @@ class BagMessage:
         return f"{self.path}: topic {self.topic}: message at {self.position()}"
 
     def frames(self) -> list[Any]:
-        """``[header, *buffers]`` as on the wire (no topic frame); buffers are views."""
+        """``[header, *buffers]`` as on the wire (no topic frame); buffers are views.
+
+        Raises:
+            BagError: the message cannot be unpacked, or its channel's schema was refused
+                (its text does not match its fingerprint).
+        """
+        refused = self.channel.schema.refused
+        if refused:
+            raise BagError(f"{self.where()}: {refused}")
         try:
             return unpack(self.payload, self.channel.schema.packing)
         except FrameDecodeError as err:
@@ -102,6 +110,9 @@ class BagMessage:
             raise BagError(
                 f"{self.where()}: header lists {len(arrays)} arrays, payload has {len(frames) - 1}"
             )
+        wrong = self.channel.schema.field_mismatch(fields)
+        if wrong is not None:
+            raise BagError(f"{self.where()}: {wrong}")
         declared = self.channel.schema.array_names()
         out: dict[str, Any] = dict(fields)
         for (name, dtype_str, shape), buf in zip(arrays, frames[1:], strict=True):
@@ -235,16 +246,21 @@ class BagReader:
             schema = TopicSchema.from_json(
                 data.get("schema_data", ""), data.get("schema_name", ""), data.get("packing", "")
             )
-            self.channels.setdefault(
-                channel_id,
-                ChannelInfo(
-                    channel_id,
-                    data.get("topic", ""),
-                    schema,
-                    data.get("message_encoding", ""),
-                    offset,
-                ),
-            )
+            if channel_id not in self.channels:
+                self._add_channel(
+                    ChannelInfo(
+                        channel_id,
+                        data.get("topic", ""),
+                        schema,
+                        data.get("message_encoding", ""),
+                        offset,
+                    )
+                )
+
+    def _add_channel(self, info: ChannelInfo) -> None:
+        self.channels[info.channel_id] = info
+        if info.schema.refused:
+            self._warn(f"{self.path}: topic {info.topic}: {info.schema.refused}")
 
     def _resolve_channels(self) -> None:
         for channel_id, (channel, offset) in list(self._pending.items()):
@@ -259,8 +275,8 @@ class BagReader:
                 schema = TopicSchema(
                     schema.type_name, meta["fingerprint"], schema.description, schema.packing
                 )
-            self.channels[channel_id] = ChannelInfo(
-                channel_id, channel.topic, schema, channel.message_encoding, offset
+            self._add_channel(
+                ChannelInfo(channel_id, channel.topic, schema, channel.message_encoding, offset)
             )
         self._pending.clear()
 
