@@ -20,6 +20,7 @@ from typing import Any
 
 from runtime.protocol import INPUT_COUNTERS
 
+
 @dataclass
 class InputCounters:
     """One input's counts; the names match ``protocol.INPUT_COUNTERS``."""
@@ -58,7 +59,6 @@ class InputCounters:
             self.last_seq = seq
         else:
             self.suspect = (seq, unseq)
-
 
     def gaps(self) -> int:
         """``dropped``, and the gap before a message still held as a suspect (the last

@@ -36,8 +36,18 @@ from runtime.counters import balanced, delivered
 from runtime.graph import Graph, ipc_path
 from runtime.hostlink import HostLink, judge, wait_for_finals
 from runtime.isolation import make_rundir
-from runtime.nodeprocs import Proc, counts, ended_by_launcher, exit_reason, reap, signal_group
-from runtime.nodeprocs import spawn, stop, table, totals
+from runtime.nodeprocs import (
+    Proc,
+    counts,
+    ended_by_launcher,
+    exit_reason,
+    reap,
+    signal_group,
+    spawn,
+    stop,
+    table,
+    totals,
+)
 from runtime.protocol import ControlServer
 from runtime.registry import class_path
 from runtime.security import KeyPair
