@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
+import shutil
 import sys
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -26,9 +28,9 @@ import numpy as np
 
 from messages.base import Message
 from messages.errors import BagError
-from messages.types import GraspState, TaskEvent, ToFImage
+from messages.types import GraspState, PoseEstimate, TaskEvent, ToFImage
 from runtime.bag import BagReader
-from viz.mosaic import MosaicState
+from viz.mosaic import MosaicState, depth_range
 
 
 @dataclass
@@ -168,6 +170,90 @@ def export_bag(path: Path, out: Path, skipped: Decoded) -> int:
     return sink.written
 
 
+def latched() -> tuple[Any, ...]:
+    """The QoS of ``/tf_static`` (transient local, keep last 1), so that ``ros2 bag play``
+    hands the camera mounts to a subscriber that joins late, as tf2 expects."""
+    from rosbags.interfaces import (
+        Qos,
+        QosDurability,
+        QosHistory,
+        QosLiveliness,
+        QosReliability,
+        QosTime,
+    )
+
+    never = QosTime(0, 0)
+    return (
+        Qos(
+            QosHistory.KEEP_LAST,
+            1,
+            QosReliability.RELIABLE,
+            QosDurability.TRANSIENT_LOCAL,
+            never,
+            never,
+            QosLiveliness.AUTOMATIC,
+            never,
+            False,
+        ),
+    )
+
+
+def export_ros2(path: Path, out: Path, skipped: Decoded) -> int:
+    """Write a bag as a ROS 2 bag (MCAP storage, CDR) in the folder ``out`` (new), with
+    ``viz.ros2_export``'s standard and project messages; returns the messages written;
+    what it skips is counted in ``skipped``."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from viz.ros2_export import Ros2Converter
+
+    if out.exists():
+        raise FileExistsError(f"{out}: exists; a ROS 2 bag is written to a new folder")
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    converter = Ros2Converter(store)
+    written = 0
+    # The bag's files are named after its folder: it is written whole in a folder of that
+    # name inside a part folder, then moved into place; a failure leaves nothing.
+    part = out.with_name(f".{out.name}.part")
+    shutil.rmtree(part, ignore_errors=True)
+    part.mkdir(parents=True)
+    try:
+        with Writer(part / out.name, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+            connections: dict[str, Any] = {}
+
+            def write(topic: str, ros_type: str, value: Any, log_time: int) -> None:
+                nonlocal written
+                connection = connections.get(topic)
+                if connection is None:
+                    qos = latched() if topic == "/tf_static" else ()
+                    connection = writer.add_connection(
+                        topic, ros_type, typestore=store, offered_qos_profiles=qos
+                    )
+                    connections[topic] = connection
+                elif connection.msgtype != ros_type:
+                    raise BagError(
+                        f"{path}: {topic} would carry {ros_type} and {connection.msgtype}"
+                    )
+                writer.write(connection, log_time, store.serialize_cdr(value, ros_type))
+                written += 1
+
+            def convert(topic: str, msg: Message, log_time: int) -> None:
+                converted = list(converter.convert(topic, msg))  # all of it, or none
+                if not connections:
+                    write(*converter.static_tf(msg.header.stamp_nanos), log_time)  # type: ignore[attr-defined]
+                for ros_topic, ros_type, value in converted:
+                    write(ros_topic, ros_type, value, log_time)
+
+            for topic, log_time, msg in bag_messages(path, skipped):
+                skipped.guard(topic, msg, lambda: convert(topic, msg, log_time))  # noqa: B023
+        if not written:
+            raise BagError(f"{path}: no message to export")
+        (part / out.name).rename(out)
+    finally:
+        shutil.rmtree(part, ignore_errors=True)
+    return written
+
+
 def video_bag(
     path: Path,
     out: Path,
@@ -182,33 +268,39 @@ def video_bag(
 
     A frame is drawn when a camera image with a newer stamp arrives, from everything
     received before it, so both bubbles' images of one instant are in the same frame.
-    ``fps`` 0 takes the cameras' rate from the stamps. ``stills`` (a folder) receives
-    PNG frames: the first, the first one after each grasp or task event, and the last.
-    A message that cannot be drawn (undecodable, or a NaN where a number must be finite)
-    is skipped and counted in ``skipped``.
+    ``fps`` 0 takes the cameras' rate from the stamps. Depth is coloured over one range
+    for the whole video (the 1st to 99th percentile of every valid depth pixel).
+    ``stills`` (a folder) receives PNG frames at moments: the first and last frame, the
+    first after each grasp or task event, and the first with the pose tracked (``ok`` or
+    ``recovered``) after it was not; each named ``STEM_FRAME_tSECONDS_MOMENT.png``, the
+    moment written on its bar too. A message that cannot be drawn (undecodable, or a NaN
+    where a number must be finite) is skipped and counted in ``skipped``.
     """
-    stamps = sorted(
-        {
-            msg.header.stamp_nanos
-            for _, _, msg in bag_messages(path, Decoded())  # counted in the pass below
-            if isinstance(msg, ToFImage) and not msg.nonfinite_fields()
-        }
-    )
+    samples = []
+    stamps_seen = set()
+    for _, _, image in bag_messages(path, Decoded()):  # counted in the pass below
+        if isinstance(image, ToFImage) and not image.nonfinite_fields():
+            stamps_seen.add(image.header.stamp_nanos)
+            depth = image.depth_m[::4, ::4]
+            samples.append(depth[np.isfinite(depth) & (depth > 0)])
+    stamps = sorted(stamps_seen)
     if not stamps:
         raise BagError(f"{path}: no drawable ToFImage messages: nothing to draw")
     if fps <= 0:  # the cameras' rate: the median interval, which one wild stamp cannot move
         gaps = np.diff(np.array(stamps, dtype=np.float64)) * 1e-9
         fps = float(np.clip(1 / np.median(gaps), 1.0, 1000.0)) if len(gaps) else 30.0
-    keep = {0, len(stamps) - 1}  # frame indices to save as stills; events add theirs
-    state = MosaicState(object_name=object_name)
+    moments = {0: "first", len(stamps) - 1: "last"}  # frame -> what a still shows there
+    state = MosaicState(object_name=object_name, depth_span_m=depth_range(np.concatenate(samples)))
     writer: Any = None
     frames = 0
     size = (0, 0)
     pending: int | None = None
+    tracked = False
 
     def emit() -> None:
         nonlocal writer, frames, size
-        image = state.render(scale)
+        moment = moments.get(frames, "") if stills is not None else ""
+        image = state.render(scale, moment)
         if writer is None:
             size = (image.shape[0], image.shape[1])
             writer = cv2.VideoWriter(
@@ -217,9 +309,11 @@ def video_bag(
             if not writer.isOpened():
                 raise OSError(f"{out}: OpenCV cannot write an MP4 video here")
         writer.write(image)
-        if stills is not None and frames in keep:
+        if stills is not None and moment:
             stills.mkdir(parents=True, exist_ok=True)
-            cv2.imwrite(str(stills / f"{out.stem}_{frames:05d}.png"), image)
+            t = (state.stamp_nanos - (state.first_stamp_nanos or state.stamp_nanos)) * 1e-9
+            slug = re.sub(r"[^A-Za-z0-9]+", "_", moment).strip("_")
+            cv2.imwrite(str(stills / f"{out.stem}_{frames:05d}_t{t:05.2f}s_{slug}.png"), image)
         frames += 1
 
     with written_whole(out) as part:
@@ -232,8 +326,15 @@ def video_bag(
                     if pending is not None and msg.header.stamp_nanos > pending:
                         skipped.guard(topic, msg, emit)
                     pending = max(pending or 0, msg.header.stamp_nanos)
-                elif isinstance(msg, TaskEvent) or (isinstance(msg, GraspState) and msg.event):
-                    keep.add(frames)
+                elif isinstance(msg, TaskEvent):
+                    moments.setdefault(frames, f"{msg.task} {msg.event}")
+                elif isinstance(msg, GraspState) and msg.event:
+                    moments.setdefault(frames, f"grasp {msg.event}")
+                elif isinstance(msg, PoseEstimate):
+                    now_tracked = msg.status in ("ok", "recovered")
+                    if now_tracked and not tracked:
+                        moments.setdefault(frames, f"pose {msg.status}")
+                    tracked = now_tracked
                 skipped.guard(topic, msg, lambda: state.update(topic, msg))  # noqa: B023
             if pending is not None:
                 emit()
@@ -253,6 +354,9 @@ def main(args: argparse.Namespace) -> int:
             counts = view_bag(args.file, args.out, skipped, object_name=args.object)
             where = args.out or "the Rerun viewer"
             print(f"{where}: {sum(counts.values())} messages logged ({len(counts)} types)")
+        elif command == "export" and args.ros2 is not None:
+            written = export_ros2(args.file, args.ros2, skipped)
+            print(f"{args.ros2}: a ROS 2 bag of {written} messages (`ros2 bag info {args.ros2}`)")
         elif command == "export":
             written = export_bag(args.file, args.foxglove, skipped)
             print(f"{args.foxglove}: {written} Foxglove messages")

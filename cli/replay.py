@@ -18,6 +18,7 @@ from collections.abc import Sequence
 import yaml
 
 from cli.options import same_file
+from cli.taps import add_viewer, viewer_refused
 from messages.errors import BagError, GraphError
 from runtime.bag import BagReader
 from runtime.hosts import without_hosts
@@ -44,6 +45,10 @@ def main(args: argparse.Namespace) -> int:
             "recording onto it would destroy it: give another file",
             file=sys.stderr,
         )
+        return 2
+    refused = None if args.print_graph else viewer_refused(args.view)
+    if refused:
+        print(refused, file=sys.stderr)
         return 2
     try:
         if args.graph is not None:
@@ -81,6 +86,8 @@ def main(args: argparse.Namespace) -> int:
             from runtime.graph import apply_overrides
 
             replay_graph = apply_overrides(replay_graph, sets=args.sets, source=str(args.bag))
+        if args.view is not None:
+            replay_graph = add_viewer(replay_graph, args.view, source=f"{args.bag} (replay)")
     except (BagError, GraphError, ValueError) as err:
         print(f"replay: {err}", file=sys.stderr)
         return 2

@@ -31,7 +31,7 @@ from typing import IO, Any
 
 import zmq
 
-from runtime import child, protocol
+from runtime import child, protocol, status
 from runtime.counters import balanced, delivered
 from runtime.graph import Graph, ipc_path
 from runtime.hostlink import HostLink, judge, wait_for_finals
@@ -413,10 +413,16 @@ class Launcher:
 
     def _supervise(self) -> None:
         deadline = None if self.duration_secs is None else time.monotonic() + self.duration_secs
+        published_at = 0.0
         while self.stop_reason is None:
             self._serve(100)
             self._reap()
             now = time.monotonic()
+            if now - published_at >= status.WRITE_EVERY_SECS and self.rundir is not None:
+                published_at = now  # for `launch.py topic` (runtime.status)
+                status.write(
+                    self.rundir, status.snapshot(self.graph, self.procs, now - self.started_at)
+                )
             for proc in self.procs.values():
                 if proc.state == "waiting_restart" and now >= proc.restart_at:
                     self._spawn(proc)

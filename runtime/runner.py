@@ -278,7 +278,7 @@ class Runner:
         counters = inp.counters
         counters.received += 1
         if self.raw:
-            self._call(lambda: self.node.on_raw(inp.topic, frames))
+            self._call(self.node.on_raw, inp.topic, frames)
             return
         try:
             _, msg = decode(frames, expect=inp.kind)
@@ -302,12 +302,13 @@ class Runner:
                     ", ".join(bad),
                     type(msg).__name__,
                 )
-        self._call(lambda: self.node.handle(inp.port, msg))
+        self._call(self.node.handle, inp.port, msg)
 
-    def _call(self, fn: Callable[[], None]) -> None:
+    def _call(self, fn: Callable[..., None], *args: Any) -> None:
+        """``fn(*args)``, timed as busy for the heartbeat (no closure per message)."""
         self.busy_since = time.monotonic()
         try:
-            fn()
+            fn(*args)
         finally:
             self.busy_since = 0.0
 

@@ -3,8 +3,9 @@
 A scene names the object (one of ``geometry.objects``, with optional dimension
 overrides), its pose trajectory in the tool frame, the scripted gripper commands, the
 bubbles, the cameras, the dot pattern, the noise, the seed and the ``effects`` to
-simulate, and optionally a ``support`` the arm lowers the held object onto
-(``sim.support``). The hardware's sections (gripper, bubble, camera, pattern, noise,
+simulate, optionally a ``support`` the arm lowers the held object onto
+(``sim.support``), and the ``load`` on the held object (``sim.friction``: its mass, a
+filling, a pull; used by the ``slip`` effect). The hardware's sections (gripper, bubble, camera, pattern, noise,
 membrane) are defined in ``sim.rig``. Every section but ``object`` is optional and
 defaults to docs/facts.md figures::
 
@@ -42,6 +43,7 @@ from geometry.gripper import GripperGeometry
 from geometry.se3 import exp_so3, log_so3
 from messages.files import load_yaml, read_text
 from sim.effects import ALL_EFFECTS, resolve
+from sim.friction import LoadSpec
 from sim.rig import (
     BubbleSpec,
     CameraSpec,
@@ -128,6 +130,7 @@ class Scene:
     noise: NoiseSpec = field(default_factory=NoiseSpec)
     membrane: MembraneSpec = field(default_factory=MembraneSpec)
     support: SupportSpec | None = None  # a surface the arm lowers the object onto
+    load: LoadSpec = field(default_factory=LoadSpec)  # weight and pull (the ``slip`` effect)
     path: str = ""
 
     def __post_init__(self) -> None:
@@ -222,6 +225,7 @@ _SECTIONS: dict[str, type[Any]] = {
     "noise": NoiseSpec,
     "membrane": MembraneSpec,
     "support": SupportSpec,
+    "load": LoadSpec,
 }
 
 
