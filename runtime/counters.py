@@ -121,6 +121,7 @@ def add_stats(base: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
 
 
 _EDGE_COLUMNS = ("delivered", "dropped", "unreceived", "superseded", "bad_frames")
+_LIVE_COLUMNS = ("messages", "dropped", "superseded", "bad_frames", "nonfinite")
 
 
 def edge_rows(stats: dict[str, dict[str, Any]]) -> dict[str, dict[str, int]]:
@@ -164,6 +165,20 @@ def edge_rows(stats: dict[str, dict[str, Any]]) -> dict[str, dict[str, int]]:
             none = dict.fromkeys((*_EDGE_COLUMNS, "nonfinite"), 0)
             rows[f"{topic} (no reader here)"] = {**none, "messages": count}
     return rows
+
+
+def topic_totals(stats: dict[str, dict[str, Any]]) -> dict[str, dict[str, int]]:
+    """Per topic, for a live view (``runtime.status``): messages published (on another
+    host: the most any edge here received) and its edges' ``dropped``, ``superseded``,
+    ``bad_frames`` and ``nonfinite`` summed; ``unreceived`` is left out, as in a running
+    graph it is mostly in flight."""
+    out: dict[str, dict[str, int]] = {}
+    for name, row in edge_rows(stats).items():
+        total = out.setdefault(name.split(" ", 1)[0], dict.fromkeys(_LIVE_COLUMNS, 0))
+        total["messages"] = max(total["messages"], row["messages"])
+        for key in _LIVE_COLUMNS[1:]:
+            total[key] += row[key]
+    return out
 
 
 def table(

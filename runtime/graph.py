@@ -29,6 +29,7 @@ where its ports and parameters are declared); it starts no process.
 from __future__ import annotations
 
 import ipaddress
+import math
 import re
 import tempfile
 from collections import defaultdict
