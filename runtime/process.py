@@ -20,7 +20,10 @@ socket subscribed to all the topics it takes from it, so it handles one publishe
 messages in the order they were published, whatever the topics. After each handled
 message it reports its counts to the launcher, which tells a waiting replay when the
 graph is idle; the replay waits only before messages on ``barrier_topics`` (those that
-can reach a node merging several publishers, see ``Graph.barrier_topics``).
+can reach a node merging several publishers, see ``Graph.barrier_topics``). A node's
+timers are bag-driven there: each runs once after every message the node handles, not
+by the clock (a pose node that solves the newest patch on a timer answers every patch),
+unless the node is a source or declares itself ``clocked`` (a simulated world, a driver).
 
 Drops. Every output stamps ``header.seq``; a receiver counts sequence gaps as
 ``dropped`` (lost at a high-water mark) and, on ``latest`` inputs, skipped messages
@@ -88,6 +91,8 @@ class Runner:
         self.node: Node = cls(self.name, params, self.io)
         self.raw = cls.raw_input
         self.inputs_decl = inputs_decl
+        # Lockstep: timers run after each handled message instead of by the clock.
+        self.bag_driven = self.io.lockstep and bool(inputs_decl) and not cls.clocked
         self.busy_since = 0.0
         self.set_up = False  # teardown runs only for a node whose setup ran
         self.sources: list[Source] = []
@@ -209,7 +214,7 @@ class Runner:
         by_socket = {source.socket: source for source in self.sources}
         while not io.stop_requested:
             timeout_ms = 200
-            if io.timers:
+            if io.timers and not self.bag_driven:
                 due = min(t.due_nanos for t in io.timers)
                 # Round up: rounding down would poll(0) through the last millisecond
                 # before every timer, a busy spin that steals the CPU from peers.
@@ -234,6 +239,8 @@ class Runner:
                 self.io.stop_requested = True
 
     def _run_timers(self) -> None:
+        if self.bag_driven:
+            return  # they run after each message (_deliver)
         now = time.monotonic_ns()
         for timer in self.io.timers:
             if timer.due_nanos <= now and not self.io.stop_requested:
@@ -303,6 +310,10 @@ class Runner:
                     type(msg).__name__,
                 )
         self._call(lambda: self.node.handle(inp.port, msg))
+        if self.bag_driven:
+            for timer in self.io.timers:
+                if not self.io.stop_requested:
+                    self._call(timer.callback)
 
     def _call(self, fn: Callable[[], None]) -> None:
         self.busy_since = time.monotonic()

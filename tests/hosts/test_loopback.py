@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from runtime.bag import BagReader
-from runtime.bagtool import diff_bags
+from runtime.bag.diff import diff_bags
 from tests.hosts.conftest import SYNTHETIC, Launched, write_graph
 
 GRAPH = {

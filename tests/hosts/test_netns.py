@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 from runtime.bag import BagReader
-from runtime.bagtool import diff_bags
+from runtime.bag.diff import diff_bags
 from runtime.graph import load_document
 from runtime.hosts import check_hosts
 from tests.hosts.conftest import ROOT, Launched, host_table, two_host_graph, write_graph

@@ -20,7 +20,7 @@ import nodes.replay  # noqa: F401
 import tests.synthetic_nodes  # noqa: F401  (registers the synthetic nodes)
 from messages import Header, Tick
 from runtime.bag import BagReader
-from runtime.bagtool import diff_bags
+from runtime.bag.diff import diff_bags
 from runtime.graph import check
 from runtime.node import Node
 from runtime.replaytool import ReplayOptions, build_replay_graph

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from runtime.bag import BagReader
-from runtime.bagtool import diff_bags
+from runtime.bag.diff import diff_bags
 
 ROOT = Path(__file__).resolve().parents[2]
 
