@@ -68,6 +68,11 @@ class _Peer:
     last_seen: float = 0.0
     lost: bool = False
     asked_at: float = 0.0
+    # A hello not sent yet (its ``reply`` flag): a DEALER with IMMEDIATE refuses a message
+    # until its connection is up, so it is tried again on every turn of the thread until
+    # it goes out. A hello lost to a connection still being made would leave a peer not
+    # knowing of us (or of our graph) until the next turn of asking.
+    hello_due: int | None = None
     ping_t1: int | None = None
     ping_sent_at: float = 0.0
     samples: list[tuple[float, float]] = field(default_factory=list)
@@ -229,14 +234,29 @@ class HostLink:
             argv=self.argv,
         )
 
-    def _send(self, peer: _Peer, frames: list[bytes]) -> None:
+    def _send(self, peer: _Peer, frames: list[bytes]) -> bool:
+        """Whether the message went out (False: no connection to the peer yet)."""
         try:
             peer.dealer.send_multipart(frames, zmq.NOBLOCK)
         except zmq.Again:
-            pass  # not connected (yet): the heartbeat repeats, a hello is asked for again
+            return False  # not connected (yet): the heartbeat repeats, a hello is kept due
+        return True
+
+    def _say_hello(self, peer: _Peer, reply: int) -> None:
+        """Send a hello now, or as soon as the connection to ``peer`` takes it."""
+        peer.hello_due = max(reply, peer.hello_due or 0)
+        if self._send(peer, self._hello(reply=peer.hello_due)):
+            peer.hello_due = None
+            if reply:
+                peer.asked_at = time.monotonic()
+            # A beat right after it: the peer could not check the last one (or, asked,
+            # it waits for our readiness while our nodes may already run).
+            self._beat_now.set()
 
     def _run(self) -> None:
         next_beat = 0.0
+        for peer in self.peers.values():
+            peer.hello_due = 1  # introduce ourselves: the peer learns our graph at once
         poller = zmq.Poller()
         poller.register(self.router, zmq.POLLIN)
         poller.register(self._wake_r, zmq.POLLIN)
@@ -269,7 +289,9 @@ class HostLink:
                     self._receive(frames, time.time_ns())
 
     def _tend(self, peer: _Peer, now: float) -> None:
-        """Pings for the clock, and the heartbeat timeout."""
+        """A hello still due, pings for the clock, and the heartbeat timeout."""
+        if peer.hello_due is not None:
+            self._say_hello(peer, peer.hello_due)
         if peer.secret is not None and len(peer.samples) < CLOCK_SAMPLES:
             if peer.ping_t1 is None or now - peer.ping_sent_at > PING_TIMEOUT_SECS:
                 peer.ping_t1 = time.time_ns()
@@ -285,11 +307,8 @@ class HostLink:
             self.log(f"link: refused message #{self.refused}: {why}")
 
     def _ask(self, peer: _Peer) -> None:
-        now = time.monotonic()
-        if now - peer.asked_at > WHO_EVERY_SECS:
-            peer.asked_at = now
-            self._send(peer, self._hello(reply=1))
-            self._beat_now.set()  # a beat right after it: the peer could not check the last
+        if peer.hello_due is None and time.monotonic() - peer.asked_at > WHO_EVERY_SECS:
+            self._say_hello(peer, 1)
 
     def _receive(self, frames: list[zmq.Frame], arrived_ns: int) -> None:
         if len(frames) != 3:
@@ -335,10 +354,7 @@ class HostLink:
         if kind == "link_hello":
             secret = bytes.fromhex(msg["run_secret"])
             if msg["reply"]:  # also to another graph: then it learns so too, and stops
-                self._send(peer, self._hello(reply=0))
-                # It could not check our last beat (it asked who we are): one more at once,
-                # or a host whose nodes are ready may wait for ours while ours run.
-                self._beat_now.set()
+                self._say_hello(peer, 0)
             if msg["graph"] != self.graph:  # its endpoints and nodes are not ours
                 if secret != peer.differs:
                     peer.differs = secret

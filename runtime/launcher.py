@@ -44,6 +44,7 @@ from runtime.security import KeyPair
 STARTUP_TIMEOUT_SECS = 300.0
 HEARTBEAT_TIMEOUT_SECS = 5.0
 DRAIN_SECS = 3.0
+BUSY_EVERY_SECS = 1.0  # at most this often, a waiter for idle hears the graph still moves
 STOP_GRACE_SECS = 5.0
 TERM_GRACE_SECS = 2.0
 # After Ctrl-C or SIGTERM: "stop", then SIGTERM, then SIGKILL, all within 2 s.
@@ -99,6 +100,10 @@ class Launcher:
         self.exit_code = 0
         self.verdict_code = 0  # a node's verdict on the run (stop_request's exit_code)
         self.idle_waiters: list[bytes] = []
+        # What the graph had received when a waiter was last told it is busy (see _serve).
+        self.received_total = 0
+        self.received_told = -1
+        self.busy_told_at = 0.0
         self.counts_changed = False  # lockstep across hosts: to send to the other hosts
         self.started_at = 0.0
         self.stopped_at = 0.0
@@ -294,6 +299,7 @@ class Launcher:
         if self.link is not None:
             theirs, got = self.link.remote_counts()
             published, received = theirs | published, got | received
+        self.received_total = sum(received.values())
         return delivered(self.edges, published, lambda n, port: received.get(f"{n}/{port}", 0))
 
     def _serve(self, timeout_ms: int) -> None:
@@ -321,6 +327,13 @@ class Launcher:
             for rid in self.idle_waiters:
                 self.control.send(rid, "idle")
             self.idle_waiters.clear()
+        elif self.idle_waiters and time.monotonic() - self.busy_told_at > BUSY_EVERY_SECS:
+            # Slow is not stuck: a waiter's timeout counts from the graph's last progress.
+            if self.received_total != self.received_told:
+                self.received_told = self.received_total
+                self.busy_told_at = time.monotonic()
+                for rid in self.idle_waiters:
+                    self.control.send(rid, "busy")
 
     # -- run ---------------------------------------------------------------------
     def _request_stop(self, reason: str, *, echo: bool = True) -> None:

@@ -333,7 +333,8 @@ class Runner:
                 if os.getppid() != parent:
                     os.kill(os.getpid(), signal.SIGTERM)
                     return
-                busy = time.monotonic() - self.busy_since if self.busy_since else 0.0
+                since = self.busy_since
+                busy = time.monotonic() - since if since and not self.io.waiting else 0.0
                 self.io.tell("heartbeat", sock, busy_secs=busy, stats=self.io.stats())
         finally:
             sock.close()

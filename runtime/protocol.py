@@ -23,6 +23,8 @@ launcher -> node
     connect    {endpoints: {node: endpoint}}     where each input's publisher is
     start      {}                                every node is ready: go
     idle       {}                                answer to wait_idle
+    busy       {}                                answer to wait_idle: not idle, but the
+                                                 graph moved (the wait starts over)
     stop       {}                                stop cleanly now
 launcher <-> launcher (one per host, ``runtime.hostlink``; CURVE-encrypted tcp)
     link_hello {host, run_secret, reply, graph, argv}  this run's link secret (the tag:
@@ -74,6 +76,7 @@ _FIELDS: dict[str, dict[str, type | tuple[type, ...]]] = {
     "connect": {"endpoints": dict},
     "start": {},
     "idle": {},
+    "busy": {},
     "stop": {},
     # between the launchers of a graph's hosts (runtime.hostlink), over CURVE
     "link_hello": {"host": str, "run_secret": str, "reply": int, "graph": str, "argv": str},

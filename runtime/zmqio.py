@@ -118,6 +118,7 @@ class ZmqIO:
         self.published: dict[str, int] = defaultdict(int)
         self.timers: list[Timer] = []
         self.stop_requested = False
+        self.waiting = False  # in wait_idle
         self.barrier_topics = frozenset(spec.get("barrier_topics", ()))
         self.subscriptions: dict[bytes, int] = defaultdict(int)
 
@@ -182,19 +183,25 @@ class ZmqIO:
             return True
         self.send_counts()
         self.tell("wait_idle")
-        deadline = time.monotonic() + timeout_secs
-        while (left := deadline - time.monotonic()) > 0:
-            if not self.control.poll(int(left * 1000) + 1):
-                break
-            msg = self.hear()
-            if msg is None:
-                continue
-            if msg["kind"] == "idle":
-                return True
-            if msg["kind"] == "stop":
-                self.stop_requested = True
-                return False
-        return False
+        self.waiting = True  # not busy in a handler: waiting for others (the heartbeat)
+        try:
+            deadline = time.monotonic() + timeout_secs
+            while (left := deadline - time.monotonic()) > 0:
+                if not self.control.poll(int(left * 1000) + 1):
+                    break
+                msg = self.hear()
+                if msg is None:
+                    continue
+                if msg["kind"] == "idle":
+                    return True
+                if msg["kind"] == "busy":  # slow, not stuck: the timeout starts over
+                    deadline = time.monotonic() + timeout_secs
+                if msg["kind"] == "stop":
+                    self.stop_requested = True
+                    return False
+            return False
+        finally:
+            self.waiting = False
 
     def lockstep_barrier(self, topic: str) -> bool:
         return self.lockstep and topic in self.barrier_topics
