@@ -77,7 +77,7 @@ class _Peer:
     ping_sent_at: float = 0.0
     samples: list[tuple[float, float]] = field(default_factory=list)
     # Its nodes' newest counts (lockstep): published per topic, received per "node/port".
-    counts: tuple[dict[str, int], dict[str, int]] = ({}, {})
+    counts: tuple[dict[str, int], dict[str, int], dict[str, int]] = ({}, {}, {})
     final: dict[str, int] | None = None  # what its nodes published in all, once stopped
 
 
@@ -173,20 +173,21 @@ class HostLink:
         """Tell every other host the graph stops (sent by the link's thread)."""
         self._queue(self._pack("link_stop", reason=reason, exit_code=exit_code))
 
-    def send_counts(self, published: dict[str, int], received: dict[str, int]) -> None:
-        """This host's nodes' newest counts (lockstep): published per topic, received per
-        ``"node/port"``; each node's pair is one snapshot, taken after a handled batch."""
-        self._queue(self._pack("link_counts", published=published, received=received))
+    def send_counts(
+        self, published: dict[str, int], received: dict[str, int], held: dict[str, int]
+    ) -> None:
+        """This host's nodes' newest counts (lockstep): published per topic, received and
+        held per ``"node/port"``; each node's are one snapshot, taken after a handled batch."""
+        self._queue(self._pack("link_counts", published=published, received=received, held=held))
 
-    def remote_counts(self) -> tuple[dict[str, int], dict[str, int]]:
+    def remote_counts(self) -> tuple[dict[str, int], dict[str, int], dict[str, int]]:
         """The other hosts' newest counts, merged (as :meth:`send_counts` takes them)."""
-        published: dict[str, int] = {}
-        received: dict[str, int] = {}
+        out: tuple[dict[str, int], dict[str, int], dict[str, int]] = ({}, {}, {})
         for peer in self.peers.values():
             theirs = peer.counts  # replaced whole by the link's thread, never changed
-            published.update(theirs[0])
-            received.update(theirs[1])
-        return published, received
+            for mine, their in zip(out, theirs, strict=True):
+                mine.update(their)
+        return out
 
     def send_final(self, published: dict[str, int]) -> None:
         """This host's nodes have stopped (but for listeners): all they published, per topic."""
@@ -368,7 +369,7 @@ class HostLink:
                 peer.ready = False
                 peer.samples = []
                 peer.ping_t1 = None
-                peer.counts = ({}, {})
+                peer.counts = ({}, {}, {})
                 peer.final = None
                 if first:
                     self._event(("joined", name))
@@ -389,7 +390,7 @@ class HostLink:
             peer.ready = bool(msg["ready"])
         elif kind in ("link_counts", "link_final"):
             if kind == "link_counts":
-                peer.counts = (msg["published"], msg["received"])
+                peer.counts = (msg["published"], msg["received"], msg["held"])
             else:
                 peer.final = msg["published"]
             _poke(self._note_w)

@@ -93,6 +93,9 @@ class Runner:
         self.inputs_decl = inputs_decl
         # Lockstep: timers run after each handled message instead of by the clock.
         self.bag_driven = self.io.lockstep and bool(inputs_decl) and not cls.clocked
+        # Lockstep, a node reading several publishers: hold, then handle in a fixed order.
+        self.holds = self.io.lockstep and bool(spec.get("holds"))
+        self.port_order = {inp["port"]: k for k, inp in enumerate(spec["inputs"])}
         self.busy_since = 0.0
         self.set_up = False  # teardown runs only for a node whose setup ran
         self.sources: list[Source] = []
@@ -220,11 +223,10 @@ class Runner:
                 # before every timer, a busy spin that steals the CPU from peers.
                 timeout_ms = max(0, min(timeout_ms, math.ceil((due - time.monotonic_ns()) / 1e6)))
             events = dict(poller.poll(timeout_ms))
-            if io.control in events:
-                self._on_control()
+            released = io.control in events and self._on_control()
             if io.pub in events:
                 self._drain_subscriptions()
-            handled = False
+            handled = released and self._release()
             for sock, source in by_socket.items():
                 if sock in events and not io.stop_requested:
                     handled |= self._service(source)
@@ -232,11 +234,32 @@ class Runner:
             if handled and io.lockstep:
                 io.send_counts()
 
-    def _on_control(self) -> None:
+    def _on_control(self) -> bool:
+        """Serve the launcher's messages; True when one released the held messages."""
+        released = False
         while self.io.control.poll(0):
             msg = self.io.hear()
             if msg is not None and msg["kind"] == "stop":
                 self.io.stop_requested = True
+            released |= msg is not None and msg["kind"] == "release"
+        return released
+
+    def _release(self) -> bool:
+        """Handle the held messages (lockstep, an ordered fan-in): by stamp, then by input
+        in the graph's order, then as received. The launcher releases them once everything
+        published has arrived, so what is held, and this order, depend on the bag alone."""
+        held, self.io.held = self.io.held, []
+
+        def key(item: tuple[int, tuple[Input, Any]]) -> tuple[int, int, int]:
+            arrival, (inp, msg) = item
+            header = getattr(msg, "header", None)
+            stamp = header.stamp_nanos if header is not None else 0
+            return (stamp, self.port_order[inp.port], arrival)
+
+        for _, (inp, msg) in sorted(enumerate(held), key=key):
+            if not self.io.stop_requested:
+                self._handle(inp, msg)
+        return bool(held)
 
     def _run_timers(self) -> None:
         if self.bag_driven:
@@ -309,6 +332,12 @@ class Runner:
                     ", ".join(bad),
                     type(msg).__name__,
                 )
+        if self.holds:
+            self.io.held.append((inp, msg))
+        else:
+            self._handle(inp, msg)
+
+    def _handle(self, inp: Input, msg: Any) -> None:
         self._call(lambda: self.node.handle(inp.port, msg))
         if self.bag_driven:
             for timer in self.io.timers:
