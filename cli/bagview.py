@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import shutil
 import sys
 from collections import Counter
@@ -23,12 +24,13 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+import numpy as np
 
 from messages.base import Message
 from messages.errors import BagError
-from messages.types import GraspState, TaskEvent, ToFImage
+from messages.types import GraspState, PoseEstimate, TaskEvent, ToFImage
 from runtime.bag import BagReader
-from viz.mosaic import MosaicState
+from viz.mosaic import MosaicState, depth_range
 
 
 @dataclass
@@ -235,28 +237,42 @@ def video_bag(
 
     A frame is drawn when a camera image with a newer stamp arrives, from everything
     received before it, so both bubbles' images of one instant are in the same frame.
-    ``fps`` 0 takes the cameras' rate from the stamps. ``stills`` (a folder) receives
-    PNG frames: the first, the first one after each grasp or task event, and the last.
+    ``fps`` 0 takes the cameras' rate from the stamps. Depth is coloured over one range
+    for the whole video (the 1st to 99th percentile of every valid depth pixel).
+    ``stills`` (a folder) receives PNG frames at moments: the first and last frame, the
+    first after each grasp or task event, and the first with the pose tracked (``ok`` or
+    ``recovered``) after it was not; each named ``STEM_FRAME_tSECONDS_MOMENT.png``, the
+    moment written on its bar too.
     """
     skipped = Decoded(Counter())
+    samples = []
     with BagReader(path) as reader:
         cameras = [t for t, s in reader.topics().items() if s.type_name == ToFImage.__name__]
-        stamps = sorted({m.decode().header.stamp_nanos for m in reader.messages(cameras)})  # type: ignore[attr-defined]
+        stamps_seen = set()
+        for m in reader.messages(cameras):
+            image = m.decode()
+            assert isinstance(image, ToFImage)
+            stamps_seen.add(image.header.stamp_nanos)
+            depth = image.depth_m[::4, ::4]
+            samples.append(depth[np.isfinite(depth) & (depth > 0)])
+        stamps = sorted(stamps_seen)
     if not stamps:
         raise BagError(f"{path}: no ToFImage messages: nothing to draw")
     if fps <= 0:
         span = (stamps[-1] - stamps[0]) * 1e-9
         fps = (len(stamps) - 1) / span if len(stamps) > 1 and span > 0 else 30.0
-    keep = {0, len(stamps) - 1}  # frame indices to save as stills; events add theirs
-    state = MosaicState(object_name=object_name)
+    moments = {0: "first", len(stamps) - 1: "last"}  # frame -> what a still shows there
+    state = MosaicState(object_name=object_name, depth_span_m=depth_range(np.concatenate(samples)))
     writer: Any = None
     frames = 0
     size = (0, 0)
     pending: int | None = None
+    tracked = False
 
     def emit() -> None:
         nonlocal writer, frames, size
-        image = state.render(scale)
+        moment = moments.get(frames, "") if stills is not None else ""
+        image = state.render(scale, moment)
         if writer is None:
             size = (image.shape[0], image.shape[1])
             writer = cv2.VideoWriter(
@@ -265,9 +281,11 @@ def video_bag(
             if not writer.isOpened():
                 raise OSError(f"{out}: OpenCV cannot write an MP4 video here")
         writer.write(image)
-        if stills is not None and frames in keep:
+        if stills is not None and moment:
             stills.mkdir(parents=True, exist_ok=True)
-            cv2.imwrite(str(stills / f"{out.stem}_{frames:05d}.png"), image)
+            t = (state.stamp_nanos - (state.first_stamp_nanos or state.stamp_nanos)) * 1e-9
+            slug = re.sub(r"[^A-Za-z0-9]+", "_", moment).strip("_")
+            cv2.imwrite(str(stills / f"{out.stem}_{frames:05d}_t{t:05.2f}s_{slug}.png"), image)
         frames += 1
 
     with written_whole(out) as part:
@@ -277,8 +295,15 @@ def video_bag(
                     if pending is not None and msg.header.stamp_nanos > pending:
                         emit()
                     pending = max(pending or 0, msg.header.stamp_nanos)
-                elif isinstance(msg, TaskEvent) or (isinstance(msg, GraspState) and msg.event):
-                    keep.add(frames)
+                elif isinstance(msg, TaskEvent):
+                    moments.setdefault(frames, f"{msg.task} {msg.event}")
+                elif isinstance(msg, GraspState) and msg.event:
+                    moments.setdefault(frames, f"grasp {msg.event}")
+                elif isinstance(msg, PoseEstimate):
+                    now_tracked = msg.status in ("ok", "recovered")
+                    if now_tracked and not tracked:
+                        moments.setdefault(frames, f"pose {msg.status}")
+                    tracked = now_tracked
                 state.update(topic, msg)
             if pending is not None:
                 emit()

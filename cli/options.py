@@ -100,6 +100,18 @@ def add_run_options(parser: argparse.ArgumentParser, *, swap_help: str, swap_met
     add_keys_option(parser)
 
 
+def add_view_option(parser: argparse.ArgumentParser) -> None:
+    """``--view [OUT.rrd | foxglove]``, as ``run`` and ``replay`` take it."""
+    parser.add_argument(
+        "--view",
+        nargs="?",
+        const="spawn",
+        default=None,
+        metavar="OUT.rrd|foxglove",
+        help="add a viewer: a Rerun window, an .rrd file, or a Foxglove live server",
+    )
+
+
 def positive_secs(text: str) -> float:
     """A finite number of seconds > 0 (argparse ``type``)."""
     try:

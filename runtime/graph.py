@@ -29,7 +29,6 @@ where its ports and parameters are declared); it starts no process.
 from __future__ import annotations
 
 import ipaddress
-import math
 import re
 import tempfile
 from collections import defaultdict

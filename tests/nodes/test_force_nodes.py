@@ -140,3 +140,17 @@ def test_handover_squeezes_on_slip_when_the_load_grows_under_gravity() -> None:
     assert "squeeze" in events and "release" not in events
     assert isinstance(io.published["event"][-1].detail, str)
     _ = (BubbleContact, GripperState, Pressure)
+
+
+def test_handover_with_the_shear_rule_ignores_the_force() -> None:
+    node, io = make_node(
+        HandoverSupervisor,
+        {"grasp_width_m": 0.07, "start_delay_secs": 0.0, "release_on": "shear"},
+    )
+    feed(node, "wrench", _wrench(10, 0.0))
+    feed(node, "grasp", GraspState(header=Header(stamp_nanos=20), stable=True, event="stable"))
+    for k in range(5):
+        feed(node, "wrench", _wrench(30 + k, -3.0))
+    assert node.state == "holding"
+    with pytest.raises(ParamError, match="release_on"):
+        make_node(HandoverSupervisor, {"release_on": "vibes"})

@@ -49,9 +49,7 @@ def refused(result: subprocess.CompletedProcess[str], *phrases: str) -> None:
 
 def source_graph(tmp_path: Path, params: str, extra: str = "", head: str = "") -> Path:
     path = tmp_path / "g.yaml"
-    path.write_text(
-        f"{head}nodes:\n  src: {{impl: '{SOURCE}', params: {params}{extra}}}\n"
-    )
+    path.write_text(f"{head}nodes:\n  src: {{impl: '{SOURCE}', params: {params}{extra}}}\n")
     return path
 
 
