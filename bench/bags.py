@@ -256,7 +256,7 @@ class ImageRelay(Node):
 
 
 def _launch(graph: dict[str, Any], **kwargs: Any) -> int:
-    from runtime.run import launch
+    from cli.run import launch
 
     # The launcher prints its end-of-run table: to the log, not into the benchmark's.
     with launcher_log("bags") as log, contextlib.redirect_stdout(log):

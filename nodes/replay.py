@@ -50,7 +50,7 @@ from messages.errors import BagError, FrameDecodeError, NodeError, SchemaChangeE
 from runtime.bag import BagMessage, BagReader, topic_filter
 from runtime.node import Node
 from runtime.registry import register
-from runtime.replaytool import ReplayOptions
+from runtime.replaygraph import ReplayOptions
 
 _LOGGED_SKIPS = 5  # undecodable messages logged one by one; the rest are counted
 

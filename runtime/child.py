@@ -20,7 +20,7 @@ A node process, in order:
 
 1. leads its own process group (a Ctrl-C at the terminal reaches the launcher only,
    which stops the nodes in order), and takes SIGTERM and SIGINT as "end now" (a quiet
-   exit) until ``runtime.process`` takes them over as "stop cleanly";
+   exit) until ``runtime.runner`` takes them over as "stop cleanly";
 2. waits to be handed to the launcher, then asks the kernel to send SIGTERM when the
    launcher dies (``PR_SET_PDEATHSIG``), and checks it has not died already;
 3. reads its JSON spec on stdin (the launcher's pipe, which also carries the run's
@@ -347,7 +347,7 @@ def run(launcher: int, rundir: str) -> int:
     """A node process's life after it started (see the module's docstring)."""
     try:
         die_with_parent(launcher)
-        from runtime.process import main as run_node
+        from runtime.runner import main as run_node
 
         text = sys.stdin.read()
         if not text:
@@ -370,7 +370,7 @@ def main() -> int:
     the first one died (it imports what every node shares; each node imports its own)."""
     fd, launcher, rundir = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    import runtime.process  # noqa: F401 - shared by every node, imported once here
+    import runtime.runner  # noqa: F401 - shared by every node, imported once here
 
     serve(socket.socket(fileno=fd), launcher, rundir)
     return 0

@@ -34,6 +34,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shlex
 import threading
 import time
 from collections import deque
@@ -45,10 +46,9 @@ import msgpack
 import zmq
 
 from runtime import protocol
-from runtime.cli import flags_differ
 from runtime.counters import balanced
 from runtime.hosts import Hosts, HostSpec
-from runtime.procs import Proc
+from runtime.nodeprocs import Proc
 from runtime.protocol import ControlError
 from runtime.security import Guard, KeyPair, connect_to, serve
 
@@ -115,6 +115,7 @@ class HostLink:
         self.guard: Guard | None = None
         self.router = ctx.socket(zmq.ROUTER)
         self.router.setsockopt(zmq.LINGER, 0)
+        self.router.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_CONTROL_BYTES)
         if self.curve:
             assert keys is not None
             self.guard = Guard(ctx, authorized, lambda text: log(f"link: {text}"))
@@ -501,3 +502,25 @@ def judge(event: tuple[Any, ...], hosts: Hosts) -> Act:
         return act
     reason, code = args  # "stop"
     return Act([], f"host {host!r} stops: {reason}", verdict_code=code, echo=False)
+
+
+def flags_differ(theirs: str, ours: str) -> tuple[str, str]:
+    """The options (with their values) in one command line and not in the other, each way."""
+
+    def options(argv: str) -> list[str]:
+        try:
+            words = shlex.split(argv)
+        except ValueError:  # unbalanced quotes: the words as they are
+            words = argv.split()
+        out: list[str] = []
+        for i, word in enumerate(words):
+            if word.startswith("--"):
+                value = words[i + 1] if i + 1 < len(words) else ""
+                out.append(word if value.startswith("--") or not value else f"{word} {value}")
+        return out
+
+    mine, other = options(ours), options(theirs)
+    return (
+        " ".join(o for o in other if o not in mine),
+        " ".join(o for o in mine if o not in other),
+    )

@@ -1,7 +1,7 @@
 """The Node base class: declared ports, typed parameters, handlers, timers.
 
 A node's logic never builds its own transport: it receives an :class:`IO` object.
-In a graph that is the ZeroMQ process runner (``runtime.process``); in tests it is
+In a graph that is the ZeroMQ process runner (``runtime.runner``); in tests it is
 :class:`runtime.testing.FakeIO`, which feeds messages and records outputs.
 
 A node class declares::
@@ -94,7 +94,7 @@ class Node:
     # True for a node whose work follows the clock or a device rather than its inputs: a
     # simulated world (one step per frame period), a device driver. In lockstep its timers
     # keep the clock; every other node's timers run once after each message it handles
-    # there instead (``runtime.process``), so what they publish depends on the bag alone.
+    # there instead (``runtime.runner``), so what they publish depends on the bag alone.
     # A node without inputs (a source, the replay, the recorder) keeps the clock anyway.
     clocked: ClassVar[bool] = False
 

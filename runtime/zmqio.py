@@ -3,7 +3,7 @@
 The node binds one XPUB (verbose, so it sees every subscription) and publishes the
 codec's multipart frames on it without copying the arrays; control messages to and
 from the launcher are signed with the run's secret (``runtime.protocol``). The loop
-that reads inputs and runs timers is :class:`runtime.process.Runner`'s.
+that reads inputs and runs timers is :class:`runtime.runner.Runner`'s.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from messages.base import Message
 from messages.codec import encode
 from runtime import protocol
 from runtime.counters import InputCounters
+from runtime.params import timer_period_nanos
 from runtime.protocol import ControlError
 from runtime.security import Guard, KeyPair, needs_curve, serve
 
@@ -166,9 +167,10 @@ class ZmqIO:
             self.send_counts()
 
     def add_timer(self, period_secs: float, callback: Callable[[], None]) -> None:
-        if period_secs <= 0:
-            raise ValueError(f"{self.name}: timer period_secs must be > 0, got {period_secs}")
-        period = int(period_secs * 1e9)
+        try:
+            period = timer_period_nanos(period_secs)
+        except ValueError as err:
+            raise ValueError(f"{self.name}: {err}") from err
         self.timers.append(Timer(period, callback, time.monotonic_ns() + period))
 
     def now_nanos(self) -> int:
@@ -230,7 +232,7 @@ class ZmqIO:
                 i.port: {
                     "topic": i.topic,
                     "received": i.counters.received,
-                    "dropped": i.counters.dropped,
+                    "dropped": i.counters.gaps(),
                     "superseded": i.counters.superseded,
                     "bad_frames": i.counters.bad_frames,
                     "nonfinite": i.counters.nonfinite,

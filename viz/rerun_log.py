@@ -3,8 +3,9 @@
 Entity tree (one recording; the timeline ``stamp`` is each message's header stamp):
 
 * ``tool``: the gripper tool frame, the 3D space.
-* ``tool/{side}_sensor``: the bubble camera: ``Transform3D`` (``tool_from_sensor`` at the
-  gripper's measured opening) and ``Pinhole`` (its intrinsics, RDF: x right, y down, z
+* ``tool/{side}_sensor``: the bubble camera: ``Transform3D`` (the ``tool_from_sensor``
+  its frames carry; for frames that carry none, the CAD mount at the gripper's measured
+  opening) and ``Pinhole`` (its intrinsics, RDF: x right, y down, z
   forward); under it, 2D in its image: ``depth`` (``DepthImage``, metres, ``meter=1``),
   ``ir`` (``Image``), ``shear`` (``Arrows2D``: the mean shear from the mask's centroid),
   ``mask/{node}`` (``SegmentationImage``), ``overlay`` (the shear tracker's drawing).
@@ -22,13 +23,13 @@ counted in :attr:`RerunLogger.skipped`.
 from __future__ import annotations
 
 import sys
+import time
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 import rerun as rr
 
-from geometry.gripper import tool_from_sensor
 from messages.base import Message
 from messages.types import (
     ClassProbabilities,
@@ -43,8 +44,10 @@ from messages.types import (
     ShearEstimate,
     TaskEvent,
     ToFImage,
+    pose_is_known,
 )
-from viz.shapes import object_mesh
+from viz.display import require_display
+from viz.shapes import camera_pose, object_mesh
 
 TIMELINE = "stamp"
 BUBBLE_COLORS = np.array([[66, 135, 245], [245, 130, 48]], dtype=np.uint8)  # left, right
@@ -61,14 +64,32 @@ def mask_centroid(mask: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray
     return np.array([(shape[1] - 1) / 2.0, (shape[0] - 1) / 2.0])
 
 
-def spawn_viewer(rec: rr.RecordingStream) -> None:
+def spawn_viewer(rec: rr.RecordingStream, *, instead: str) -> None:
     """Start a Rerun viewer and stream ``rec`` to it.
 
     The viewer is the ``rerun`` executable installed next to this Python (``rerun-sdk``
     puts it there), so it is found without an activated virtual environment.
+
+    Raises:
+        viz.display.NoDisplay: there is no display; the message ends with ``instead``.
     """
+    require_display(instead)
     beside = Path(sys.executable).with_name("rerun")
     rr.spawn(executable_path=str(beside) if beside.is_file() else None, recording=rec)
+
+
+def flush(rec: rr.RecordingStream, deadline_secs: float | None = None) -> bool:
+    """Flush ``rec`` in short waits, so that Ctrl-C and SIGTERM are handled between them
+    (one long wait inside Rerun holds the interpreter: a viewer that went away made it
+    wait for good). Returns False when ``deadline_secs`` passed first."""
+    start = time.monotonic()
+    while True:
+        try:
+            rec.flush(timeout_sec=0.25)
+            return True
+        except RuntimeError:  # timed out; signals run now
+            if deadline_secs is not None and time.monotonic() - start > deadline_secs:
+                return False
 
 
 def _owned(array: np.ndarray) -> np.ndarray:
@@ -100,6 +121,7 @@ class RerunLogger:
         self.masks: dict[str, np.ndarray] = {}
         self.shapes: dict[str, tuple[int, int]] = {}
         self.intrinsics: dict[str, tuple[float, ...]] = {}
+        self.placed: set[str] = set()  # sides whose frames carry their camera pose
         self.pose_status = "ok"
         self.meshes_logged: set[tuple[str, str]] = set()
         self.logged: Counter[str] = Counter()
@@ -121,6 +143,9 @@ class RerunLogger:
     def _log_ToFImage(self, topic: str, msg: ToFImage) -> None:
         side = _sensor(msg.sensor, msg.header.frame_id)
         base = f"tool/{side}_sensor"
+        if pose_is_known(msg.tool_from_sensor):
+            self.placed.add(side)
+            self._camera(side, camera_pose(side, 0.0, msg))
         image = msg.depth_m if msg.depth_m.size else msg.ir
         height, width = image.shape
         self.shapes[side] = (height, width)
@@ -175,11 +200,13 @@ class RerunLogger:
         if self.width_m is None or abs(msg.width_m - self.width_m) > WIDTH_STEP_M:
             self.width_m = msg.width_m
             for side in ("left", "right"):
-                pose = tool_from_sensor(side, msg.width_m)
-                self.rec.log(
-                    f"tool/{side}_sensor",
-                    rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]),
-                )
+                if side not in self.placed:
+                    self._camera(side, camera_pose(side, msg.width_m))
+
+    def _camera(self, side: str, pose: np.ndarray) -> None:
+        self.rec.log(
+            f"tool/{side}_sensor", rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3])
+        )
 
     def _log_ContactPatch(self, topic: str, msg: ContactPatch) -> None:
         colors = BUBBLE_COLORS[np.minimum(msg.bubble, 1)]

@@ -29,7 +29,8 @@ import numpy as np
 import messages  # noqa: F401  (declares the types whose wall-clock fields are skipped)
 from messages.base import Message
 from messages.errors import BagError
-from runtime.bag.reader import BagMessage, BagReader
+from runtime.bag.message import BagMessage
+from runtime.bag.reader import BagReader
 
 COUNT, ONLY_A, ONLY_B = "(count)", "(only in A)", "(only in B)"
 # A message's position in its topic, not its content: after one missing message every

@@ -10,11 +10,11 @@ from pathlib import Path
 
 import pytest
 
+from cli.options import shared_command_line
+from cli.run import host_keys
 from messages.errors import GraphError
-from runtime.cli import shared_command_line
 from runtime.graph import check
 from runtime.hosts import without_hosts
-from runtime.run import host_keys
 from runtime.security import load_key, make_key
 from tests.hosts.conftest import ROOT, two_host_graph, write_graph
 

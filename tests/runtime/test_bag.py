@@ -361,14 +361,14 @@ def test_truncated_file_is_recovered(tmp_path: Path, compression: str) -> None:
 
 
 def test_bag_info_of_truncated_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from runtime.bagtool import main
+    from cli.main import main
 
     path = tmp_path / "a.mcap"
     write_chunks(path, 3, 4)
     with BagReader(path) as r:
         cut = r.chunks[2].offset + 30
     path.write_bytes(path.read_bytes()[:cut])
-    assert main(["info", str(path)]) == 0
+    assert main(["bag", "info", str(path)]) == 0
     out = capsys.readouterr().out
     assert "summary:   NO" in out
     assert "a/tick" in out and " 8 " in out

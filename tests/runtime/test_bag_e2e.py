@@ -18,13 +18,13 @@ import yaml
 import nodes.recorder  # noqa: F401  (registers the implementations the graphs name)
 import nodes.replay  # noqa: F401
 import tests.synthetic_nodes  # noqa: F401  (registers the synthetic nodes)
+from cli.run import launch
 from messages import Header, Tick
 from runtime.bag import BagReader
 from runtime.bag.diff import diff_bags
 from runtime.graph import check
 from runtime.node import Node
-from runtime.replaytool import ReplayOptions, build_replay_graph
-from runtime.run import launch
+from runtime.replaygraph import ReplayOptions, build_replay_graph
 
 GRAPH = yaml.safe_load(
     """
@@ -146,7 +146,7 @@ def test_sigkilled_recorder_leaves_a_readable_bag(tmp_path: Path) -> None:
     # the node modules it needs.
     script = (
         "import sys, tests.synthetic_nodes, nodes.recorder\n"
-        "from runtime.run import launch\n"
+        "from cli.run import launch\n"
         "graph = {'nodes': {'src': {'impl': 'synthetic.source',"
         " 'params': {'rate_hz': 100, 'count': 100000}}}}\n"
         "sys.exit(launch(graph, source='g', record=sys.argv[1], log_level='WARNING'))\n"

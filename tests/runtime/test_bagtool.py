@@ -11,14 +11,14 @@ import yaml
 import nodes.recorder  # noqa: F401  (registers the implementations the graphs name)
 import nodes.replay  # noqa: F401
 import tests.synthetic_nodes  # noqa: F401  (registers the synthetic nodes)
+from cli.main import main as cli_main
 from messages.base import Header
 from messages.errors import GraphError
 from messages.types import PoseEstimate, Tick, ToFImage
 from runtime.bag import BagWriter
 from runtime.bag.diff import compare_values, diff_bags
-from runtime.bagtool import main
 from runtime.node import Node
-from runtime.replaytool import ReplayOptions, build_replay_graph, exact_topics
+from runtime.replaygraph import ReplayOptions, build_replay_graph, exact_topics
 from tests.runtime.bad_bags import bag_with_undecodable
 
 GRAPH = yaml.safe_load(
@@ -124,11 +124,10 @@ def test_replay_graph_errors(tmp_path: Path) -> None:
 def test_replay_main_prints_the_graph_from_the_bag(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from runtime.replaytool import replay_main
-
     bag = make_bag(tmp_path / "a.mcap")
-    code = replay_main(
+    code = cli_main(
         [
+            "replay",
             str(bag),
             "--swap",
             "relay=synthetic.relay",
@@ -143,7 +142,7 @@ def test_replay_main_prints_the_graph_from_the_bag(
     assert set(graph["nodes"]) == {"relay", "merge", "sink", "replay"}
     assert graph["nodes"]["replay"]["params"]["fast"] is True
     assert graph["nodes"]["replay"]["params"]["start_secs"] == 0.5
-    assert replay_main([str(bag), "--swap", "ghost", "--print-graph"]) == 2
+    assert cli_main(["replay", str(bag), "--swap", "ghost", "--print-graph"]) == 2
     assert "no node 'ghost'" in capsys.readouterr().err
 
 
@@ -163,7 +162,7 @@ def test_info_lists_topics_counts_drops_and_graph(
                 "a/tick", Tick(header=Header(seq=seq)), log_time_nanos=seq * 100_000_000
             )
         w.set_runtime_drops({"a/tick": 1})
-    assert main(["info", str(path), "--graph"]) == 0
+    assert cli_main(["bag", "info", str(path), "--graph"]) == 0
     out = capsys.readouterr().out
     assert "summary:   yes" in out and "duration:  0.300 s" in out
     assert "recorded:  run it" in out and "graph:     g.yaml" in out
@@ -189,13 +188,13 @@ def test_echo_decodes_and_summarizes(tmp_path: Path, capsys: pytest.CaptureFixtu
     )
     with BagWriter(path) as w:
         w.write_message("cam/image", msg, log_time_nanos=5)
-    assert main(["echo", str(path), "--topic", "cam/image"]) == 0
+    assert cli_main(["bag", "echo", str(path), "--topic", "cam/image"]) == 0
     out = capsys.readouterr().out
     assert "--- cam/image #0 ToFImage seq 2" in out
     assert "sensor: left" in out
     assert "depth_m: float32[4x5] min 0.1 max 0.1 mean 0.1 non-finite 1" in out
     assert "ir: uint16[4x5] min 0 max 19 mean 9.5" in out
-    assert main(["echo", str(path), "--topic", "nope/x"]) == 2
+    assert cli_main(["bag", "echo", str(path), "--topic", "nope/x"]) == 2
     err = capsys.readouterr().err
     assert "a.mcap: topic 'nope/x' is not in the bag" in err
 
@@ -205,7 +204,7 @@ def test_info_of_a_file_that_is_not_a_bag(
 ) -> None:
     path = tmp_path / "x.mcap"
     path.write_text("hello")
-    assert main(["info", str(path)]) == 2
+    assert cli_main(["bag", "info", str(path)]) == 2
     assert "x.mcap: not an MCAP file" in capsys.readouterr().err
 
 
@@ -216,16 +215,18 @@ def test_diff_identical_and_different(tmp_path: Path, capsys: pytest.CaptureFixt
     a = make_bag(tmp_path / "a.mcap")
     b = make_bag(tmp_path / "b.mcap")
     c = make_bag(tmp_path / "c.mcap", values={"merge/tick": 1e-6})
-    assert main(["diff", str(a), str(b), "--topic", "merge/tick"]) == 0
+    assert cli_main(["bag", "diff", str(a), str(b), "--topic", "merge/tick"]) == 0
     assert "no differences" in capsys.readouterr().out
-    assert main(["diff", str(a), str(c), "--topic", "merge/tick"]) == 1
+    assert cli_main(["bag", "diff", str(a), str(c), "--topic", "merge/tick"]) == 1
     out = capsys.readouterr().out
     assert "merge/tick #0 value: 0.0 vs 1e-06" in out and "3 difference(s) in 3 message(s)" in out
-    assert main(["diff", str(a), str(c), "--topic", "merge/tick", "--atol", "1e-5"]) == 0
-    assert main(["diff", str(a), str(c), "--topic", "relay/tick"]) == 0
-    assert main(["diff", str(a), str(c)]) == 1  # every topic
-    assert main(["diff", str(a), str(c), "--topic", "merge/tick", "--ignore", "value"]) == 0
-    assert main(["diff", str(a), str(c), "--topic", "x/y"]) == 2
+    assert cli_main(["bag", "diff", str(a), str(c), "--topic", "merge/tick", "--atol", "1e-5"]) == 0
+    assert cli_main(["bag", "diff", str(a), str(c), "--topic", "relay/tick"]) == 0
+    assert cli_main(["bag", "diff", str(a), str(c)]) == 1  # every topic
+    assert (
+        cli_main(["bag", "diff", str(a), str(c), "--topic", "merge/tick", "--ignore", "value"]) == 0
+    )
+    assert cli_main(["bag", "diff", str(a), str(c), "--topic", "x/y"]) == 2
 
 
 def test_diff_counts_and_arrays(tmp_path: Path) -> None:
@@ -284,14 +285,14 @@ def test_diff_pairs_by_stamp_and_reports_one_dropped_message_once(
         ("(count)", -1, None),
         ("(only in A)", 4, 5_000),
     ]
-    assert main(["diff", str(full), str(dropped)]) == 1
+    assert cli_main(["bag", "diff", str(full), str(dropped)]) == 1
     out = capsys.readouterr().out.splitlines()
     assert out == [
         "pose/pose (count): 10 vs 9 messages",
         "pose/pose #4 stamp 5000 (only in A): PoseEstimate seq 4",
         "1 message(s) only in A",
     ]
-    assert main(["diff", str(dropped), str(full)]) == 1
+    assert cli_main(["bag", "diff", str(dropped), str(full)]) == 1
     assert "1 message(s) only in B" in capsys.readouterr().out
     assert diff_bags(full, slower) == []  # PoseEstimate.wall_clock_fields
     assert [(d.index, d.field) for d in diff_bags(full, moved)] == [(2, "tool_from_object")]
@@ -315,12 +316,12 @@ class PlainRelay(Node):
 def test_swapped_impl_drops_old_params_and_set_applies(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from runtime.replaytool import replay_main
-
     bag = make_bag(tmp_path / "a.mcap")
     graph = build_replay_graph(GRAPH, bag, {"relay": f"{__name__}:PlainRelay"})
     assert graph["nodes"]["relay"]["params"] == {}
-    code = replay_main([str(bag), "--swap", "relay", "--set", "relay.add=7", "--print-graph"])
+    code = cli_main(
+        ["replay", str(bag), "--swap", "relay", "--set", "relay.add=7", "--print-graph"]
+    )
     assert code == 0
     assert yaml.safe_load(capsys.readouterr().out)["nodes"]["relay"]["params"] == {"add": 7}
 
@@ -353,7 +354,7 @@ def test_recover_rewrites_a_cut_bag_with_a_summary(
         cut = r.chunks[-1].offset + 20  # the last chunk is lost
     path.write_bytes(path.read_bytes()[:cut])
     out = tmp_path / "fixed.mcap"
-    assert main(["recover", str(path), str(out)]) == 0
+    assert cli_main(["bag", "recover", str(path), str(out)]) == 0
     assert "9 message(s) recovered" in capsys.readouterr().out
     with BagReader(out) as r:
         assert r.has_summary and not r.problems
@@ -363,7 +364,7 @@ def test_recover_rewrites_a_cut_bag_with_a_summary(
     with open(out, "rb") as f:
         summary = make_reader(f).get_summary()
     assert summary is not None and summary.statistics.message_count == 9
-    assert main(["recover", str(out), str(out)]) == 2
+    assert cli_main(["bag", "recover", str(out), str(out)]) == 2
 
 
 LOOP = yaml.safe_load(
@@ -400,14 +401,14 @@ def test_echo_skips_messages_it_cannot_decode(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     path = bag_with_undecodable(tmp_path / "bad.mcap", 5, {1: "cut", 3: "cut"})
-    assert main(["echo", str(path), "--topic", "a/tick"]) == 1
+    assert cli_main(["bag", "echo", str(path), "--topic", "a/tick"]) == 1
     captured = capsys.readouterr()
     values = [line for line in captured.out.splitlines() if line.startswith("value:")]
     assert values == ["value: 0.0", "value: 2.0", "value: 4.0"]
     assert captured.out.count("SKIPPED, cannot decode: ") == 2
     assert "#1 Tick" in captured.out and "bad.mcap: topic a/tick: message at offset" in captured.out
     assert "2 message(s) could not be decoded" in captured.err
-    assert main(["echo", str(path), "--topic", "a/tick", "--strict"]) == 2
+    assert cli_main(["bag", "echo", str(path), "--topic", "a/tick", "--strict"]) == 2
     captured = capsys.readouterr()
     assert captured.out.count("value:") == 1 and "bad.mcap: topic a/tick" in captured.err
 
@@ -420,9 +421,9 @@ def test_diff_counts_undecodable_messages_and_goes_on(
     diffs = diff_bags(good, bad)
     assert [(d.index, d.field) for d in diffs] == [(1, "(undecodable)")]
     assert "bad.mcap: topic a/tick" in diffs[0].detail
-    assert main(["diff", str(good), str(bad)]) == 1
+    assert cli_main(["bag", "diff", str(good), str(bad)]) == 1
     assert "1 difference(s) in 1 message(s)" in capsys.readouterr().out
-    assert main(["diff", str(good), str(bad), "--strict"]) == 2
+    assert cli_main(["bag", "diff", str(good), str(bad), "--strict"]) == 2
     assert "bad.mcap: topic a/tick" in capsys.readouterr().err
     other = bag_with_undecodable(tmp_path / "other.mcap", 5, {})
     assert diff_bags(good, other) == []
@@ -431,10 +432,8 @@ def test_diff_counts_undecodable_messages_and_goes_on(
 def test_replay_strict_reaches_the_replay_node(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from runtime.replaytool import replay_main
-
     bag = make_bag(tmp_path / "a.mcap")
-    assert replay_main([str(bag), "--replace", "sink", "--print-graph"]) == 0
+    assert cli_main(["replay", str(bag), "--replace", "sink", "--print-graph"]) == 0
     assert replay_params(yaml.safe_load(capsys.readouterr().out))["strict"] is False
-    assert replay_main([str(bag), "--replace", "sink", "--strict", "--print-graph"]) == 0
+    assert cli_main(["replay", str(bag), "--replace", "sink", "--strict", "--print-graph"]) == 0
     assert replay_params(yaml.safe_load(capsys.readouterr().out))["strict"] is True

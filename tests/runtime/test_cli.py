@@ -3,14 +3,15 @@ dotted --set, and errors that name the file, the node and the field."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
 import yaml
 
 import launch
-from runtime.cli import node_details, node_table
-from runtime.replaytool import replay_main
+from cli.main import parser
+from cli.nodes import node_details, node_table
 from tests.runtime.test_bagtool import make_bag
 
 NESTED = "tests.runtime.nodes_for_tests:NestedNode"
@@ -21,10 +22,16 @@ def test_help_lists_every_subcommand(capsys: pytest.CaptureFixture[str]) -> None
         launch.main(["--help"])
     assert info.value.code == 0
     out = capsys.readouterr().out
-    assert "python launch.py GRAPH [options] | python launch.py {nodes,bag,replay,keys}" in out
-    for name, (summary, _) in launch.SUBCOMMANDS.items():
-        assert f"  {name}" in out and summary in out
-    assert "--record-topics" in out and "--swap" in out and "--topics" not in out
+    _, names = parser()
+    assert names == ["run", "nodes", "bag", "replay", "topic", "keys", "calibrate"]
+    commands = {line.split()[0] for line in out.splitlines() if re.match(r"    \S", line)}
+    assert commands == set(names)
+    assert "`python launch.py GRAPH ...` runs a graph" in out
+    bag = _help_of(["bag"])
+    for command in ("info", "echo", "diff", "recover", "view", "export", "video"):
+        assert f"    {command}" in bag
+    run = _help_of(["run"])
+    assert "--record-topics" in run and "--swap" in run and "--topics" not in run
 
 
 def test_nodes_marks_optional_inputs(capsys: pytest.CaptureFixture[str]) -> None:
@@ -66,40 +73,42 @@ def test_nodes_with_an_unknown_impl_lists_the_valid_ones(
 
 
 def test_run_and_replay_share_one_vocabulary() -> None:
-    run = launch.run_parser().parse_args(
-        ["g.yaml", "--swap", "a=b", "--set", "a.b.c=1", "--record", "o.mcap"]
+    run = parser()[0].parse_args(
+        ["run", "g.yaml", "--swap", "a=b", "--set", "a.b.c=1", "--record", "o.mcap"]
         + ["--record-topics", "x/.*"]
     )
     assert (run.swaps, run.sets, run.record_topics) == (["a=b"], ["a.b.c=1"], "x/.*")
-    replay_help = _help_of(replay_main)
+    replay_help = _help_of(["replay"])
     for flag in ("--swap", "--set", "--record", "--record-topics", "--replay-topics"):
         assert flag in replay_help
     assert "--replace" not in replay_help and "--topics " not in replay_help
 
 
-def _help_of(main: object) -> str:
+def _help_of(command: list[str]) -> str:
     import contextlib
     import io
 
     out = io.StringIO()
     with contextlib.redirect_stdout(out), pytest.raises(SystemExit):
-        main(["--help"])  # type: ignore[operator]
+        launch.main([*command, "--help"])
     return out.getvalue()
 
 
 def test_old_spellings_still_work_and_say_what_replaced_them(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    run = launch.run_parser().parse_args(["g.yaml", "--topics", "x/.*"])
+    run = parser()[0].parse_args(["run", "g.yaml", "--topics", "x/.*"])
     assert run.record_topics == "x/.*"
     assert "warning: --topics is deprecated; use --record-topics" in capsys.readouterr().err
     bag = make_bag(tmp_path / "a.mcap")
     chosen = ["--replay-topics", "source_a/.*", "--print-graph"]
-    assert replay_main([str(bag), "--swap", "relay", *chosen]) == 0
+    assert launch.main(["replay", str(bag), "--swap", "relay", *chosen]) == 0
     new = capsys.readouterr().out
     assert "source_b:" in new  # not replayed: its node runs live
     assert (
-        replay_main([str(bag), "--replace", "relay", "--topics", "source_a/.*", "--print-graph"])
+        launch.main(
+            ["replay", str(bag), "--replace", "relay", "--topics", "source_a/.*", "--print-graph"]
+        )
         == 0
     )
     captured = capsys.readouterr()
@@ -112,7 +121,10 @@ def test_replay_topics_chooses_what_the_bag_plays(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     bag = make_bag(tmp_path / "a.mcap")
-    assert replay_main([str(bag), "--replay-topics", "^source_b/tick$", "--print-graph"]) == 0
+    assert (
+        launch.main(["replay", str(bag), "--replay-topics", "^source_b/tick$", "--print-graph"])
+        == 0
+    )
     graph = yaml.safe_load(capsys.readouterr().out)
     assert set(graph["nodes"]) == {"replay"}
     assert graph["nodes"]["replay"]["params"]["topics"] == "^(?:source_b/tick)$"
@@ -163,3 +175,20 @@ def test_every_error_names_the_file_the_node_and_the_field(
         assert line.startswith(f"{path}: node '"), line
         node_and_field = line.split(": ")[1]
         assert "'." in node_and_field or "unknown key" in line, line
+
+
+def test_replay_in_a_fresh_process_knows_the_registered_implementations(tmp_path: Path) -> None:
+    """A fresh ``launch.py replay`` resolves registered names (it imports the node index
+    itself, as ``run`` does; in-process tests above import it through the suite)."""
+    import subprocess
+    import sys
+
+    bag = make_bag(tmp_path / "a.mcap", topics=("contact_patch/patch",))
+    root = Path(launch.__file__).parent
+    command = [sys.executable, str(root / "launch.py"), "replay", str(bag)]
+    command += ["--graph", str(root / "graph.yaml"), "--swap", "pose=pose_estimator.lm"]
+    done = subprocess.run(
+        [*command, "--print-graph"], capture_output=True, text=True, timeout=120, cwd=root
+    )
+    assert done.returncode == 0, done.stderr
+    assert "pose_estimator.lm" in done.stdout

@@ -38,7 +38,7 @@ from runtime.bag import BagReader
 from runtime.bag.diff import diff_bags
 from runtime.graph import check
 from runtime.registry import known, resolve
-from runtime.replaytool import ReplayOptions, build_replay_graph
+from runtime.replaygraph import ReplayOptions, build_replay_graph
 
 ROOT = Path(__file__).resolve().parents[2]
 
