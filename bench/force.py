@@ -44,7 +44,6 @@ every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` e
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import os
 import tempfile
 import time
@@ -52,7 +51,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 import sim
 from bench.common import Row, main, median, one_core, percentile, progress
@@ -163,14 +161,7 @@ def mujoco_grasps(count: int, spacing_m: float, workdir: Path) -> list[Recorded]
     rng = np.random.default_rng(worlds.SEED)
     out = []
     for k in progress(range(count), "bench.force mujoco"):
-        doc = worlds.grasp_scene(k, rng)
-        text = yaml.safe_dump(doc, sort_keys=False)
-        key = hashlib.sha256(f"{text}{spacing_m}".encode()).hexdigest()[:10]
-        scene_path = workdir / f"grasp_{k}_{key}.yaml"
-        scene_path.write_text(text)
-        bag = scene_path.with_suffix(".mcap")
-        if not (bag.exists() and bag.with_suffix(".json").exists()):
-            worlds.record_mujoco(scene_path, bag, spacing_m)
+        scene_path, bag, _ = worlds.recorded_grasp(k, rng, spacing_m, workdir)
         instants = worlds.replay_mujoco(scene_path, bag)
         with BagReader(bag) as reader:
             truths = [m.decode() for m in reader.messages(["world/wrench"])]

@@ -27,11 +27,13 @@ from typing import Any
 import numpy as np
 import yaml
 
+from cli.options import same_file
 from messages.errors import BagError
 from messages.files import load_yaml
 from runtime.bag import BagMessage, BagReader, BagWriter
 
 log = logging.getLogger(__name__)
+SHOWN = 10  # skipped messages named one by one; the rest are counted
 
 # -- shared formatting ---------------------------------------------------------------------------
 
@@ -197,15 +199,21 @@ def echo_lines(
 # -- recover -------------------------------------------------------------------------------------
 
 
-def recover(src: Path, dst: Path) -> tuple[int, list[str]]:
-    """Copy every readable message of ``src`` into a complete bag ``dst`` (with a summary).
+def recover(src: Path, dst: Path) -> tuple[int, list[str], list[str]]:
+    """Copy every readable message of ``src`` into a complete bag ``dst`` (with a summary),
+    past the ones that cannot be decoded.
 
     Returns:
-        The number of messages copied and the problems met reading ``src``.
+        The number of messages copied, why each skipped message was skipped, and the
+        problems met reading ``src``.
+
+    Raises:
+        BagError: ``dst`` is ``src`` (by any path: a link, the same inode).
     """
-    if src.resolve() == dst.resolve():
+    if same_file(src, dst):
         raise BagError(f"{src}: recover writes a new file; give another output path")
     problems: list[str] = []
+    skipped: list[str] = []
     with BagReader(src, warn=problems.append) as reader:
         copied = 0
         with BagWriter(dst) as writer:
@@ -213,14 +221,19 @@ def recover(src: Path, dst: Path) -> tuple[int, list[str]]:
             if run:
                 writer.add_metadata("softbubble.run", run)
             for msg in reader.messages():
-                writer.copy_message(msg)
+                try:
+                    msg.decode_plain()  # what cannot be decoded is not worth recovering
+                    writer.copy_message(msg)
+                except BagError as err:
+                    skipped.append(str(err))
+                    continue
                 copied += 1
             old = reader.drops()
             writer.set_runtime_drops({t: d.get("runtime", 0) for t, d in old.items()})
             for topic, d in old.items():
                 if topic in writer.counts:
                     writer.counts[topic].rejected = d.get("rejected", 0)
-    return copied, problems
+    return copied, skipped, problems
 
 
 # -- diff ----------------------------------------------------------------------------------------
@@ -353,11 +366,18 @@ def main(args: argparse.Namespace) -> int:
             print(info_text(args.file, show_graph=args.graph))
             return 0
         if args.bag_command == "recover":
-            copied, problems = recover(args.file, args.out)
+            copied, lost, problems = recover(args.file, args.out)
             for problem in problems:
                 print(f"warning: {problem}", file=sys.stderr)
+            for why in lost[:SHOWN]:
+                print(f"skipped: {why}", file=sys.stderr)
             print(f"{args.out}: {copied} message(s) recovered from {args.file}")
-            return 0
+            if lost:
+                print(
+                    f"bag recover: {len(lost)} message(s) could not be decoded and were left out",
+                    file=sys.stderr,
+                )
+            return 1 if lost else 0
         if args.bag_command == "echo":
             skipped: list[str] = []
             lines = echo_lines(

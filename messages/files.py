@@ -67,9 +67,7 @@ class _BoundedLoader(yaml.SafeLoader):  # type: ignore[misc]
         return node
 
 
-def _construct_mapping(
-    loader: _BoundedLoader, node: yaml.MappingNode, deep: bool = False
-) -> Any:
+def _construct_mapping(loader: _BoundedLoader, node: yaml.MappingNode, deep: bool = False) -> Any:
     seen: set[Any] = set()
     for key_node, _ in node.value:
         key = loader.construct_object(key_node, deep=deep)

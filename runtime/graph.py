@@ -374,10 +374,11 @@ def _check_node(
         if parsed is not None:
             inputs[str(port)] = parsed
     hang = body.get("hang_timeout_secs", 30.0)
-    if not isinstance(hang, int | float) or isinstance(hang, bool) or not 0 < hang <= MAX_SECS:
-        errors.append(
-            f"{where}.hang_timeout_secs: must be a number in (0, {MAX_SECS:g}] s, got {hang!r}"
-        )
+    if not isinstance(hang, int | float) or isinstance(hang, bool) or not 0 < hang < math.inf:
+        errors.append(f"{where}.hang_timeout_secs: must be a finite number > 0, got {hang!r}")
+        hang = 30.0
+    elif hang > MAX_SECS:
+        errors.append(f"{where}.hang_timeout_secs: must be at most {MAX_SECS:g} s, got {hang!r}")
         hang = 30.0
     required = body.get("required", True)
     if not isinstance(required, bool):

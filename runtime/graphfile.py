@@ -71,7 +71,9 @@ def _set(nodes: dict[str, Any], item: str, source: str) -> None:
     name, dot, param = target.partition(".")
     keys = param.split(".")
     if len(keys) > MAX_DEPTH:
-        raise GraphError(f"{source}: --set {item[:60]!r}: a PARAM path of more than {MAX_DEPTH} keys")
+        raise GraphError(
+            f"{source}: --set {item[:60]!r}: a PARAM path of more than {MAX_DEPTH} keys"
+        )
     if not sep or not dot or not all(keys) or name not in nodes:
         raise GraphError(
             f"{source}: --set {item!r}: expected NODE.PARAM=VALUE (PARAM may be a dotted "

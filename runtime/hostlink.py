@@ -110,6 +110,7 @@ class HostLink:
         self.guard: Guard | None = None
         self.router = ctx.socket(zmq.ROUTER)
         self.router.setsockopt(zmq.LINGER, 0)
+        self.router.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_CONTROL_BYTES)
         if self.curve:
             assert keys is not None
             self.guard = Guard(ctx, authorized, lambda text: log(f"link: {text}"))

@@ -36,7 +36,18 @@ from runtime.counters import balanced, delivered
 from runtime.graph import Graph, ipc_path
 from runtime.hostlink import HostLink, judge, wait_for_finals
 from runtime.isolation import make_rundir
-from runtime.nodeprocs import Proc, counts, reap, signal_group, spawn, stop, table, totals
+from runtime.nodeprocs import (
+    Proc,
+    counts,
+    ended_by_launcher,
+    exit_reason,
+    reap,
+    signal_group,
+    spawn,
+    stop,
+    table,
+    totals,
+)
 from runtime.protocol import ControlServer
 from runtime.registry import class_path
 from runtime.security import KeyPair
@@ -203,11 +214,28 @@ class Launcher:
             self._on_exit(proc, code)
 
     def _on_exit(self, proc: Proc, code: int) -> None:
-        if code == 0 or self.stop_reason is not None:
-            proc.state = "exited"
+        if code != 0 and self.stop_reason is None:
+            self._failed(proc, exit_reason(code))
             return
-        reason = f"signal {-code}" if code < 0 else f"exit code {code}"
-        self._failed(proc, reason)
+        proc.state = "exited"
+        if code != 0 and not ended_by_launcher(proc, code):
+            # Failing while the graph stops (a recorder whose disk filled) fails the run too.
+            self._ended_badly(proc, f"{exit_reason(code)} while the graph stopped")
+
+    def _ended_badly(self, proc: Proc, why: str) -> None:
+        """A node that failed where no restart can follow: the run fails if it is required."""
+        if proc.spec.required:
+            self.say(f"required node {proc.spec.name!r} failed ({why})")
+            self.exit_code = 1
+        else:
+            self.say(f"node {proc.spec.name!r} failed ({why}); not required")
+
+    def _not_back(self) -> None:
+        """Nodes that failed and had not come back when the graph stopped (a back-off
+        still to wait, a restart still setting up) end badly."""
+        for proc in self.procs.values():
+            if proc.restarts and proc.state in ("waiting_restart", "new", "hello", "ready"):
+                self._ended_badly(proc, f"not back from restart {proc.restarts} at the stop")
 
     def _failed(self, proc: Proc, reason: str) -> None:
         name = proc.spec.name
@@ -467,6 +495,7 @@ class Launcher:
                 self.started_at = time.monotonic()
                 self.say("all nodes ready; running")
                 self._supervise()
+                self._not_back()
             self.say(f"stopping: {self.stop_reason or 'start-up failed'}")
             if self.started_at and self.exit_code == 0:
                 self._drain()

@@ -47,6 +47,7 @@ class Proc:
     stats_base: dict[str, Any] = field(default_factory=dict)
     counts_published: dict[str, int] = field(default_factory=dict)
     counts_received: dict[str, int] = field(default_factory=dict)
+    signalled: set[int] = field(default_factory=set)  # what the launcher sent this incarnation
 
 
 def spawn(
@@ -65,6 +66,7 @@ def spawn(
     threading.Thread(target=_pump, args=(proc, process.stdout, say), daemon=True).start()
     proc.process = process
     proc.rid = None
+    proc.signalled = set()
     proc.state = "new"
     proc.spawned_at = proc.last_heartbeat = time.monotonic()
     proc.busy_secs = 0.0
@@ -107,10 +109,21 @@ def reap(proc: Proc) -> int | None:
 def signal_group(proc: Proc, signum: int) -> None:
     """Signal a node's process group: the node and any process it started (a compiler)."""
     if proc.process is not None and proc.process.returncode is None:
+        proc.signalled.add(int(signum))
         try:
             os.killpg(proc.process.pid, signum)
         except (ProcessLookupError, PermissionError):
             pass
+
+
+def ended_by_launcher(proc: Proc, code: int) -> bool:
+    """Whether a non-zero exit code is a signal the launcher sent this incarnation, as the
+    kernel (-N) or the node's quiet handler before it runs (128 + N) reports it."""
+    return (-code if code < 0 else code - 128) in proc.signalled
+
+
+def exit_reason(code: int) -> str:
+    return f"signal {-code}" if code < 0 else f"exit code {code}"
 
 
 def counts(procs: Mapping[str, Proc]) -> tuple[dict[str, int], dict[str, int]]:

@@ -212,7 +212,7 @@ class ZmqIO:
                 i.port: {
                     "topic": i.topic,
                     "received": i.counters.received,
-                    "dropped": i.counters.dropped,
+                    "dropped": i.counters.gaps(),
                     "superseded": i.counters.superseded,
                     "bad_frames": i.counters.bad_frames,
                     "nonfinite": i.counters.nonfinite,

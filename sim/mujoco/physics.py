@@ -36,6 +36,8 @@ from sim.mujoco.mesh import (
 from sim.mujoco.model import OBJECT_MASS_KG, ShellSpec, grasp_mjcf
 
 RIM_MASS_KG = 100.0
+# The fastest the plates move (the WSG 50 tops out at 420 mm/s of opening).
+PLATE_SPEED_M_PER_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -213,19 +215,25 @@ class GraspPhysics:
         self._apply_air()
 
     def step(self) -> None:
-        """One physics step with the air's forces of the current shape."""
+        """One physics step with the air's forces of the current shape.
+
+        The plates move towards the set opening at most :data:`PLATE_SPEED_M_PER_S` (a
+        jump, e.g. jaws that moved before the first step, is spread over steps).
+        """
         dt = self.timestep_secs
-        closing = 0.5 * (self._target_width_m - self._width_m)  # each plate, along -F x
+        limit = PLATE_SPEED_M_PER_S * dt
+        width = self._width_m + float(np.clip(self._target_width_m - self._width_m, -limit, limit))
+        closing = 0.5 * (self._width_m - width)  # each plate, along its F x
         d = self.data
         for i in range(2):
             # Rim vertices' joints: F x, y, z displacements from their rest points.
-            d.qpos[self._rim_qpos[i]] = 0.5 * (self.width0_m - self._target_width_m)
+            d.qpos[self._rim_qpos[i]] = 0.5 * (self.width0_m - width)
             d.qpos[self._rim_qpos[i] + 1] = 0.0
             d.qpos[self._rim_qpos[i] + 2] = 0.0
-            d.qvel[self._rim_dof[i]] = -closing / dt
+            d.qvel[self._rim_dof[i]] = closing / dt
             d.qvel[self._rim_dof[i] + 1] = 0.0
             d.qvel[self._rim_dof[i] + 2] = 0.0
-        self._width_m = self._target_width_m
+        self._width_m = width
         self._apply_air()
         mujoco.mj_step(self.model, d)
         self.time_secs += dt
