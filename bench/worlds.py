@@ -152,6 +152,27 @@ def record_mujoco(scene_path: Path, bag: Path, mesh_spacing_m: float) -> float:
     return cpu
 
 
+def recorded_grasp(
+    k: int, rng: np.random.Generator, spacing_m: float, workdir: Path
+) -> tuple[Path, Path, float]:
+    """The ``k``-th grasp's scene file and its MuJoCo bag in ``workdir`` (recorded now if
+    missing), and the recording's CPU seconds per simulated second.
+
+    Both are named by the digest of the scene and the mesh: a changed grasp or mesh is
+    recorded again, an unchanged one reused (by this bench and ``bench.force``).
+    """
+    text = yaml.safe_dump(grasp_scene(k, rng), sort_keys=False)
+    key = hashlib.sha256(f"{text}{spacing_m}".encode()).hexdigest()[:10]
+    scene_path = workdir / f"grasp_{k}_{key}.yaml"
+    scene_path.write_text(text)
+    bag = scene_path.with_suffix(".mcap")
+    if bag.exists() and bag.with_suffix(".json").exists():
+        cpu = json.loads(bag.with_suffix(".json").read_text())["cpu_s_per_sim_s"]
+    else:
+        cpu = record_mujoco(scene_path, bag, spacing_m)
+    return scene_path, bag, float(cpu)
+
+
 def replay_mujoco(scene_path: Path, bag: Path) -> list[Instant]:
     """Render every recorded state of a MuJoCo bag, as the camera nodes would."""
     from runtime.bag import BagReader
@@ -351,23 +372,12 @@ def run(quick: bool) -> list[Row]:
     }
     try:
         for k in progress(range(grasps), "bench.worlds", label=lambda k: f"grasp {k}"):
-            doc = grasp_scene(k, rng)
-            text = yaml.safe_dump(doc, sort_keys=False)
-            key = hashlib.sha256(f"{text}{spacing}".encode()).hexdigest()[:10]
-            scene_path = workdir / f"grasp_{k}_{key}.yaml"
-            scene_path.write_text(text)
+            scene_path, bag, mujoco_cpu = recorded_grasp(k, rng, spacing, workdir)
             frames, cpu = run_sim(scene_path)
             results["sim"][0].append(score(frames, classifier))
             results["sim"][1].append(cpu)
-            # The bag's name holds the scene's and the mesh's digest: a changed grasp or
-            # mesh is recorded again, an unchanged one replayed.
-            bag = scene_path.with_suffix(".mcap")
-            if bag.exists() and bag.with_suffix(".json").exists():
-                cpu = json.loads(bag.with_suffix(".json").read_text())["cpu_s_per_sim_s"]
-            else:
-                cpu = record_mujoco(scene_path, bag, spacing)
             results["mujoco"][0].append(score(replay_mujoco(scene_path, bag), classifier))
-            results["mujoco"][1].append(cpu)
+            results["mujoco"][1].append(mujoco_cpu)
     finally:
         if tmp is not None:
             tmp.cleanup()

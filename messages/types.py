@@ -169,6 +169,8 @@ class PoseEstimate(Message):
     # Other minima that fit as well and agree on every observable direction, described.
     alternatives: str = ""
 
+    wall_clock_fields: ClassVar[tuple[str, ...]] = ("solve_secs",)
+
 
 class ShearEstimate(Message):
     """Shear of one bubble against its stable-grasp reference.
