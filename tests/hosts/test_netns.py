@@ -108,7 +108,7 @@ def test_the_handover_split_across_hosts_runs_end_to_end_records_and_refuses_int
     assert robot.finish() == 0, robot.text[-3000:]
     ws_out, robot_out = workstation.text, robot.text
     assert "handover: stable" in ws_out  # robot's sensors -> workstation's monitor
-    assert "stopping: host 'workstation' stops" in robot_out
+    assert "stopping: host 'workstation' stops" in robot_out, robot_out[-3000:]
     for topic in ("left_camera/image", "contact_patch/patch", "pose/pose", "shear/shear"):
         assert end_count(ws_out, topic) > 0, topic
     assert end_count(robot_out, "supervisor/command") > 0  # and back, to the gripper
