@@ -14,7 +14,11 @@ Entity tree (one recording; the timeline ``stamp`` is each message's header stam
   and the object's ``Mesh3D`` (logged once, static, when the object is known).
 * ``pressure/{side}``, ``gripper/width_m``, ``gripper/force_n``, ``shear/{side}/magnitude_px``,
   ``pose/residual_rms_m``, ``pose/solve_secs``, ``classifier/{class}``: ``Scalars``.
-* ``events/grasp``, ``events/task``, ``events/pose``, ``events/classifier``: ``TextLog``.
+* ``events/grasp``, ``events/task``, ``events/pose``, ``events/classifier``,
+  ``events/slip``: ``TextLog``.
+* ``wrench/object_force_n/{x,y,z}``, ``wrench/object_torque_nm/{x,y,z}``,
+  ``contact/{side}/area_m2``, ``contact/{side}/pressure_rise_pa``, ``slip/{side}/use``:
+  ``Scalars``; ``tool/object_force``: the object force as an ``Arrows3D`` (1 cm per N).
 
 Message types the logger does not draw (the simulator's ``WorldState``, commands) are
 counted in :attr:`RerunLogger.skipped`.
@@ -31,6 +35,7 @@ import numpy as np
 import rerun as rr
 
 from messages.base import Message
+from messages.force import BubbleContact, SlipState, WrenchEstimate
 from messages.types import (
     ClassProbabilities,
     ContactPatch,
@@ -53,6 +58,8 @@ TIMELINE = "stamp"
 BUBBLE_COLORS = np.array([[66, 135, 245], [245, 130, 48]], dtype=np.uint8)  # left, right
 ESTIMATE_COLOR = (80, 200, 120, 160)
 TRUTH_COLOR = (200, 200, 200, 90)
+FORCE_ARROW_M_PER_N = 0.01  # the object force drawn 1 cm per newton from the tool origin
+FORCE_RGB = (230, 60, 200)
 WIDTH_STEP_M = 1e-4  # re-log the camera poses when the opening moves more than this
 
 
@@ -271,4 +278,33 @@ class RerunLogger:
             self.rec.log(
                 "events/classifier",
                 rr.TextLog(f"{label} p={float(msg.probabilities[best]):.3f}"),
+            )
+
+    # -- force and slip ------------------------------------------------------------------------
+
+    def _log_WrenchEstimate(self, topic: str, msg: WrenchEstimate) -> None:
+        force = np.asarray(msg.object_force_n, dtype=np.float64)
+        for axis, value in zip("xyz", force.tolist(), strict=True):
+            self.rec.log(f"wrench/object_force_n/{axis}", rr.Scalars([value]))
+        for axis, value in zip("xyz", np.asarray(msg.object_torque_nm).tolist(), strict=True):
+            self.rec.log(f"wrench/object_torque_nm/{axis}", rr.Scalars([value]))
+        self.rec.log(
+            "tool/object_force",
+            rr.Arrows3D(
+                origins=[[0.0, 0.0, 0.0]], vectors=[force * FORCE_ARROW_M_PER_N], colors=[FORCE_RGB]
+            ),
+        )
+
+    def _log_BubbleContact(self, topic: str, msg: BubbleContact) -> None:
+        side = _sensor(msg.sensor, msg.header.frame_id)
+        self.rec.log(f"contact/{side}/area_m2", rr.Scalars([msg.area_m2]))
+        self.rec.log(f"contact/{side}/pressure_rise_pa", rr.Scalars([msg.pressure_rise_pa]))
+
+    def _log_SlipState(self, topic: str, msg: SlipState) -> None:
+        side = _sensor(msg.sensor, msg.header.frame_id)
+        self.rec.log(f"slip/{side}/use", rr.Scalars([msg.use]))
+        if msg.onset:
+            self.rec.log(
+                "events/slip",
+                rr.TextLog(f"{side} bubble slips ({msg.onset})", level=rr.TextLogLevel.WARN),
             )
