@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import shlex
 import sys
 from collections.abc import Sequence
@@ -151,3 +152,12 @@ def shared_command_line(argv: Sequence[str]) -> str:
             kept.append(word)
     python = sys.executable if len(kept) == len(argv) else "python"
     return shlex.join([python, *kept])
+
+
+def same_file(a: Path, b: Path) -> bool:
+    """Whether two paths name one file (through links, or the same inode), so a command
+    never writes onto what it reads."""
+    try:
+        return a.resolve() == b.resolve() or os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet): not the same file
+        return False
