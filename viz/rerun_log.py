@@ -26,7 +26,13 @@ counted in :attr:`RerunLogger.skipped`.
 
 from __future__ import annotations
 
+import os
+import re
+import shutil
+import socket
+import subprocess
 import sys
+import tempfile
 import time
 from collections import Counter
 from pathlib import Path
@@ -71,32 +77,86 @@ def mask_centroid(mask: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray
     return np.array([(shape[1] - 1) / 2.0, (shape[0] - 1) / 2.0])
 
 
-def spawn_viewer(rec: rr.RecordingStream, *, instead: str) -> None:
-    """Start a Rerun viewer and stream ``rec`` to it.
+VIEWER_PORT = 9876  # Rerun's own default: a viewer already open there is reused
+
+
+def spawn_viewer(rec: rr.RecordingStream, *, instead: str) -> subprocess.Popen[bytes] | None:
+    """Stream ``rec`` to a Rerun viewer: the one already listening on ``VIEWER_PORT``
+    (returns None), or a new one started here (returns its process, which outlives this
+    one unless Ctrl-C reaches both). Started directly rather than with ``rr.spawn``, whose
+    wait for the viewer's port holds the interpreter (no Ctrl-C, no SIGTERM) for seconds,
+    so that :func:`flush` can tell when the window is gone.
 
     The viewer is the ``rerun`` executable installed next to this Python (``rerun-sdk``
-    puts it there), so it is found without an activated virtual environment.
+    puts it there), so it is found without an activated virtual environment; what it
+    prints goes to a temporary file, shown when it fails.
 
     Raises:
         viz.display.NoDisplay: there is no display; the message ends with ``instead``.
+        OSError: no ``rerun`` executable.
     """
     require_display(instead)
+    url = f"rerun+http://127.0.0.1:{VIEWER_PORT}/proxy"
+    with socket.socket() as probe:
+        if probe.connect_ex(("127.0.0.1", VIEWER_PORT)) == 0:
+            rec.connect_grpc(url)
+            return None
     beside = Path(sys.executable).with_name("rerun")
-    rr.spawn(executable_path=str(beside) if beside.is_file() else None, recording=rec)
+    exe = str(beside) if beside.is_file() else shutil.which("rerun")
+    if exe is None:
+        raise OSError("no Rerun viewer here: `rerun` (from rerun-sdk) is not installed")
+    log = tempfile.TemporaryFile()
+    viewer = subprocess.Popen(
+        [exe, f"--port={VIEWER_PORT}", "--memory-limit=75%", "--expect-data-soon"],
+        stdout=log,
+        stderr=log,
+        env=dict(os.environ, RERUN_APP_ONLY="true"),
+    )
+    viewer.log = log  # type: ignore[attr-defined]
+    rec.connect_grpc(url)
+    return viewer
 
 
-def flush(rec: rr.RecordingStream, deadline_secs: float | None = None) -> bool:
+def flush(
+    rec: rr.RecordingStream,
+    deadline_secs: float | None = None,
+    viewer: subprocess.Popen[bytes] | None = None,
+) -> bool:
     """Flush ``rec`` in short waits, so that Ctrl-C and SIGTERM are handled between them
     (one long wait inside Rerun holds the interpreter: a viewer that went away made it
-    wait for good). Returns False when ``deadline_secs`` passed first."""
+    wait for good). Returns False when ``deadline_secs`` passed first.
+
+    Raises:
+        OSError: ``viewer`` (from :func:`spawn_viewer`) exited before it took the data;
+            the message ends with the last line it printed.
+    """
     start = time.monotonic()
     while True:
         try:
             rec.flush(timeout_sec=0.25)
             return True
         except RuntimeError:  # timed out; signals run now
+            check_viewer(viewer)
             if deadline_secs is not None and time.monotonic() - start > deadline_secs:
                 return False
+
+
+def check_viewer(viewer: subprocess.Popen[bytes] | None) -> None:
+    """Raise ``OSError`` (with the last line it printed) if ``viewer`` has exited."""
+    if viewer is not None and viewer.poll() is not None:
+        raise OSError(
+            f"the Rerun viewer exited (code {viewer.returncode}) before it took the data: "
+            f"{_last_line(viewer)}"
+        )
+
+
+def _last_line(viewer: subprocess.Popen[bytes]) -> str:
+    log = getattr(viewer, "log", None)
+    if log is None:
+        return "(no output)"
+    log.seek(0)
+    lines = [ln for ln in log.read().decode(errors="replace").splitlines() if ln.strip()]
+    return re.sub(r"\x1b\[[0-9;]*m", "", lines[-1]).strip() if lines else "(no output)"
 
 
 def _owned(array: np.ndarray) -> np.ndarray:
