@@ -101,7 +101,8 @@ def nanmean(stack: np.ndarray) -> np.ndarray:
     """The per-pixel mean over frames of the valid values (NaN where none is)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # a pixel NaN in every frame
-        return np.nanmean(stack, axis=0)
+        mean: np.ndarray = np.nanmean(stack, axis=0)
+        return mean
 
 
 def _subsample(points: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -199,7 +200,7 @@ def calibrate(
     time.sleep(0.3)
     pressure: dict[str, PressureCalibration] = {}
     for side in SIDES:
-        readings = []
+        readings: list[float] = []
         while len(readings) < plan.zero_readings:
             reading = sensors[side].read()
             if reading.status == 0:
