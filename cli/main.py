@@ -9,6 +9,7 @@ python launch.py bag info|echo|diff ...      inspect bags (see docs/bags.md)
 python launch.py bag view|export|video ...   look at bags (see docs/viewing.md)
 python launch.py replay BAG [--swap NODE[=IMPL] ...] [...]
 python launch.py keys make HOST | list [--keys DIR]   CURVE keys of hosts (docs/hosts.md)
+python launch.py batch replay|autolabel ...  many bags or worlds as tasks on Ray (docs/batch.md)
 
 ``run`` is the default command: ``launch.py GRAPH ...`` is ``launch.py run GRAPH ...``.
 The tree is declared here, whole; each command's work is its module's ``main(args)``
@@ -47,7 +48,7 @@ def parser() -> tuple[argparse.ArgumentParser, list[str]]:
         epilog="`python launch.py GRAPH ...` runs a graph (`run` is the default command).",
     )
     commands = top.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for add in (_run, _nodes, _bag, _replay, _keys):
+    for add in (_run, _nodes, _bag, _replay, _keys, _batch):
         add(commands)
     return top, list(commands.choices)
 
@@ -198,6 +199,12 @@ def _replay(commands: Commands) -> None:
     add_deprecated(parser, "--replace", "--swap", "swaps", append=True)
     add_deprecated(parser, "--topics", "--replay-topics", "replay_topics")
     parser.set_defaults(handler="cli.replay")
+
+
+def _batch(commands: Commands) -> None:
+    from cli.batch import add_parser
+
+    add_parser(commands)
 
 
 def _keys(commands: Commands) -> None:
