@@ -72,7 +72,7 @@ def summarize(path: Path) -> dict[str, Any]:
                 if value.get("event") in ("summary", "succeeded", "failed", "released"):
                     outcome = str(value.get("event"))
     return {
-        "messages": int(sum(s.count for s in stats.values())),
+        "messages": int(sum(s.messages for s in stats.values())),
         "poses": dict(sorted(poses.items())),
         "events": dict(sorted(events.items())),
         "outcome": outcome,
