@@ -12,9 +12,11 @@ The command-line layer of ``viz``: it reads bags (through ``runtime.bag``'s read
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections import Counter
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -54,23 +56,66 @@ def bag_messages(path: Path, skipped: Decoded) -> Iterator[tuple[str, int, Messa
             yield msg.topic, msg.log_time_nanos, decoded
 
 
+@contextmanager
+def ends_at_once_when_interrupted() -> Iterator[None]:
+    """Ctrl-C or SIGTERM (raised as ``SystemExit``) inside: the process ends at once, with
+    its exit code. Rerun's stream to a viewer that takes nothing waits 5 s when dropped,
+    and its exit handler waits again."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        code: object = 130
+    except SystemExit as stop:
+        code = stop.code
+    else:
+        return
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code if isinstance(code, int) else 1)
+
+
+@contextmanager
+def written_whole(out: Path) -> Iterator[Path]:
+    """A path beside ``out`` to write into, renamed to ``out`` when the block ends and
+    removed when it fails: a failed command leaves no stub, and a file already at ``out``
+    stays as it was. The name keeps ``out``'s suffix (OpenCV picks the format by it)."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    part = out.with_name(f".{out.stem}.part{out.suffix}")
+    try:
+        yield part
+    except BaseException:
+        part.unlink(missing_ok=True)
+        raise
+    part.replace(out)
+
+
 def view_bag(path: Path, out: Path | None, *, object_name: str = "") -> Counter[str]:
     """Log a bag into Rerun: into ``out`` (.rrd) or a spawned viewer. Returns counts per type."""
     import rerun as rr
 
-    from viz.rerun_log import RerunLogger, spawn_viewer
+    from viz.rerun_log import RerunLogger, flush, spawn_viewer
 
     rec = rr.RecordingStream("softbubble", recording_id=path.stem)
-    if out is not None:
-        rec.save(out)
-    else:
-        spawn_viewer(rec)
     logger = RerunLogger(rec, object_name=object_name)
     skipped = Decoded(Counter())
-    for topic, _, msg in bag_messages(path, skipped):
-        logger.log(topic, msg)
-    rec.flush()
-    rec.disconnect()
+    if out is not None:
+        with written_whole(out) as part:
+            rec.save(part)
+            for topic, _, msg in bag_messages(path, skipped):
+                logger.log(topic, msg)
+            flush(rec)
+            rec.disconnect()
+    else:
+        spawn_viewer(
+            rec,
+            instead=f"save a file with `bag view {path} --out FILE.rrd` (open it with "
+            f"`rerun FILE.rrd` where there is one), or `bag export {path} --foxglove OUT.mcap`",
+        )
+        with ends_at_once_when_interrupted():
+            for topic, _, msg in bag_messages(path, skipped):
+                logger.log(topic, msg)
+            flush(rec)
+        rec.disconnect()
     skipped.report(path)
     return logger.logged
 
@@ -82,14 +127,15 @@ def export_bag(path: Path, out: Path) -> int:
     from viz.foxglove_export import FoxgloveSink
 
     context = foxglove.Context()
-    writer = foxglove.open_mcap(out, allow_overwrite=True, context=context)
     sink = FoxgloveSink(context)
     skipped = Decoded(Counter())
-    try:
-        for topic, log_time, msg in bag_messages(path, skipped):
-            sink.log(topic, msg, log_time)
-    finally:
-        writer.close()
+    with written_whole(out) as part:
+        writer = foxglove.open_mcap(part, allow_overwrite=True, context=context)
+        try:
+            for topic, log_time, msg in bag_messages(path, skipped):
+                sink.log(topic, msg, log_time)
+        finally:
+            writer.close()
     skipped.report(path)
     return sink.written
 
@@ -131,9 +177,8 @@ def video_bag(
         image = state.render(scale)
         if writer is None:
             size = (image.shape[0], image.shape[1])
-            out.parent.mkdir(parents=True, exist_ok=True)
             writer = cv2.VideoWriter(
-                str(out), cv2.VideoWriter.fourcc(*"mp4v"), fps, (size[1], size[0])
+                str(part), cv2.VideoWriter.fourcc(*"mp4v"), fps, (size[1], size[0])
             )
             if not writer.isOpened():
                 raise OSError(f"{out}: OpenCV cannot write an MP4 video here")
@@ -143,20 +188,21 @@ def video_bag(
             cv2.imwrite(str(stills / f"{out.stem}_{frames:05d}.png"), image)
         frames += 1
 
-    try:
-        for topic, _, msg in bag_messages(path, skipped):
-            if isinstance(msg, ToFImage):
-                if pending is not None and msg.header.stamp_nanos > pending:
-                    emit()
-                pending = max(pending or 0, msg.header.stamp_nanos)
-            elif isinstance(msg, TaskEvent) or (isinstance(msg, GraspState) and msg.event):
-                keep.add(frames)
-            state.update(topic, msg)
-        if pending is not None:
-            emit()
-    finally:
-        if writer is not None:
-            writer.release()
+    with written_whole(out) as part:
+        try:
+            for topic, _, msg in bag_messages(path, skipped):
+                if isinstance(msg, ToFImage):
+                    if pending is not None and msg.header.stamp_nanos > pending:
+                        emit()
+                    pending = max(pending or 0, msg.header.stamp_nanos)
+                elif isinstance(msg, TaskEvent) or (isinstance(msg, GraspState) and msg.event):
+                    keep.add(frames)
+                state.update(topic, msg)
+            if pending is not None:
+                emit()
+        finally:
+            if writer is not None:
+                writer.release()
     skipped.report(path)
     return frames, size
 

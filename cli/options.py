@@ -11,6 +11,7 @@ still work for a while and say what replaced them.
 from __future__ import annotations
 
 import argparse
+import math
 import shlex
 import sys
 from collections.abc import Sequence
@@ -90,7 +91,13 @@ def add_run_options(parser: argparse.ArgumentParser, *, swap_help: str, swap_met
         action="store_true",
         help="deterministic: a replay waits for the graph to be idle where order matters",
     )
-    parser.add_argument("--duration", type=float, default=None, metavar="SECS")
+    parser.add_argument(
+        "--duration",
+        type=positive_secs,
+        default=None,
+        metavar="SECS",
+        help="stop after this many seconds (> 0)",
+    )
     parser.add_argument("--log-level", default="INFO", choices=LOG_LEVELS)
     parser.add_argument(
         "--host",
@@ -99,6 +106,17 @@ def add_run_options(parser: argparse.ArgumentParser, *, swap_help: str, swap_met
         help="with a hosts table: run this host's nodes only (docs/hosts.md)",
     )
     add_keys_option(parser)
+
+
+def positive_secs(text: str) -> float:
+    """A finite number of seconds > 0 (argparse ``type``)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text!r}")
+    return value
 
 
 def add_keys_option(parser: argparse.ArgumentParser) -> None:

@@ -148,6 +148,14 @@ def launch(
 
 def main(args: argparse.Namespace) -> int:
     """``launch.py [run] GRAPH ...``: check the graph, then run it or say it is OK."""
+    if args.view == "spawn" and not args.check:
+        from viz.display import NoDisplay, require_display
+
+        try:
+            require_display("use `--view FILE.rrd` (saved here) or `--view foxglove`")
+        except NoDisplay as err:
+            print(f"launch.py --view: {err}", file=sys.stderr)
+            return 2
     import nodes  # noqa: F401 - the index of node implementations (no node module)
 
     source = str(args.graph)

@@ -15,6 +15,7 @@ classifies depth into four classes gets exactly that or does not start.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 
@@ -27,7 +28,8 @@ from runtime.node import Node
 from runtime.params import ExistingFile
 from runtime.registry import register
 
-DEFAULT_MODEL = "models/tactile_resnet18.pt"
+# The shipped model, found from this file (not the working directory): a graph runs from anywhere.
+DEFAULT_MODEL = str(Path(__file__).resolve().parents[1] / "models" / "tactile_resnet18.pt")
 DEFAULT_CLASSES = ("mug", "pet_bottle", "square_bottle", "wine_glass")
 
 

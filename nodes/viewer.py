@@ -26,6 +26,8 @@ from messages.errors import FrameDecodeError
 from runtime.node import Node
 from runtime.registry import register
 
+TEARDOWN_FLUSH_SECS = 5.0  # a closed viewer window must not hold the graph's stop
+
 
 @dataclass(frozen=True, kw_only=True)
 class RerunViewerParams:
@@ -94,7 +96,9 @@ class RerunViewer(_DecodingViewer):
         super().setup()
         self.rec = rr.RecordingStream("softbubble", recording_id=self.name)
         if self.params.target == "spawn":
-            spawn_viewer(self.rec)
+            spawn_viewer(
+                self.rec, instead="use `--view FILE.rrd` (saved here) or `--view foxglove`"
+            )
         else:
             Path(self.params.target).parent.mkdir(parents=True, exist_ok=True)
             self.rec.save(self.params.target)
@@ -104,7 +108,14 @@ class RerunViewer(_DecodingViewer):
         self.logger.log(topic, msg)
 
     def teardown(self) -> None:
-        self.rec.flush()
+        from viz.rerun_log import flush
+
+        if not flush(self.rec, deadline_secs=TEARDOWN_FLUSH_SECS):
+            self.io.log.warning(
+                "%s: the Rerun viewer took no data for %g s; the rest is dropped",
+                self.name,
+                TEARDOWN_FLUSH_SECS,
+            )
         self.rec.disconnect()
         self.report(f"in Rerun ({self.params.target})", sum(self.logger.logged.values()))
 

@@ -55,6 +55,31 @@ def load_document(path: str | Path) -> dict[str, Any]:
     doc = parse_yaml(text, str(path))
     if not isinstance(doc, dict):
         raise GraphError(f"{path}: a graph file must be a mapping with a 'nodes' key")
+    return anchor_paths(doc, path)
+
+
+def anchor_paths(doc: dict[str, Any], path: Path) -> dict[str, Any]:
+    """``doc`` (read from ``path``) with the relative file paths of its nodes' parameters
+    found from the graph file: in its folder or the nearest folder above it that has them
+    (``graphs/sort.yaml`` names ``scenes/sort_task.yaml`` of the folder above), so a graph
+    runs from any working directory. A node whose implementation or parameters are not
+    valid is left as it is: the check reports it."""
+    from runtime.params import anchor_files
+    from runtime.registry import resolve
+
+    nodes = doc.get("nodes")
+    if not isinstance(nodes, dict):
+        return doc
+    folder = path.resolve().parent
+    folders = [folder, *folder.parents]
+    for body in nodes.values():
+        if not isinstance(body, dict) or not isinstance(body.get("params"), dict):
+            continue
+        try:
+            cls = resolve(str(body.get("impl")))
+            body["params"] = anchor_files(cls.Params, body["params"], folders)
+        except (KeyError, TypeError, ImportError):
+            continue
     return doc
 
 

@@ -21,7 +21,7 @@ import os
 import re
 import types
 import typing
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -147,6 +147,36 @@ def _check_files(cls: type[Any], built: Any, prefix: str) -> None:
         nested = _dataclass_of(hints[f.name])
         if nested is not None and value is not None:
             _check_files(nested, value, f"{prefix}{f.name}.")
+
+
+def anchor_files(
+    cls: type[Any], values: Mapping[str, Any], folders: Sequence[Path]
+) -> dict[str, Any]:
+    """``values`` with each relative :data:`ExistingFile` path (nested ones too) found in
+    the first of ``folders`` that has it, made absolute; a path none has stays as it is
+    (it is then read from the working directory, and the check names it if missing)."""
+    hints = field_hints(cls)
+    out = dict(values)
+    for f in dataclasses.fields(cls):
+        value = out.get(f.name)
+        if _must_exist(hints[f.name]) and isinstance(value, str) and value:
+            out[f.name] = _anchor(value, folders)
+        nested = _dataclass_of(hints[f.name])
+        if nested is not None and isinstance(value, Mapping):
+            out[f.name] = anchor_files(nested, value, folders)
+    return out
+
+
+def _anchor(value: str, folders: Sequence[Path]) -> str:
+    path = Path(value).expanduser()
+    if path.is_absolute():
+        return value
+    for folder in folders:
+        found = (folder / path).resolve()
+        if found.exists():
+            here = path.resolve()
+            return value if here.exists() and here.samefile(found) else str(found)
+    return value
 
 
 def readable_file(value: str, path: str) -> None:

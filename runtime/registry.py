@@ -9,6 +9,7 @@ is asked for. A graph may also name any class as ``module:Class``.
 
 from __future__ import annotations
 
+import difflib
 import importlib
 from collections.abc import Callable
 
@@ -86,6 +87,11 @@ def resolve(impl: str) -> type[Node]:
     if ":" in impl:
         return _import_class(impl)
     hint = "" if _INDEX else " (no index of node modules: 'import nodes' first)"
-    raise KeyError(
-        f"unknown implementation {impl!r}; valid: {', '.join(known()) or '(none)'}{hint}"
-    )
+    names = known()
+    close = difflib.get_close_matches(impl, names, n=3, cutoff=0.75)
+    if close:
+        raise KeyError(
+            f"unknown implementation {impl!r}; did you mean {' or '.join(close)}? "
+            f"(`launch.py nodes` lists all {len(names)})"
+        )
+    raise KeyError(f"unknown implementation {impl!r}; valid: {', '.join(names) or '(none)'}{hint}")

@@ -22,6 +22,7 @@ counted in :attr:`RerunLogger.skipped`.
 from __future__ import annotations
 
 import sys
+import time
 from collections import Counter
 from pathlib import Path
 
@@ -44,6 +45,7 @@ from messages.types import (
     TaskEvent,
     ToFImage,
 )
+from viz.display import require_display
 from viz.shapes import object_mesh
 
 TIMELINE = "stamp"
@@ -61,14 +63,32 @@ def mask_centroid(mask: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray
     return np.array([(shape[1] - 1) / 2.0, (shape[0] - 1) / 2.0])
 
 
-def spawn_viewer(rec: rr.RecordingStream) -> None:
+def spawn_viewer(rec: rr.RecordingStream, *, instead: str) -> None:
     """Start a Rerun viewer and stream ``rec`` to it.
 
     The viewer is the ``rerun`` executable installed next to this Python (``rerun-sdk``
     puts it there), so it is found without an activated virtual environment.
+
+    Raises:
+        viz.display.NoDisplay: there is no display; the message ends with ``instead``.
     """
+    require_display(instead)
     beside = Path(sys.executable).with_name("rerun")
     rr.spawn(executable_path=str(beside) if beside.is_file() else None, recording=rec)
+
+
+def flush(rec: rr.RecordingStream, deadline_secs: float | None = None) -> bool:
+    """Flush ``rec`` in short waits, so that Ctrl-C and SIGTERM are handled between them
+    (one long wait inside Rerun holds the interpreter: a viewer that went away made it
+    wait for good). Returns False when ``deadline_secs`` passed first."""
+    start = time.monotonic()
+    while True:
+        try:
+            rec.flush(timeout_sec=0.25)
+            return True
+        except RuntimeError:  # timed out; signals run now
+            if deadline_secs is not None and time.monotonic() - start > deadline_secs:
+                return False
 
 
 def _owned(array: np.ndarray) -> np.ndarray:

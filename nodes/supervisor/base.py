@@ -13,6 +13,7 @@ that failed (an object in a wrong bin, an object dropped) passes a non-zero
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 
 from messages import GraspState, GripperCommand, Header, PoseEstimate, TaskEvent
@@ -50,6 +51,7 @@ class Task(Node):
     def setup(self) -> None:
         self.state = "idle"
         self.pose: PoseEstimate | None = None
+        self.pose_statuses: dict[str, int] = {}
         self.first_nanos: int | None = None  # data time of the first message
         self.now_nanos = 0  # data time: the newest message's stamp
         self.wall_started = self.io.now_nanos()
@@ -126,10 +128,22 @@ class Task(Node):
 
     def on_pose(self, msg: PoseEstimate) -> None:
         self.pose = msg
+        self.pose_statuses[msg.status] = self.pose_statuses.get(msg.status, 0) + 1
 
 
 class SingleGraspTask(Task):
-    """Grasp on start, stop at release or timeout; subclasses decide when to release."""
+    """Grasp on start, stop at release or timeout; subclasses decide when to release.
+
+    At the end (the grasp released) it publishes a ``summary`` event (JSON: seconds held,
+    the pose estimates by status, why it released, and what :meth:`outcome` adds) and
+    stops the graph with the same in one line.
+    """
+
+    def setup(self) -> None:
+        super().setup()
+        self.grasp_stable_nanos: int | None = None
+        self.release_sent_nanos: int | None = None
+        self.release_detail = ""
 
     def advance(self, elapsed_secs: float) -> None:
         if self.state == "idle" and elapsed_secs >= self.params.start_delay_secs:
@@ -141,11 +155,14 @@ class SingleGraspTask(Task):
     def release(self, detail: str) -> None:
         self.command("release", self.params.release_width_m)
         self.state = "releasing"
+        self.release_sent_nanos = self.now_nanos
+        self.release_detail = detail
         self.event("release", detail)
 
     def on_grasp(self, msg: GraspState) -> None:
         if msg.event == "stable" and self.state == "grasping":
             self.state = "holding"
+            self.grasp_stable_nanos = self.now_nanos
             self.event(
                 "stable",
                 f"pressure rise {msg.pressure_rise_left_pa:.0f}/{msg.pressure_rise_right_pa:.0f} Pa",
@@ -156,8 +173,28 @@ class SingleGraspTask(Task):
             self.on_released()
 
     def on_released(self) -> None:
-        """The grasp let go after a release: the task is over (subclasses may add a verdict)."""
-        self.finish(f"{self.task}: done")
+        """The grasp let go after a release: the task is over, with its summary."""
+        held = None
+        if self.grasp_stable_nanos is not None and self.release_sent_nanos is not None:
+            held = round((self.release_sent_nanos - self.grasp_stable_nanos) / 1e9, 3)
+        ok = sum(self.pose_statuses.get(s, 0) for s in ("ok", "recovered"))
+        estimates = sum(self.pose_statuses.values())
+        summary: dict[str, object] = {
+            "held_secs": held,
+            "pose_statuses": dict(sorted(self.pose_statuses.items())),
+            "release": self.release_detail,
+            **self.outcome(),
+        }
+        self.event("summary", json.dumps(summary, sort_keys=True), with_pose=False)
+        parts = [f"held {held:.2f} s" if held is not None else "never held"]
+        if estimates:
+            parts.append(f"pose ok in {ok} of {estimates} estimates")
+        parts.append(f"released: {self.release_detail or '-'}")
+        self.finish(f"{self.task}: done: {', '.join(parts)}")
+
+    def outcome(self) -> dict[str, object]:
+        """What a task adds to its summary (JSON values)."""
+        return {}
 
     def on_stable(self) -> None:
         """Called once when the grasp becomes stable."""

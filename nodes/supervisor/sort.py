@@ -82,6 +82,7 @@ class SortSupervisor(SingleGraspTask):
     def setup(self) -> None:
         super().setup()
         self.vote = Vote()
+        self.sorted: dict[str, object] = {}
 
     def on_classes(self, msg: ClassProbabilities) -> None:
         if self.state != "holding":
@@ -97,4 +98,8 @@ class SortSupervisor(SingleGraspTask):
             else:
                 bin_name = dict(self.params.bins).get(best, "unknown")
                 self.event("classified", f"{best} ({confidence:.3f}) -> {bin_name}")
-            self.release(f"placed in {bin_name}")
+            self.sorted = {"class": best, "confidence": round(confidence, 4), "bin": bin_name}
+            self.release(f"{best} ({confidence:.3f}) placed in {bin_name}")
+
+    def outcome(self) -> dict[str, object]:
+        return dict(self.sorted)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -59,7 +61,10 @@ def test_handover_grasps_waits_for_stable_and_releases_on_a_sustained_pull() -> 
         and "90 deg" in io.published["event"][-1].detail
     )
     feed(node, "grasp", grasp(0.9, "released"))
-    assert events(io)[-1] == "done" and io.stop_reason == "handover: done"
+    assert events(io)[-2:] == ["done", "summary"]
+    assert io.stop_reason.startswith("handover: done: held 0.")
+    summary = json.loads(io.published["event"][-1].detail)
+    assert summary["release"].startswith("pull on the right bubble")
 
 
 def test_handover_times_out_without_a_grasp() -> None:
@@ -91,6 +96,13 @@ def test_sort_votes_then_routes_to_the_bin() -> None:
     detail = next(e.detail for e in io.published["event"] if e.event == "classified")
     assert detail.startswith("pet_bottle") and detail.endswith("recycling")
     assert io.published["command"][-1].command == "release"
+    feed(node, "grasp", grasp(0.9, "released"))
+    assert events(io)[-2:] == ["done", "summary"]
+    summary = json.loads(io.published["event"][-1].detail)
+    assert summary["class"] == "pet_bottle" and summary["bin"] == "recycling"
+    assert summary["held_secs"] == 0.0  # the outputs carry no stamp: the clock stood still
+    assert io.stop_reason.startswith("sort: done: held 0.00 s, released: pet_bottle (")
+    assert io.stop_reason.endswith("placed in recycling")
 
 
 def test_sort_sends_an_unsure_object_to_the_unsure_bin() -> None:
