@@ -121,8 +121,8 @@ def _train_rows(work: Path, quick: bool) -> list[Row]:
         if processes == 1:
             command = [sys.executable, *train]
         else:
-            torchrun = str(Path(sys.executable).with_name("torchrun"))
-            command = [torchrun, "--nproc-per-node", str(processes), *train]
+            torchrun = [sys.executable, "-m", "torch.distributed.run"]
+            command = [*torchrun, "--nproc-per-node", str(processes), *train]
         subprocess.run(command, cwd=ROOT, check=True, capture_output=True, stdin=subprocess.DEVNULL)
         epochs_log = [json.loads(line) for line in log.read_text().splitlines()]
         rate = median(

@@ -123,9 +123,9 @@ def test_distributed_training_matches_one_process(tmp_path: Path) -> None:
     data = write_toy_dataset(tmp_path / "toy", grasps_per_class=12, frames_per_grasp=4, seed=0)
     common = ["train", str(data), "--epochs", "12", "--input-px", "32", "--width", "0.125"]
     common += ["--batch-size", "16", "--threads", "1"]
-    torchrun = str(Path(sys.executable).with_name("torchrun"))
+    torchrun = [sys.executable, "-m", "torch.distributed.run"]
     accuracy = {}
-    for name, launcher in (("one", [sys.executable]), ("two", [torchrun, "--nproc-per-node", "2"])):
+    for name, launcher in (("one", [sys.executable]), ("two", [*torchrun, "--nproc-per-node", "2"])):
         out = tmp_path / f"{name}.pt"
         done = subprocess.run(
             [*launcher, "-m", "perception.classify", *common, "--out", str(out)],
