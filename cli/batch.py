@@ -102,7 +102,7 @@ def run_tasks(
                 try:
                     row = ray.get(ref)
                 except Exception as err:  # a worker lost: that task failed, not the batch
-                    row = {"status": "failed", "reason": f"task lost: {type(err).__name__}"}
+                    row = {"status": "failed", "reason": f"task lost: {type(err).__name__}: {err}"}
                 report(index, row)
     finally:
         ray.shutdown()
@@ -189,11 +189,10 @@ def batch_autolabel(args: argparse.Namespace) -> int:
         use_ray=not args.no_ray,
     )
     print(f"{'seed':>8} {'status':<8} {'grasps':>7} {'secs':>8} {'grasps/min':>10}")
-    for row in rows:
-        rate = 60 * row["grasps"] / row["secs"] if row.get("secs") else 0.0
-        print(
-            f"{row['seed']:>8} {row['status']:<8} {row['grasps']:>7} {row['secs']:>8.1f} {rate:>10.2f}"
-        )
+    for seed, row in zip(seeds, rows, strict=True):
+        grasps, secs = row.get("grasps", 0), row.get("secs", 0.0)
+        rate = 60 * grasps / secs if secs else 0.0
+        print(f"{seed:>8} {row['status']:<8} {grasps:>7} {secs:>8.1f} {rate:>10.2f}")
     if not all(r["status"] == "ok" for r in rows):
         print(
             "batch autolabel: a world failed; nothing merged (rerun to finish it)", file=sys.stderr

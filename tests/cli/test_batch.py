@@ -44,7 +44,9 @@ def test_batch_replay_equals_single_replays_and_reports_the_corrupt_one(
     runs: Path, tmp_path: Path
 ) -> None:
     out = tmp_path / "out"
-    batch = _run("batch", "replay", str(runs / "*.mcap"), "--out", str(out), "--workers", "2", *SWAP)
+    batch = _run(
+        "batch", "replay", str(runs / "*.mcap"), "--out", str(out), "--workers", "2", *SWAP
+    )
     assert batch.returncode == 1, batch.stderr  # one recording failed, the batch did not
     table = batch.stdout
     assert "total (4, 1 failed)" in table, table
@@ -65,8 +67,15 @@ def test_batch_replay_equals_single_replays_and_reports_the_corrupt_one(
     assert again.stderr.count("skipped (done before)") == 3, again.stderr
     # Other options are another batch: nothing is skipped.
     other = _run(
-        "batch", "replay", str(runs / "a.mcap"), "--out", str(out), "--no-ray",
-        "--swap", "pose=pose_estimator.icp", "--lockstep",
+        "batch",
+        "replay",
+        str(runs / "a.mcap"),
+        "--out",
+        str(out),
+        "--no-ray",
+        "--swap",
+        "pose=pose_estimator.icp",
+        "--lockstep",
     )
     assert other.returncode == 0 and "skipped" not in other.stderr, other.stderr
 
@@ -75,11 +84,19 @@ def test_batch_autolabel_is_the_same_dataset_from_one_process_or_many(tmp_path: 
     made = {}
     for how in (["--no-ray"], ["--workers", "2"]):
         out = tmp_path / how[0].strip("-")
-        done = _run("batch", "autolabel", "--seeds", "3-4", "--grasps", "2", "--out", str(out), *how)
+        done = _run(
+            "batch", "autolabel", "--seeds", "3-4", "--grasps", "2", "--out", str(out), *how
+        )
         assert done.returncode == 0, done.stderr
         made[how[0]] = read_manifest(out / "dataset")
     one, many = made.values()
-    assert len(one["grasps"]) == 4 and one["grasps"] == many["grasps"]
+    # The same grasps, objects and parameters in the same order; the frames' noise is
+    # drawn live (docs/batch.md), so the frame files are not compared.
+    same = ("grasp_id", "object_class", "params", "source")
+    assert [{k: g[k] for k in same} for g in one["grasps"]] == [
+        {k: g[k] for k in same} for g in many["grasps"]
+    ]
+    assert len(one["grasps"]) == 4 and all(g["frames"] > 0 for g in many["grasps"])
     assert [g["source"]["seeds"] for g in one["grasps"]] == [{"autolabel": s} for s in (3, 3, 4, 4)]
 
 
@@ -109,8 +126,14 @@ def test_seed_lists_and_the_table() -> None:
         parse_seeds("x")
     table = replay_table(
         [
-            {"recording": "r/a.mcap", "status": "ok", "secs": 2.0, "messages": 10,
-             "poses": {"ok": 3}, "differences": {"pose/pose": 2}},
+            {
+                "recording": "r/a.mcap",
+                "status": "ok",
+                "secs": 2.0,
+                "messages": 10,
+                "poses": {"ok": 3},
+                "differences": {"pose/pose": 2},
+            },
             {"recording": "r/b.mcap", "status": "failed", "secs": 0.1, "reason": "bad"},
         ]
     )
@@ -125,11 +148,17 @@ def test_distributed_training_matches_one_process(tmp_path: Path) -> None:
     common += ["--batch-size", "16", "--threads", "1"]
     torchrun = [sys.executable, "-m", "torch.distributed.run"]
     accuracy = {}
-    for name, launcher in (("one", [sys.executable]), ("two", [*torchrun, "--nproc-per-node", "2"])):
+    for name, launcher in (
+        ("one", [sys.executable]),
+        ("two", [*torchrun, "--nproc-per-node", "2"]),
+    ):
         out = tmp_path / f"{name}.pt"
         done = subprocess.run(
             [*launcher, "-m", "perception.classify", *common, "--out", str(out)],
-            cwd=ROOT, capture_output=True, text=True, timeout=600,
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=600,
         )
         assert done.returncode == 0, done.stderr
         from perception.classify.checkpoint import load_checkpoint
