@@ -22,12 +22,11 @@ import subprocess
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import bench
-from bench.common import Row, machine
+from bench.common import machine
+from bench.report_page import Sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 ORDER = (
@@ -45,19 +44,6 @@ ORDER = (
 )
 # Not sweeps: helpers, and bench.pose_hard, whose rows bench.pose already carries.
 NOT_SWEEPS = {"common", "report", "report_page", "heldout", "pose_hard"}
-
-
-@dataclass
-class Sweep:
-    """One sweep's result: its rows, how long it took, the command, what went wrong."""
-
-    name: str
-    command: str
-    rows: list[Row] = field(default_factory=list)
-    machine: dict[str, Any] = field(default_factory=dict)
-    secs: float = 0.0
-    error: str = ""
-    columns: list[str] | None = None
 
 
 def discover() -> list[str]:

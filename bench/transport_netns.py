@@ -1,7 +1,7 @@
 """``bench.transport``'s rows across hosts: tcp between two network namespaces on this
 machine, without and with CURVE, measured side by side in one run.
 
-The ``raw_parts`` pair of processes (``bench.transport.run_bare``) with the source in one
+The ``raw_parts`` pair of processes (``bench.transport_bare.run_bare``) with the source in one
 namespace (``10.77.0.1``) and the sink in another, at most ``NETNS_REPEATS`` repeats
 alternating plain and CURVE, latency paced at ``NETNS_RATE_HZ`` (a camera's rate order,
 and below what CURVE sustains for these frames). ``throughput_vs_plain`` and ``latency_vs_plain`` are the
@@ -20,7 +20,7 @@ import zmq
 
 from bench.common import Row, median, progress
 from bench.netns import Net, namespaces, unavailable
-from bench.transport import NETNS, Measured, Sizes, figures, medians, run_bare
+from bench.transport_bare import NETNS, Measured, Sizes, figures, medians, run_bare
 from runtime.security import KeyPair
 
 NETNS_REPEATS = 3

@@ -17,6 +17,8 @@ from collections.abc import Sequence
 
 import yaml
 
+from cli.options import same_file
+from cli.taps import add_viewer, viewer_refused
 from messages.errors import BagError, GraphError
 from runtime.bag import BagReader
 from runtime.hosts import without_hosts
@@ -37,9 +39,20 @@ def main(args: argparse.Namespace) -> int:
     """``launch.py replay ...``: build the replay graph and run it (exit code)."""
     import nodes  # noqa: F401 - the index of node implementations (no node module)
 
+    if args.record is not None and same_file(args.record, args.bag):
+        print(
+            f"replay: --record {args.record} is the bag being replayed ({args.bag}); "
+            "recording onto it would destroy it: give another file",
+            file=sys.stderr,
+        )
+        return 2
+    refused = None if args.print_graph else viewer_refused(args.view)
+    if refused:
+        print(refused, file=sys.stderr)
+        return 2
     try:
         if args.graph is not None:
-            from runtime.graph import load_document
+            from runtime.graphfile import load_document
 
             graph = load_document(args.graph)
         else:
@@ -48,7 +61,9 @@ def main(args: argparse.Namespace) -> int:
             if not text:
                 print(f"{args.bag}: the bag stores no graph; pass --graph", file=sys.stderr)
                 return 2
-            graph = yaml.safe_load(text)
+            from runtime.graphfile import parse_yaml
+
+            graph = parse_yaml(text, f"{args.bag}: the stored graph")
         if args.no_hosts:
             if args.host is not None:
                 raise GraphError("--no-hosts and --host: give one of them")
@@ -71,6 +86,8 @@ def main(args: argparse.Namespace) -> int:
             from runtime.graph import apply_overrides
 
             replay_graph = apply_overrides(replay_graph, sets=args.sets, source=str(args.bag))
+        if args.view is not None:
+            replay_graph = add_viewer(replay_graph, args.view, source=f"{args.bag} (replay)")
     except (BagError, GraphError, ValueError) as err:
         print(f"replay: {err}", file=sys.stderr)
         return 2

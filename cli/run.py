@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from cli.taps import add_recorder, add_viewer
+from cli.taps import add_recorder, add_viewer, viewer_refused
 from messages.errors import GraphError
 from runtime import graph as graphs
 from runtime.graph import Graph, check
@@ -146,21 +146,32 @@ def launch(
     return launcher.run()
 
 
+def emulated(doc: dict[str, Any], rig_file: str | None) -> dict[str, Any]:
+    """The graph on an emulated rig (``sim.rig_launch``); its errors as graph errors."""
+    from sim.rig_launch import activate, emulate
+
+    try:
+        rig, feed, _ = activate(rig_file)
+        return emulate(doc, rig=rig, feed=feed)
+    except ValueError as err:
+        raise GraphError(str(err)) from err
+
+
 def main(args: argparse.Namespace) -> int:
     """``launch.py [run] GRAPH ...``: check the graph, then run it or say it is OK."""
-    if args.view == "spawn" and not args.check:
-        from viz.display import NoDisplay, require_display
-
-        try:
-            require_display("use `--view FILE.rrd` (saved here) or `--view foxglove`")
-        except NoDisplay as err:
-            print(f"launch.py --view: {err}", file=sys.stderr)
-            return 2
+    refused = None if args.check else viewer_refused(args.view)
+    if refused:
+        print(refused, file=sys.stderr)
+        return 2
     import nodes  # noqa: F401 - the index of node implementations (no node module)
 
     source = str(args.graph)
     try:
         doc = graphs.load_document(args.graph)
+        if args.emulate:
+            doc = emulated(doc, args.rig)
+        elif args.rig:
+            raise GraphError(f"{source}: --rig needs --emulate")
         only = [n for n in args.only.split(",") if n]
         doc = graphs.apply_overrides(
             doc, sets=args.sets, swaps=args.swaps, only=only, source=source

@@ -22,6 +22,8 @@ what to do: a permission error the udev rule to add, an unplugged bridge
 from __future__ import annotations
 
 import errno
+import importlib
+import os
 import time
 from typing import Any
 
@@ -44,6 +46,7 @@ CANCEL_TRANSFER = 0x10
 SET_SPEED = 0x20
 READ_FAILED = 0x41
 FAILED_COUNT = 127
+BACKEND_ENV = "SOFTBUBBLE_USB_BACKEND"
 
 UDEV_RULE = (
     'SUBSYSTEM=="usb", ATTRS{idVendor}=="04d8", ATTRS{idProduct}=="00dd", '
@@ -67,21 +70,35 @@ class BridgeNotFound(DeviceError):
 def default_backend() -> Any:
     """A libusb-1.0 backend for pyusb: the one the ``libusb-package`` wheel ships.
 
+    ``$SOFTBUBBLE_USB_BACKEND`` (``module:function``) names another backend's factory
+    instead: the emulated rig's (``sim.emulated_rig:usb_backend``) is how the hardware
+    graph's own pressure node reads emulated bridges.
+
     Raises:
         DeviceError: neither that library nor the system's libusb-1.0 loads.
     """
-    import libusb_package
+    named = os.environ.get(BACKEND_ENV, "")
+    if named:
+        module, _, factory = named.partition(":")
+        try:
+            return getattr(importlib.import_module(module), factory)()
+        except (ImportError, AttributeError, ValueError) as err:
+            raise DeviceError(f"${BACKEND_ENV}={named!r}: no such backend factory ({err})") from err
+    try:
+        import libusb_package
 
-    backend = libusb_package.get_libusb1_backend()
+        backend = libusb_package.get_libusb1_backend()
+        wheel = "the `libusb-package` wheel's library did not load"
+    except ImportError:
+        backend, wheel = None, "the `libusb-package` wheel is not installed"
     if backend is None:
         import usb.backend.libusb1
 
         backend = usb.backend.libusb1.get_backend()
     if backend is None:
         raise DeviceError(
-            "pyusb has no libusb-1.0 backend: the `libusb-package` wheel's library did not"
-            " load and neither did the system's (is this a machine with a USB subsystem,"
-            " /dev/bus/usb?)"
+            f"pyusb has no libusb-1.0 backend: {wheel} and neither did the system's"
+            " libusb-1.0 (is this a machine with a USB subsystem, /dev/bus/usb?)"
         )
     return backend
 
@@ -123,6 +140,7 @@ class MCP2221:
         self.backend = backend
         self.timeout_ms = timeout_ms
         self.device: Any = None
+        self.device_serial = serial  # the serial of the bridge found (when none was asked)
         self._interface = -1
         self._ep_out: Any = None
         self._ep_in: Any = None
@@ -138,7 +156,7 @@ class MCP2221:
         if self.serial:
             dev = bridges.get(self.serial)
         elif len(bridges) == 1:
-            dev = next(iter(bridges.values()))
+            self.device_serial, dev = next(iter(bridges.items()))
         else:
             dev = None
         if dev is None:

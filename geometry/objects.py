@@ -1,4 +1,4 @@
-"""The four objects of the simulator, built from proximity-field primitives.
+"""The objects of the simulator (four household ones and the calibration cylinder), built from proximity-field primitives.
 
 Shared by the simulator (rendering contact) and the pose estimator (fitting): one
 description of each object. Every object lives in its geometry frame G (docs/design.md
@@ -56,6 +56,10 @@ def _at(
     child: Field, *, z_m: float = 0.0, x_m: float = 0.0, rot: np.ndarray | None = None
 ) -> Field:
     return Transformed(child, make_pose(rot, np.array([x_m, 0.0, z_m])))
+
+
+def _cylinder(d: dict[str, float]) -> tuple[Field, bool]:
+    return CappedCylinder(d["radius_m"], d["height_m"]), True
 
 
 def _mug(d: dict[str, float]) -> tuple[Field, bool]:
@@ -141,6 +145,8 @@ _BUILDERS: dict[
         {"width_m": 0.060, "body_height_m": 0.160, "neck_radius_m": 0.013, "neck_height_m": 0.030},
         _square_bottle,
     ),
+    # A plain cylinder of known radius: the calibration object (perception.calibration).
+    "cylinder": ("cylinder", {"radius_m": 0.030, "height_m": 0.160}, _cylinder),
     "wine_glass": (
         "wine_glass",
         {
@@ -156,21 +162,24 @@ _BUILDERS: dict[
     ),
 }
 
-NAMES: tuple[str, ...] = tuple(_BUILDERS)
+CALIBRATION_OBJECTS = ("cylinder",)
+# The objects of the tasks (classes, datasets, pose fits); ``make`` builds these and the
+# calibration objects.
+NAMES: tuple[str, ...] = tuple(n for n in _BUILDERS if n not in CALIBRATION_OBJECTS)
 
 
 def make(name: str, **overrides: Any) -> ObjectModel:
     """Build one of the simulator's objects, optionally overriding dimensions.
 
     Args:
-        name: one of :data:`NAMES`.
+        name: one of :data:`NAMES` or :data:`CALIBRATION_OBJECTS`.
         **overrides: dimension names of that object (metres), e.g. ``radius_m=0.045``.
 
     Raises:
         ValueError: an unknown name, an unknown dimension, or a non-positive one.
     """
     if name not in _BUILDERS:
-        raise ValueError(f"unknown object {name!r}; valid: {', '.join(NAMES)}")
+        raise ValueError(f"unknown object {name!r}; valid: {', '.join(_BUILDERS)}")
     label, defaults, build = _BUILDERS[name]
     unknown = sorted(set(overrides) - set(defaults))
     if unknown:

@@ -79,6 +79,9 @@ class Message(msgspec.Struct, kw_only=True):
     # pixel without a return), so only infinities break it.
     finite_fields: ClassVar[tuple[str, ...]] = ()
     nan_marks_invalid: ClassVar[frozenset[str]] = frozenset()
+    # Fields that measure the machine, not the data (a solve time): two runs of the same
+    # input differ there by nature, so ``bag diff`` does not compare them.
+    wall_clock_fields: ClassVar[tuple[str, ...]] = ()
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -98,9 +101,11 @@ class Message(msgspec.Struct, kw_only=True):
         for name in self.finite_fields:
             value = getattr(self, name)
             if isinstance(value, np.ndarray):
-                ok = not (
-                    np.isinf(value) if name in self.nan_marks_invalid else ~np.isfinite(value)
-                ).any()
+                # One pass and one temporary each: this runs on every received message.
+                if name in self.nan_marks_invalid:
+                    ok = not np.isinf(value).any()
+                else:
+                    ok = bool(np.isfinite(value).all())
             else:
                 ok = math.isfinite(value)
             if not ok:

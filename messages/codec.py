@@ -192,8 +192,8 @@ def decode_header(raw: bytes | memoryview) -> WireHeader:
 
 
 def _buffer(frame: Any) -> memoryview:
-    buf = getattr(frame, "buffer", frame)
-    return memoryview(buf)
+    buf = getattr(frame, "buffer", frame)  # a zmq.Frame's is a memoryview already
+    return buf if type(buf) is memoryview else memoryview(buf)
 
 
 def _passthrough(kind: type, obj: Any) -> Any:
@@ -210,19 +210,18 @@ def _received_array(
     field = plan.arrays_by_name.get(name)
     if field is None:
         raise FrameDecodeError(f"{topic}: {wire_type} has no array field {name!r}")
-    if dtype_str == field.dtype_str:
-        dtype = field.dtype  # numpy's parser would return an equal dtype
-    else:
+    dtype = field.dtype  # the usual spelling: numpy's parser would return an equal dtype
+    if dtype_str != field.dtype_str:
         try:
             dtype = np.dtype(dtype_str)
         except (TypeError, ValueError, SyntaxError) as err:  # numpy's dtype-string parser
             raise FrameDecodeError(f"{topic}: {wire_type}.{name}: bad dtype {dtype_str!r}") from err
-    # The wire carries little-endian buffers only ("=f4" and "f4" mean "<f4" here): a
-    # big-endian array would reach the node and trip torch.from_numpy and OpenCV.
-    if dtype.hasobject or dtype != field.dtype:
-        raise FrameDecodeError(
-            f"{topic}: {wire_type}.{name}: dtype {dtype_str!r}, declared {field.spec.dtype}"
-        )
+        # The wire carries little-endian buffers only ("=f4" and "f4" mean "<f4" here): a
+        # big-endian array would reach the node and trip torch.from_numpy and OpenCV.
+        if dtype.hasobject or dtype != field.dtype:
+            raise FrameDecodeError(
+                f"{topic}: {wire_type}.{name}: dtype {dtype_str!r}, declared {field.spec.dtype}"
+            )
     # The shape is checked before numpy sees it: no array is built for a frame refused.
     if not field.fits(shape) or (shape and min(shape) < 0):
         raise FrameDecodeError(
@@ -268,7 +267,7 @@ def decode(
     if len(frames) < 2:
         raise FrameDecodeError(f"truncated message: {len(frames)} frame(s), need at least 2")
     try:
-        topic = str(_buffer(frames[0]), "utf-8")
+        topic = str(getattr(frames[0], "bytes", frames[0]), "utf-8")  # zmq.Frame or bytes
     except UnicodeDecodeError as err:
         raise FrameDecodeError("topic frame is not UTF-8") from err
     wire = decode_header(_buffer(frames[1]))

@@ -46,7 +46,7 @@ from runtime.graphfile import apply_overrides, load_document, parse_yaml
 from runtime.hosts import TOP_KEYS as HOSTS_TOP_KEYS
 from runtime.hosts import Hosts, check_hosts, check_mapping, check_placement
 from runtime.node import Node
-from runtime.params import ParamError, build_params
+from runtime.params import MAX_SECS, ParamError, build_params
 from runtime.registry import resolve
 
 __all__ = ["Graph", "InputSpec", "NodeSpec", "RestartSpec", "check", "load"]
@@ -57,6 +57,7 @@ RESTART_POLICIES = ("never", "on-failure")
 NODE_KEYS = {"impl", "params", "inputs", "restart", "required", "host", "hang_timeout_secs"}
 TOP_KEYS = {"nodes", "name", "description", *HOSTS_TOP_KEYS}
 MAX_QUEUE_SIZE = 2**31 - 1  # ZeroMQ's high-water mark is a C int
+MAX_RESTARTS = 1000
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_\-]*")
 # The launcher's run directory: tempfile.mkdtemp(prefix=f"{RUNDIR_PREFIX}{pid}-").
 RUNDIR_PREFIX = "sbg-"
@@ -95,8 +96,10 @@ class RestartSpec:
     def __post_init__(self) -> None:
         if self.policy not in RESTART_POLICIES:
             raise ValueError(f"`policy` must be one of {RESTART_POLICIES}, got {self.policy!r}")
-        if self.max_restarts < 0:
-            raise ValueError(f"`max_restarts` must be >= 0, got {self.max_restarts!r}")
+        if not 0 <= self.max_restarts <= MAX_RESTARTS:
+            raise ValueError(
+                f"`max_restarts` must be in [0, {MAX_RESTARTS}], got {self.max_restarts!r}"
+            )
         if not self.backoff_secs >= 0:
             raise ValueError(f"`backoff_secs` must be >= 0, got {self.backoff_secs!r}")
         if not self.backoff_max_secs >= self.backoff_secs:
@@ -208,6 +211,16 @@ class Graph:
         avoid = set(skip)
         return _reach(start, {n: p - avoid for n, p in self.fed_by.items() if n not in avoid})
 
+    def fan_ins(self) -> set[str]:
+        """Nodes that read the topics of two or more publishers, ``merges_in_any_order``
+        ones (the recorder) left out: in lockstep they hold what they receive until the
+        graph has settled, then handle it in a fixed order (``runtime.runner``)."""
+        return {
+            name
+            for name, spec in self.nodes.items()
+            if not spec.cls.merges_in_any_order and len(self.fed_by[name]) > 1
+        }
+
     def barrier_topics(self) -> set[str]:
         """Topics from which a message can reach a node that merges several publishers.
 
@@ -219,11 +232,7 @@ class Graph:
         topic and pipelines the others. Nodes with ``merges_in_any_order`` (the recorder)
         do not count as fan-ins.
         """
-        fan_ins = {
-            name
-            for name, spec in self.nodes.items()
-            if not spec.cls.merges_in_any_order and len(self.fed_by[name]) > 1
-        }
+        fan_ins = self.fan_ins()
         return {
             topic
             for topic in self.producers
@@ -373,6 +382,9 @@ def _check_node(
     hang = body.get("hang_timeout_secs", 30.0)
     if not isinstance(hang, int | float) or isinstance(hang, bool) or not 0 < hang < math.inf:
         errors.append(f"{where}.hang_timeout_secs: must be a finite number > 0, got {hang!r}")
+        hang = 30.0
+    elif hang > MAX_SECS:
+        errors.append(f"{where}.hang_timeout_secs: must be at most {MAX_SECS:g} s, got {hang!r}")
         hang = 30.0
     required = body.get("required", True)
     if not isinstance(required, bool):

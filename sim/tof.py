@@ -25,10 +25,12 @@ from typing import Any
 import cv2
 import numpy as np
 
+from geometry.camera import PinholeCamera
 from geometry.se3 import invert
 from messages.base import Header
 from messages.types import MaskImage, ToFImage
 from sim.effects import EFFECTS, camera_effects
+from sim.friction import slip_shift_m, stiffening
 from sim.membrane import CulledField, cull_to_bounds, march_to_surface
 from sim.scene import Scene
 from sim.world import WorldSnapshot
@@ -79,21 +81,36 @@ class BubbleFrame:
 class BubbleRenderer:
     """Renders one bubble of one scene (see the module docstring)."""
 
-    def __init__(self, scene: Scene, side: str) -> None:
+    def __init__(
+        self,
+        scene: Scene,
+        side: str,
+        *,
+        finger_from_sensor: np.ndarray | None = None,
+        camera: PinholeCamera | None = None,
+    ) -> None:
+        """``finger_from_sensor`` and ``camera`` replace the scene's nominal camera mount
+        and intrinsics (an as-built rig's camera, ``sim.emulated_rig``)."""
         if side not in SIDE_INDEX:
             raise ValueError(f"`side` must be 'left' or 'right', got {side!r}")
         self.scene = scene
         self.side = side
         self.effects = camera_effects(scene.resolved_effects)
+        self.friction = "wrench" in scene.resolved_effects
         self.calls: Counter[str] = Counter()
-        self.camera = scene.camera.intrinsics()
+        self.camera = camera if camera is not None else scene.camera.intrinsics()
         self.geometry = scene.gripper_geometry()
         self.model = scene.object_model()
         self.field = CulledField(self.model.field)
         self.bounds = self.field.bounds
         self.need_normals = "ir" in self.effects
         bubble = self.geometry.bubble
-        f_from_s = self.geometry.finger_from_sensor()
+        f_from_s = (
+            self.geometry.finger_from_sensor()
+            if finger_from_sensor is None
+            else np.asarray(finger_from_sensor, np.float64)
+        )
+        self.finger_from_sensor = f_from_s
         self._r_fs = f_from_s[:3, :3]
         self._o_f = f_from_s[:3, 3]
 
@@ -138,6 +155,7 @@ class BubbleRenderer:
         self._lr_rest_points = self._lr_rest[:, None] * self._lr_unit
         self._lr_cos_rest = _rest_cos(bubble, self._o_f, dirs_lr_f, rest_lr).ravel()
 
+        self._mesh_views: dict[float, Any] = {}
         self._membrane_cache: tuple[tuple[bytes, float], dict[str, np.ndarray]] | None = None
         self.membrane_cache_hits = 0
         self._texture: np.ndarray | None = None
@@ -157,9 +175,12 @@ class BubbleRenderer:
         return BubbleFrame(self.side, frame, self.tool_from_sensor(snap.width_m))
 
     def tool_from_sensor(self, width_m: float) -> np.ndarray:
-        return self.geometry.tool_from_sensor(self.side, width_m)
+        return self.geometry.tool_from_finger(self.side, width_m) @ self.finger_from_sensor
 
     def _membrane(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
+        if snap.membranes_f is not None:
+            frame.update(self._mesh_membrane(snap))
+            return
         # The membrane is a pure function of the object's pose and the opening: a held,
         # unmoving object (most of a grasp) reuses the last frame's result.
         key = (np.asarray(snap.tool_from_object, np.float64).tobytes(), float(snap.width_m))
@@ -229,6 +250,35 @@ class BubbleRenderer:
             array.setflags(write=False)
         self._membrane_cache = (key, result)
 
+    def _mesh_membrane(self, snap: WorldSnapshot) -> dict[str, np.ndarray]:
+        """A world's simulated membrane mesh, ray-cast (``sim.mujoco.render``): its dots
+        are the latex's own material points, so it adds ``material_shift_m`` too."""
+        from sim.mujoco.mesh import CONTACT_TOLERANCE_M, membrane_mesh
+        from sim.mujoco.render import MeshView
+
+        assert snap.membranes_f is not None
+        spacing = float(snap.membrane_spacing_m)
+        view = self._mesh_views.get(spacing)
+        if view is None:
+            view = MeshView(
+                membrane_mesh(self.geometry.bubble, spacing),
+                self.unit,
+                fx_px=self.camera.fx_px,
+                fy_px=self.camera.fy_px,
+                cx_px=self.camera.cx_px,
+                cy_px=self.camera.cy_px,
+                finger_from_sensor=self.geometry.finger_from_sensor(),
+                rest_range_m=self.rest_range,
+            )
+            self._mesh_views[spacing] = view
+        surface = np.asarray(snap.membranes_f[self.side], np.float64)
+        object_from_finger = invert(snap.tool_from_object) @ self.geometry.tool_from_finger(
+            self.side, snap.width_m
+        )
+        local = surface @ object_from_finger[:3, :3].T + object_from_finger[:3, 3]
+        touching = self.field.value(local) < CONTACT_TOLERANCE_M
+        return view.render(surface, touching)
+
     def _depth(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
         frame["depth_m"] = frame["range_m"] * self.unit_z
 
@@ -239,6 +289,8 @@ class BubbleRenderer:
         frame["amplitude"] = frame["cos_incidence"] * self._illum32 / (r * r)
 
     def _shear(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
+        if snap.membranes_f is not None:
+            return  # the mesh's material points already carry the latex's motion
         h, w = self.camera.shape
         anchor = snap.anchors.get(self.side)
         contact = frame["contact"]
@@ -270,7 +322,14 @@ class BubbleRenderer:
         r = np.nan_to_num(frame["range_m"], nan=0.0)
         shift = r[..., None] * (self._unit32 @ lin.T.astype(np.float32)) + off.astype(np.float32)
         norm = np.sqrt(shift[..., 0] ** 2 + shift[..., 1] ** 2)
-        scale = np.minimum(1.0, self.scene.bubble.max_shear_m / np.maximum(norm, 1e-12))
+        limit: float | np.ndarray = self.scene.bubble.max_shear_m
+        if self.friction:
+            # Each point's friction limit (sim.friction): smaller towards the patch's edge.
+            indent = frame["indentation_m"]
+            g = stiffening(np.where(contact, indent, 0.0), self.scene.bubble.edge_stiffening)
+            pressure = snap.pressure_pa.get(self.side, 0.0)
+            limit = slip_shift_m(pressure, np.where(contact, g, 1.0), self.scene.bubble)
+        scale = np.minimum(1.0, limit / np.maximum(norm, 1e-12))
         frame["material_shift_m"] = shift * (scale * weight)[..., None].astype(np.float32)
 
     def _dot_pattern(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
@@ -319,6 +378,7 @@ class BubbleRenderer:
             np.float32
         )
         frame["invalid"] = invalid
+        frame["noise_m"] = sigma.astype(np.float32)  # the range noise's sigma, per pixel
 
     def texture(self) -> tuple[np.ndarray, tuple[float, float]]:
         """The printed sheet's albedo raster (built on first use) and its size in mm."""

@@ -24,8 +24,9 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 
+from runtime.bag.message import BagMessage
 from runtime.bag.packing import PACKING, PACKING_V1
-from runtime.bag.reader import MAGIC, BagMessage, BagReader, TopicStats
+from runtime.bag.reader import MAGIC, BagReader, TopicStats
 from runtime.bag.schema import SCHEMA_ENCODING, ChannelInfo, TopicSchema, schema_for
 from runtime.bag.writer import MESSAGE_ENCODING, BagWriter, TopicCounts
 

@@ -31,7 +31,7 @@ from runtime.bag.packing import PACKING
 from runtime.bag.schema import SCHEMA_ENCODING, TopicSchema, schema_for
 
 if TYPE_CHECKING:
-    from runtime.bag.reader import BagMessage
+    from runtime.bag.message import BagMessage
 
 log = logging.getLogger(__name__)
 

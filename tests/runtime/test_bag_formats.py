@@ -15,9 +15,10 @@ import nodes.recorder  # noqa: F401  (registers the implementations the replay g
 import nodes.replay  # noqa: F401
 from cli.run import launch
 from messages.base import Header, Message
+from messages.meaning import NOTES, unit_of
 from messages.types import ContactPatch, OverlayImage, Pressure, Tick, ToFImage
 from runtime.bag import PACKING, PACKING_V1, BagReader, BagWriter
-from runtime.bag.schema import NOTES, reader_guide, unit_of
+from runtime.bag.schema import reader_guide
 from runtime.replaygraph import ReplayOptions, build_replay_graph
 
 V1_BAG = Path(__file__).parent / "data" / "bag_v1_multipart.mcap"
@@ -113,8 +114,8 @@ def test_recover_turns_an_old_bag_into_todays_packing(tmp_path: Path) -> None:
     from cli.bag import recover
 
     out = tmp_path / "v2.mcap"
-    copied, problems = recover(V1_BAG, out)
-    assert copied == 12 and problems == []
+    copied, skipped, problems = recover(V1_BAG, out)
+    assert copied == 12 and skipped == [] and problems == []
     with BagReader(V1_BAG) as old, BagReader(out) as new:
         assert {s.packing for s in new.topics().values()} == {PACKING}
         for a, b in zip(old.messages(), new.messages(), strict=True):
