@@ -115,14 +115,16 @@ def _train_rows(work: Path, quick: bool) -> list[Row]:
     epochs = "3" if quick else "4"
     rows: list[Row] = []
     for processes in (1, 2):
-        log = work / f"train{processes}.jsonl"
+        # The epoch log is the checkpoint's (OUT.log.jsonl): torchrun would take a
+        # `--log` option for its own `--log-dir` (argparse abbreviations).
+        log = work / f"m{processes}.pt.log.jsonl"
         train = ["-m", "perception.classify", "train", str(data), "--epochs", epochs, *size]
-        train += ["--out", str(work / f"m{processes}.pt"), "--log", str(log), "--threads", "1"]
+        train += ["--out", str(work / f"m{processes}.pt"), "--threads", "1"]
         if processes == 1:
             command = [sys.executable, *train]
         else:
             torchrun = [sys.executable, "-m", "torch.distributed.run"]
-            command = [*torchrun, "--nproc-per-node", str(processes), *train]
+            command = [*torchrun, "--standalone", "--nproc-per-node", str(processes), *train]
         subprocess.run(command, cwd=ROOT, check=True, capture_output=True, stdin=subprocess.DEVNULL)
         epochs_log = [json.loads(line) for line in log.read_text().splitlines()]
         rate = median(

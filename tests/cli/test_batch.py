@@ -152,7 +152,7 @@ def test_distributed_training_matches_one_process(tmp_path: Path) -> None:
     accuracy = {}
     for name, launcher in (
         ("one", [sys.executable]),
-        ("two", [*torchrun, "--nproc-per-node", "2"]),
+        ("two", [*torchrun, "--standalone", "--nproc-per-node", "2"]),
     ):
         out = tmp_path / f"{name}.pt"
         done = subprocess.run(
