@@ -37,14 +37,19 @@ every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` e
   false releases. Decisions only: the graph's latency adds the pipeline's
   (``bench.tasks``).
 
-``--quick`` runs two grasps per set of ``world.sim``, one MuJoCo grasp at a 12 mm mesh
-(scored on itself: a smoke test, not held out), one reflex grasp and one handover.
+By default: 8 ``world.sim`` grasps per set, 8 MuJoCo grasps, 4 still holds of 15 s, 8
+reflex grasps, 4 handovers; ``--grasps``, ``--mujoco``, ``--still``, ``--reflex`` and
+``--handover`` set them. ``--quick`` runs two grasps per set of ``world.sim``, one
+MuJoCo grasp at a 12 mm mesh (scored on itself: a smoke test, not held out), one
+reflex grasp and one handover.
 """
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import os
+import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -464,42 +469,63 @@ def handover_rows(seeds: list[int], cal: Calibration, period_secs: float) -> lis
     return rows
 
 
-def run(quick: bool) -> list[Row]:
+@dataclass(frozen=True)
+class Sizes:
+    """How much each sweep runs (the default run; ``--quick`` and the flags change it)."""
+
+    grasps: int = 8  # world.sim grasps per set (calibration, held out)
+    duration_secs: float = 3.0
+    mujoco: int = 8  # MuJoCo grasps (half calibration, half held out)
+    mujoco_mesh_m: float = 0.008
+    still: int = 4  # still holds of 15 s for the false alarms
+    still_secs: float = 15.0
+    reflex: int = 8
+    handover: int = 4
+    timing_repeats: int = TIMING_REPEATS
+
+
+QUICK = Sizes(
+    grasps=2, duration_secs=1.8, mujoco=1, mujoco_mesh_m=0.012, still=1, still_secs=3.0,
+    reflex=1, handover=1, timing_repeats=1,
+)  # fmt: skip
+
+
+def run(quick: bool, sizes: Sizes | None = None) -> list[Row]:
     one_core()
-    n = 2 if quick else 9
-    duration = 1.8 if quick else 3.0
+    z = QUICK if quick else (sizes or Sizes())
+    n, duration = z.grasps, z.duration_secs
     cal_seeds, test_seeds = list(range(n)), list(range(n, 2 * n))
     cal_recs = [record_all(s, duration) for s in progress(cal_seeds, "bench.force calibration")]
     test_recs = [record_all(s, duration) for s in progress(test_seeds, "bench.force held-out")]
     placeholder = calibrate(
         [s for rec in cal_recs for s in samples(rec.frames)], rig="sim", source="timing"
     )
-    repeats = 1 if quick else TIMING_REPEATS
     secs = {
-        setting: time_setting(test_seeds[0], 1.2 if quick else 2.0, setting, placeholder, repeats)
+        setting: time_setting(
+            test_seeds[0], 1.2 if quick else 2.0, setting, placeholder, z.timing_repeats
+        )
         for setting in progress(list(SETTINGS), "bench.force timing")
     }
     rows, cals = wrench_rows("sim", cal_recs, test_recs, secs)
     cal = cals[DEFAULT_SETTING]
     # The second world: the engine's contact forces, calibrated on its own grasps.
     # (--quick: one grasp, scored on itself: a smoke test, not held out.)
-    count = 1 if quick else 8
     with tempfile.TemporaryDirectory() as tmp:
         workdir = Path(tmp) if quick else Path(os.environ.get("WORLDS_DIR", "out/worlds"))
         workdir.mkdir(parents=True, exist_ok=True)
-        recs = mujoco_grasps(count, 0.012 if quick else 0.008, workdir)
-    half = max(1, count // 2)
+        recs = mujoco_grasps(z.mujoco, z.mujoco_mesh_m, workdir)
+    half = max(1, z.mujoco // 2)
     rows += wrench_rows("mujoco", recs[:half], recs[half:] or recs, secs)[0]
     period = draw(0).scene.frame_period_secs
     # Long still holds for the false alarms (the default setting only).
     still = [
-        record_all(100 + i, 3.0 if quick else 15.0, load="still", settings=(DEFAULT_SETTING,))
-        for i in progress(range(1 if quick else 4), "bench.force still holds")
+        record_all(100 + i, z.still_secs, load="still", settings=(DEFAULT_SETTING,))
+        for i in progress(range(z.still), "bench.force still holds")
     ]
     rows += slip_rows(test_recs + still, cal, period)
-    reflex_seeds = [n * 2 + i for i in range(1 if quick else 8)]
-    rows += reflex_rows(reflex_seeds, 4.0 if not quick else 2.5, cal)
-    rows += handover_rows([0] if quick else [0, 1, 2, 3], cal, period)
+    reflex_seeds = [n * 2 + i for i in range(z.reflex)]
+    rows += reflex_rows(reflex_seeds, 2.5 if quick else 4.0, cal)
+    rows += handover_rows(list(range(z.handover)), cal, period)
     return rows
 
 
@@ -512,4 +538,21 @@ COLUMNS = [
 
 
 if __name__ == "__main__":
-    main("force", run, columns=COLUMNS)
+    parser = argparse.ArgumentParser(add_help=False)
+    parser.add_argument("--grasps", type=int, default=Sizes.grasps, help="sim grasps per set")
+    parser.add_argument("--mujoco", type=int, default=Sizes.mujoco, help="MuJoCo grasps")
+    parser.add_argument("--still", type=int, default=Sizes.still, help="15 s still holds")
+    parser.add_argument("--reflex", type=int, default=Sizes.reflex, help="reflex grasps")
+    parser.add_argument("--handover", type=int, default=Sizes.handover, help="handovers")
+    extra, rest = parser.parse_known_args()
+    counts = (extra.grasps, extra.mujoco, extra.still, extra.reflex, extra.handover)
+    if extra.grasps < 2 or extra.mujoco < 2 or min(counts) < 1:
+        sys.exit(f"bench.force: --grasps and --mujoco must be >= 2, the rest >= 1, got {extra}")
+    chosen = Sizes(
+        grasps=extra.grasps,
+        mujoco=extra.mujoco,
+        still=extra.still,
+        reflex=extra.reflex,
+        handover=extra.handover,
+    )
+    main("force", lambda quick: run(quick, chosen), columns=COLUMNS, argv=rest)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import shlex
 import sys
 from collections.abc import Sequence
@@ -52,11 +53,11 @@ def add_deprecated(
     )
 
 
-def add_run_options(parser: argparse.ArgumentParser, *, swap_help: str, swap_metavar: str) -> None:
-    """``--set``, ``--swap``, ``--record``, ``--record-topics``, ``--overwrite``, ``--lockstep``,
-    ``--duration``, ``--log-level``, ``--host`` and ``--keys``, as ``launch.py GRAPH`` and
-    ``launch.py replay`` take them.
-    """
+def add_graph_changes(
+    parser: argparse.ArgumentParser, *, swap_help: str, swap_metavar: str
+) -> None:
+    """``--set NODE.PARAM=VALUE`` and ``--swap``: the changes to a graph every command that
+    runs one takes (run, replay, batch)."""
     parser.add_argument(
         "--set",
         dest="sets",
@@ -68,6 +69,14 @@ def add_run_options(parser: argparse.ArgumentParser, *, swap_help: str, swap_met
     parser.add_argument(
         "--swap", dest="swaps", action="append", default=[], metavar=swap_metavar, help=swap_help
     )
+
+
+def add_run_options(parser: argparse.ArgumentParser, *, swap_help: str, swap_metavar: str) -> None:
+    """``--set``, ``--swap``, ``--record``, ``--record-topics``, ``--overwrite``, ``--lockstep``,
+    ``--duration``, ``--log-level``, ``--host`` and ``--keys``, as ``launch.py GRAPH`` and
+    ``launch.py replay`` take them.
+    """
+    add_graph_changes(parser, swap_help=swap_help, swap_metavar=swap_metavar)
     parser.add_argument("--record", type=Path, default=None, metavar="OUT.mcap")
     parser.add_argument(
         "--record-topics",
@@ -151,3 +160,12 @@ def shared_command_line(argv: Sequence[str]) -> str:
             kept.append(word)
     python = sys.executable if len(kept) == len(argv) else "python"
     return shlex.join([python, *kept])
+
+
+def same_file(a: Path, b: Path) -> bool:
+    """Whether two paths name one file (through links, or the same inode), so a command
+    never writes onto what it reads."""
+    try:
+        return a.resolve() == b.resolve() or os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet): not the same file
+        return False

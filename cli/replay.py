@@ -17,6 +17,7 @@ from collections.abc import Sequence
 
 import yaml
 
+from cli.options import same_file
 from cli.taps import add_viewer, viewer_refused
 from messages.errors import BagError, GraphError
 from runtime.bag import BagReader
@@ -38,6 +39,13 @@ def main(args: argparse.Namespace) -> int:
     """``launch.py replay ...``: build the replay graph and run it (exit code)."""
     import nodes  # noqa: F401 - the index of node implementations (no node module)
 
+    if args.record is not None and same_file(args.record, args.bag):
+        print(
+            f"replay: --record {args.record} is the bag being replayed ({args.bag}); "
+            "recording onto it would destroy it: give another file",
+            file=sys.stderr,
+        )
+        return 2
     refused = None if args.print_graph else viewer_refused(args.view)
     if refused:
         print(refused, file=sys.stderr)
