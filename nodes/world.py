@@ -113,6 +113,7 @@ class WorldNode(Node):
     """Steps the scene's world once per camera frame (see the module docstring)."""
 
     Params = WorldParams
+    clocked = True  # one step per frame period, whatever it hears
     inputs = {"command": GripperCommand}
     optional_inputs = frozenset({"command"})
     outputs = {

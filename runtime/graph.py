@@ -211,6 +211,16 @@ class Graph:
         avoid = set(skip)
         return _reach(start, {n: p - avoid for n, p in self.fed_by.items() if n not in avoid})
 
+    def fan_ins(self) -> set[str]:
+        """Nodes that read the topics of two or more publishers, ``merges_in_any_order``
+        ones (the recorder) left out: in lockstep they hold what they receive until the
+        graph has settled, then handle it in a fixed order (``runtime.runner``)."""
+        return {
+            name
+            for name, spec in self.nodes.items()
+            if not spec.cls.merges_in_any_order and len(self.fed_by[name]) > 1
+        }
+
     def barrier_topics(self) -> set[str]:
         """Topics from which a message can reach a node that merges several publishers.
 
@@ -222,11 +232,7 @@ class Graph:
         topic and pipelines the others. Nodes with ``merges_in_any_order`` (the recorder)
         do not count as fan-ins.
         """
-        fan_ins = {
-            name
-            for name, spec in self.nodes.items()
-            if not spec.cls.merges_in_any_order and len(self.fed_by[name]) > 1
-        }
+        fan_ins = self.fan_ins()
         return {
             topic
             for topic in self.producers

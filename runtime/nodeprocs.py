@@ -15,7 +15,7 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import IO, Any, Literal
 
@@ -48,6 +48,8 @@ class Proc:
     counts_published: dict[str, int] = field(default_factory=dict)
     counts_received: dict[str, int] = field(default_factory=dict)
     signalled: set[int] = field(default_factory=set)  # what the launcher sent this incarnation
+    counts_held: dict[str, int] = field(default_factory=dict)  # an ordered fan-in's, per port
+    released: bool = False  # told to handle what it holds (lockstep), since its last counts
 
 
 def spawn(
@@ -122,16 +124,28 @@ def ended_by_launcher(proc: Proc, code: int) -> bool:
     return (-code if code < 0 else code - 128) in proc.signalled
 
 
+def not_back(procs: Iterable[Proc]) -> list[Proc]:
+    """Nodes that failed and have not come back: a back-off still to wait, or a restart
+    not ready yet (hung in ``setup()``)."""
+    return [
+        p for p in procs if p.restarts and p.state in ("waiting_restart", "new", "hello", "ready")
+    ]
+
+
 def exit_reason(code: int) -> str:
     return f"signal {-code}" if code < 0 else f"exit code {code}"
 
 
-def counts(procs: Mapping[str, Proc]) -> tuple[dict[str, int], dict[str, int]]:
-    """These nodes' newest lockstep counts: published per topic, received per node/port."""
+def counts(
+    procs: Mapping[str, Proc],
+) -> tuple[dict[str, int], dict[str, int], dict[str, int]]:
+    """These nodes' newest lockstep counts: published per topic, received per node/port,
+    and held (received, not handled yet) per node/port."""
     items = procs.items()
     published = {t: n for _, p in items for t, n in p.counts_published.items()}
     received = {f"{x}/{port}": n for x, p in items for port, n in p.counts_received.items()}
-    return published, received
+    held = {f"{x}/{port}": n for x, p in items for port, n in p.counts_held.items() if n}
+    return published, received, held
 
 
 def totals(procs: Mapping[str, Proc]) -> dict[str, int]:

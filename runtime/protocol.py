@@ -14,7 +14,8 @@ node -> launcher
     hello      {endpoint}                        bound its publisher; wants peers
     ready      {}                                set up, every subscriber connected
     heartbeat  {busy_secs, stats}                every ``HEARTBEAT_SECS``
-    counts     {published, received}             lockstep: after each handled batch
+    counts     {published, received, held}       lockstep: after each handled batch
+                                                 (held: per port, waiting for release)
     wait_idle  {}                                lockstep: reply when the graph is idle
     stop_request {reason, exit_code}             a node asks the graph to stop (exit_code:
                                                  its verdict on the run, 0 = success)
@@ -23,6 +24,9 @@ launcher -> node
     connect    {endpoints: {node: endpoint}}     where each input's publisher is
     start      {}                                every node is ready: go
     idle       {}                                answer to wait_idle
+    release    {}                                lockstep: handle the held messages
+    busy       {}                                answer to wait_idle: not idle, but the
+                                                 graph moved (the wait starts over)
     stop       {}                                stop cleanly now
 launcher <-> launcher (one per host, ``runtime.hostlink``; CURVE-encrypted tcp)
     link_hello {host, run_secret, reply, graph, argv}  this run's link secret (the tag:
@@ -34,8 +38,9 @@ launcher <-> launcher (one per host, ``runtime.hostlink``; CURVE-encrypted tcp)
                                                  nodes are ready (or running)
     link_ping  {host, t1} / link_pong {host, t1, t2, t3}   clock offset (NTP-style)
     link_stop  {host, reason, exit_code}         the graph stops
-    link_counts {host, published, received}      lockstep: its nodes' newest counts, sent
-                                                 when one changes (received: "node/port")
+    link_counts {host, published, received, held}  lockstep: its nodes' newest counts,
+                                                 sent when one changes (received and
+                                                 held: "node/port")
     link_final {host, published}                 stopping: its nodes (but for listeners fed
                                                  from other hosts) have stopped, and
                                                  published this much in all, per topic
@@ -71,13 +76,15 @@ _FIELDS: dict[str, dict[str, type | tuple[type, ...]]] = {
     "hello": {"endpoint": str},
     "ready": {},
     "heartbeat": {"busy_secs": _NUMBER, "stats": dict},
-    "counts": {"published": dict, "received": dict},
+    "counts": {"published": dict, "received": dict, "held": dict},
     "wait_idle": {},
     "stop_request": {"reason": str, "exit_code": int},
     "final": {"stats": dict},
     "connect": {"endpoints": dict},
     "start": {},
     "idle": {},
+    "busy": {},
+    "release": {},
     "stop": {},
     # between the launchers of a graph's hosts (runtime.hostlink), over CURVE
     "link_hello": {"host": str, "run_secret": str, "reply": int, "graph": str, "argv": str},
@@ -85,7 +92,7 @@ _FIELDS: dict[str, dict[str, type | tuple[type, ...]]] = {
     "link_ping": {"host": str, "t1": int},
     "link_pong": {"host": str, "t1": int, "t2": int, "t3": int},
     "link_stop": {"host": str, "reason": str, "exit_code": int},
-    "link_counts": {"host": str, "published": dict, "received": dict},
+    "link_counts": {"host": str, "published": dict, "received": dict, "held": dict},
     "link_final": {"host": str, "published": dict},
 }
 
@@ -145,7 +152,7 @@ def unpack(secret: bytes, frames: Sequence[bytes], *, from_node: bool) -> dict[s
         raise ControlError(f"{kind}.exit_code: expected 0 to 255, got {msg['exit_code']!r}")
     if "stats" in msg:
         _check_stats(str(kind), msg["stats"])
-    for name in ("published", "received", "endpoints"):
+    for name in ("published", "received", "held", "endpoints"):
         value = msg.get(name, {})
         check = _count if name != "endpoints" else (lambda v: isinstance(v, str))
         if not all(isinstance(k, str) and check(v) for k, v in value.items()):

@@ -140,11 +140,23 @@ def test_the_link_joins_measures_refuses_forgeries_passes_stops_and_sees_a_loss(
 
 def test_link_counts_are_checked_field_by_field() -> None:
     secret = protocol.new_secret()
-    good = protocol.pack(secret, "link_counts", host="b", published={"a/t": 3}, received={"n/p": 3})
+    good = protocol.pack(
+        secret, "link_counts", host="b", published={"a/t": 3}, received={"n/p": 3}, held={}
+    )
     assert protocol.unpack(secret, good, from_node=False)["received"] == {"n/p": 3}
     for bad, why in (
-        ({"published": {"a/t": -1}, "received": {}}, "link_counts.published: expected a map"),
-        ({"published": {}, "received": {"n/p": "3"}}, "link_counts.received: expected a map"),
+        (
+            {"published": {"a/t": -1}, "received": {}, "held": {}},
+            "link_counts.published: expected a map",
+        ),
+        (
+            {"published": {}, "received": {"n/p": "3"}, "held": {}},
+            "link_counts.received: expected a map",
+        ),
+        (
+            {"published": {}, "received": {}, "held": {"n/p": -1}},
+            "link_counts.held: expected a map",
+        ),
         ({"published": {}}, "link_counts.received: expected dict"),
     ):
         frames = protocol.pack(secret, "link_counts", host="b", **bad)

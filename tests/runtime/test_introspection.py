@@ -38,7 +38,7 @@ def echoed_seqs(out: str) -> list[int]:
 
 
 def table_rate(log: str, topic: str) -> float:
-    match = re.search(rf"\[launch\] {re.escape(topic)}\s+(\d+)\s+([\d.]+)", log)
+    match = re.search(rf"\[launch\] {re.escape(topic)} -> \S+\s+(\d+)\s+([\d.]+)", log)
     assert match, log
     return float(match.group(2))
 
