@@ -56,6 +56,7 @@ SPAWNING = (
 )
 # Tests that start nothing but take seconds of CPU each (hard solves, training, video).
 SLOW = (
+    "tests/nodes/test_force_nodes.py",
     "tests/perception/test_classify_train.py",
     "tests/perception/test_pose_hard.py",
     "tests/viz/test_viz.py",
