@@ -13,6 +13,7 @@ import msgspec
 import numpy as np
 
 from messages.base import Array, Header, Message
+from messages.types import GripperStatus
 
 _Pose = Annotated[np.ndarray, Array("float64", (4, 4))]
 _Vec2 = Annotated[np.ndarray, Array("float64", (2,))]
@@ -45,7 +46,7 @@ class WorldState(Message):
     width_m: float
     speed_m_per_s: float = 0.0
     force_n: float = 0.0
-    gripper_state: str = "idle"
+    gripper_state: GripperStatus = "idle"
     in_contact: list[bool] = msgspec.field(default_factory=lambda: [False, False])
     pressure_pa: list[float] = msgspec.field(default_factory=lambda: [0.0, 0.0])
     has_anchor: list[bool] = msgspec.field(default_factory=lambda: [False, False])
