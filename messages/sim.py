@@ -7,7 +7,7 @@ two are ``[left, right]``. A hardware graph has no world and no ``WorldState``.
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, ClassVar
 
 import msgspec
 import numpy as np
@@ -54,3 +54,25 @@ class WorldState(Message):
     anchor_right: _Pose = msgspec.field(default_factory=_eye)
     shear_left_m: _Vec2 = msgspec.field(default_factory=_zeros2)
     shear_right_m: _Vec2 = msgspec.field(default_factory=_zeros2)
+
+
+class PlacementTruth(Message):
+    """How a set-down object came to rest when the jaws opened over a scene's support (the
+    stacking task's truth, for scoring; ``sim.support``): once per run.
+
+    ``placed`` (resting on the support) or dropped; ``t_secs`` when the jaws were told to
+    open and ``touch_secs`` when the object first touched the support (None: never), both
+    scene time; ``gap_m`` how far it fell onto the support (0: set down touching),
+    ``push_m`` how far the arm had lowered past contact (it slid in the hand), ``tilt_deg``
+    its axis against the vertical.
+    """
+
+    header: Header
+    placed: bool
+    t_secs: float
+    touch_secs: float | None
+    gap_m: float
+    push_m: float
+    tilt_deg: float
+
+    finite_fields: ClassVar[tuple[str, ...]] = ("t_secs", "gap_m", "push_m", "tilt_deg")

@@ -11,10 +11,10 @@ Ports:
     outputs: ``state`` (messages.sim.WorldState): one per scene frame, at the cameras'
         frame rate; the sensor nodes render from it and stamp their messages with its
         stamp. ``ground_truth`` (GroundTruth): the true pose, contact and shear, when
-        the scene lists ``ground_truth``. ``placement`` (TaskEvent, task ``world``, event
-        ``placed`` or ``dropped``, detail JSON: ``t_secs``, ``touch_secs``, ``gap_mm``,
-        ``push_mm``, ``tilt_deg``): once, when the jaws open over a scene's ``support``
-        (``sim.support``): the stacking task's truth.
+        the scene lists ``ground_truth``. ``placement`` (messages.sim.PlacementTruth: placed
+        or dropped, the gap it fell, how far the arm pushed past contact, its tilt):
+        once, when the jaws open over a scene's ``support`` (``sim.support``): the
+        stacking task's truth.
 
 Only this node integrates anything (the jaws' motion, the contacts' anchors), so no two
 processes keep their own copy of the world. When the scene's trajectory ends it asks
@@ -24,13 +24,12 @@ the graph to stop, with a one-line summary. A hardware graph drops this node.
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass
 
 from messages.base import Header
 from messages.errors import NodeError
-from messages.sim import WorldState
-from messages.types import GripperCommand, GroundTruth, TaskEvent
+from messages.sim import PlacementTruth, WorldState
+from messages.types import GripperCommand, GroundTruth
 from runtime.node import Node
 from runtime.params import ExistingFile
 from runtime.registry import register
@@ -90,7 +89,7 @@ class WorldNode(Node):
     Params = WorldParams
     inputs = {"command": GripperCommand}
     optional_inputs = frozenset({"command"})
-    outputs = {"state": WorldState, "ground_truth": GroundTruth, "placement": TaskEvent}
+    outputs = {"state": WorldState, "ground_truth": GroundTruth, "placement": PlacementTruth}
 
     def setup(self) -> None:
         self.scene = self.params.load()
@@ -169,19 +168,15 @@ class WorldNode(Node):
         if placement is None or self.placement_sent:
             return
         self.placement_sent = True
-        detail = {
-            "t_secs": round(placement.t_secs, 4),
-            "touch_secs": None if placement.touch_secs is None else round(placement.touch_secs, 4),
-            "gap_mm": round(placement.gap_m * 1000, 3),
-            "push_mm": round(placement.push_m * 1000, 3),
-            "tilt_deg": round(placement.tilt_deg, 3),
-        }
         self.io.publish(
             "placement",
-            TaskEvent(
+            PlacementTruth(
                 header=Header(stamp_nanos=stamp, frame_id="tool"),
-                task="world",
-                event="placed" if placement.placed else "dropped",
-                detail=json.dumps(detail, sort_keys=True),
+                placed=placement.placed,
+                t_secs=placement.t_secs,
+                touch_secs=placement.touch_secs,
+                gap_m=placement.gap_m,
+                push_m=placement.push_m,
+                tilt_deg=placement.tilt_deg,
             ),
         )
