@@ -28,6 +28,7 @@ import numpy as np
 import yaml
 
 from messages.errors import BagError
+from messages.files import load_yaml
 from runtime.bag import BagMessage, BagReader, BagWriter
 
 log = logging.getLogger(__name__)
@@ -51,19 +52,22 @@ def summarize_array(value: np.ndarray) -> str:
     return text
 
 
-def _show(value: Any, full: bool) -> Any:
+def show_value(value: Any, full: bool) -> Any:
+    """A decoded field as ``bag echo`` and ``topic echo`` print it: small arrays as lists,
+    large ones summarized (all with ``full``)."""
     if isinstance(value, np.ndarray):
         if full or value.size <= 16:
             return value.tolist()
         return summarize_array(value)
     if isinstance(value, dict):
-        return {k: _show(v, full) for k, v in value.items()}
+        return {k: show_value(v, full) for k, v in value.items()}
     if isinstance(value, list):
-        return [_show(v, full) for v in value]
+        return [show_value(v, full) for v in value]
     return value
 
 
-def _stamp(nanos: int) -> str:
+def stamp_text(nanos: int) -> str:
+    """A stamp as UTC date and time (wall clock) or seconds (scene time)."""
     if nanos > 10**17:  # a wall-clock stamp: show it as UTC
         when = datetime.datetime.fromtimestamp(nanos / 1e9, tz=datetime.UTC)
         return when.strftime("%Y-%m-%d %H:%M:%S.%f UTC")
@@ -89,8 +93,8 @@ def info_text(path: Path, *, show_graph: bool = False) -> str:
         if counted:
             start = min(s.first_log_nanos for s in counted)
             end = max(s.last_log_nanos for s in counted)
-            lines.append(f"start:     {_stamp(start)}")
-            lines.append(f"end:       {_stamp(end)}")
+            lines.append(f"start:     {stamp_text(start)}")
+            lines.append(f"end:       {stamp_text(end)}")
             lines.append(f"duration:  {(end - start) / 1e9:.3f} s")
         lines.append(f"messages:  {total}")
         if reader.lost_messages:
@@ -142,7 +146,7 @@ def info_text(path: Path, *, show_graph: bool = False) -> str:
 
 def _graph_nodes(text: str) -> list[str]:
     try:
-        doc = yaml.safe_load(text)
+        doc = load_yaml(text)
     except yaml.YAMLError:
         return []
     if isinstance(doc, dict) and isinstance(doc.get("nodes"), dict):
@@ -174,7 +178,7 @@ def echo_lines(
                 return
             head = (
                 f"--- {topic} #{index} {msg.channel.schema.type_name} seq {msg.sequence} "
-                f"log {_stamp(msg.log_time_nanos)} {msg.position()}"
+                f"log {stamp_text(msg.log_time_nanos)} {msg.position()}"
             )
             try:
                 fields = msg.decode_plain()
@@ -187,7 +191,7 @@ def echo_lines(
                 continue
             yield head
             for name, value in fields.items():
-                yield f"{name}: {_show(value, full)}"
+                yield f"{name}: {show_value(value, full)}"
 
 
 # -- recover -------------------------------------------------------------------------------------

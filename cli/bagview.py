@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import sys
 from collections import Counter
 from collections.abc import Iterator
@@ -140,6 +141,87 @@ def export_bag(path: Path, out: Path) -> int:
     return sink.written
 
 
+def latched() -> tuple[Any, ...]:
+    """The QoS of ``/tf_static`` (transient local, keep last 1), so that ``ros2 bag play``
+    hands the camera mounts to a subscriber that joins late, as tf2 expects."""
+    from rosbags.interfaces import (
+        Qos,
+        QosDurability,
+        QosHistory,
+        QosLiveliness,
+        QosReliability,
+        QosTime,
+    )
+
+    never = QosTime(0, 0)
+    return (
+        Qos(
+            QosHistory.KEEP_LAST,
+            1,
+            QosReliability.RELIABLE,
+            QosDurability.TRANSIENT_LOCAL,
+            never,
+            never,
+            QosLiveliness.AUTOMATIC,
+            never,
+            False,
+        ),
+    )
+
+
+def export_ros2(path: Path, out: Path) -> int:
+    """Write a bag as a ROS 2 bag (MCAP storage, CDR) in the folder ``out`` (new), with
+    ``viz.ros2_export``'s standard and project messages; returns the messages written."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from viz.ros2_export import Ros2Converter
+
+    if out.exists():
+        raise FileExistsError(f"{out}: exists; a ROS 2 bag is written to a new folder")
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    converter = Ros2Converter(store)
+    skipped = Decoded(Counter())
+    written = 0
+    # The bag's files are named after its folder: it is written whole in a folder of that
+    # name inside a part folder, then moved into place; a failure leaves nothing.
+    part = out.with_name(f".{out.name}.part")
+    shutil.rmtree(part, ignore_errors=True)
+    part.mkdir(parents=True)
+    try:
+        with Writer(part / out.name, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+            connections: dict[str, Any] = {}
+
+            def write(topic: str, ros_type: str, value: Any, log_time: int) -> None:
+                nonlocal written
+                connection = connections.get(topic)
+                if connection is None:
+                    qos = latched() if topic == "/tf_static" else ()
+                    connection = writer.add_connection(
+                        topic, ros_type, typestore=store, offered_qos_profiles=qos
+                    )
+                    connections[topic] = connection
+                elif connection.msgtype != ros_type:
+                    raise BagError(
+                        f"{path}: {topic} would carry {ros_type} and {connection.msgtype}"
+                    )
+                writer.write(connection, log_time, store.serialize_cdr(value, ros_type))
+                written += 1
+
+            for topic, log_time, msg in bag_messages(path, skipped):
+                if not connections:
+                    write(*converter.static_tf(msg.header.stamp_nanos), log_time)  # type: ignore[attr-defined]
+                for ros_topic, ros_type, value in converter.convert(topic, msg):
+                    write(ros_topic, ros_type, value, log_time)
+        if not written:
+            raise BagError(f"{path}: no message to export")
+        (part / out.name).rename(out)
+    finally:
+        shutil.rmtree(part, ignore_errors=True)
+    skipped.report(path)
+    return written
+
+
 def video_bag(
     path: Path,
     out: Path,
@@ -215,6 +297,9 @@ def main(args: argparse.Namespace) -> int:
             counts = view_bag(args.file, args.out, object_name=args.object)
             where = args.out or "the Rerun viewer"
             print(f"{where}: {sum(counts.values())} messages logged ({len(counts)} types)")
+        elif command == "export" and args.ros2 is not None:
+            written = export_ros2(args.file, args.ros2)
+            print(f"{args.ros2}: a ROS 2 bag of {written} messages (`ros2 bag info {args.ros2}`)")
         elif command == "export":
             written = export_bag(args.file, args.foxglove)
             print(f"{args.foxglove}: {written} Foxglove messages")

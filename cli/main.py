@@ -4,15 +4,19 @@ python launch.py [run] GRAPH [--check] [--set NODE.PARAM=VALUE ...] [--swap NODE
                        [--only NODE,NODE] [--duration SECS] [--log-level LEVEL]
                        [--record OUT.mcap [--record-topics REGEX] [--overwrite]] [--lockstep]
                        [--view [OUT.rrd | foxglove]] [--host NAME [--keys DIR]]
+                       [--emulate [--rig FILE]]
 python launch.py nodes [IMPL]                list implementations, or one's ports and params
 python launch.py bag info|echo|diff ...      inspect bags (see docs/bags.md)
 python launch.py bag view|export|video ...   look at bags (see docs/viewing.md)
 python launch.py replay BAG [--swap NODE[=IMPL] ...] [...]
+python launch.py topic list|echo|hz|nodes ...  look into a running graph (docs/runtime.md)
 python launch.py keys make HOST | list [--keys DIR]   CURVE keys of hosts (docs/hosts.md)
+python launch.py calibrate --out rigs/NAME.yaml [...]   calibrate a rig (docs/devices.md)
 
 ``run`` is the default command: ``launch.py GRAPH ...`` is ``launch.py run GRAPH ...``.
 The tree is declared here, whole; each command's work is its module's ``main(args)``
-(``cli.run``, ``cli.nodes``, ``cli.bag``, ``cli.bagview``, ``cli.replay``, ``cli.keys``),
+(``cli.run``, ``cli.nodes``, ``cli.bag``, ``cli.bagview``, ``cli.replay``, ``cli.topic``,
+``cli.keys``),
 imported when that command runs: ``--help`` imports neither numpy nor ZeroMQ, ``bag
 info`` no node module, ``--check`` only those the graph names (docs/runtime.md).
 """
@@ -26,14 +30,20 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from cli.options import add_deprecated, add_keys_option, add_run_options, shared_command_line
+from cli.options import (
+    add_deprecated,
+    add_keys_option,
+    add_run_options,
+    positive_secs,
+    shared_command_line,
+)
 
 if TYPE_CHECKING:
     Commands = argparse._SubParsersAction[argparse.ArgumentParser]  # add_subparsers' result
 
 BAG_VIEW = {
     "view": "log a bag to the Rerun viewer, or to an .rrd file (docs/viewing.md)",
-    "export": "write a bag's messages in Foxglove's schemas (docs/viewing.md)",
+    "export": "write a bag for Foxglove, or as a ROS 2 bag (docs/viewing.md)",
     "video": "a video (and stills) of a bag's cameras, overlays and task (docs/viewing.md)",
 }
 
@@ -47,7 +57,7 @@ def parser() -> tuple[argparse.ArgumentParser, list[str]]:
         epilog="`python launch.py GRAPH ...` runs a graph (`run` is the default command).",
     )
     commands = top.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for add in (_run, _nodes, _bag, _replay, _keys):
+    for add in (_run, _nodes, _bag, _replay, _topic, _keys, _calibrate):
         add(commands)
     return top, list(commands.choices)
 
@@ -81,6 +91,7 @@ def _run(commands: Commands) -> None:
     )
     add_run_options(parser, swap_metavar="NODE=IMPL", swap_help="another implementation")
     parser.add_argument("--only", default="", metavar="NODE,NODE", help="run only these nodes")
+    _add_emulate(parser, "run a hardware graph against emulated devices driven by the world")
     parser.add_argument(
         "--view",
         nargs="?",
@@ -153,7 +164,14 @@ def _bag_view(bag_commands: Commands) -> None:
         if command == "view":
             parser.add_argument("--out", type=Path, default=None, metavar="FILE.rrd")
         elif command == "export":
-            parser.add_argument("--foxglove", type=Path, required=True, metavar="OUT.mcap")
+            to = parser.add_mutually_exclusive_group(required=True)
+            to.add_argument("--foxglove", type=Path, metavar="OUT.mcap", help="Foxglove's schemas")
+            to.add_argument(
+                "--ros2",
+                type=Path,
+                metavar="OUT_DIR",
+                help="a ROS 2 bag (MCAP, CDR): standard messages, and the project's own",
+            )
         else:
             parser.add_argument("--out", type=Path, required=True, metavar="FILE.mp4")
             parser.add_argument("--fps", type=float, default=0.0, help="0: the cameras' rate")
@@ -200,6 +218,55 @@ def _replay(commands: Commands) -> None:
     parser.set_defaults(handler="cli.replay")
 
 
+def _topic(commands: Commands) -> None:
+    """``topic list|echo|hz|nodes`` (``cli.topic``): look into a running graph."""
+    parser = commands.add_parser(
+        "topic",
+        help="a running graph: its topics, their messages and rates, its nodes (docs/runtime.md)",
+        description="Look into a running graph, read-only: its topics, a topic's messages "
+        "and rate, its nodes.",
+    )
+    sub = parser.add_subparsers(dest="topic_command", metavar="COMMAND", required=True)
+    run_help = "a run folder, launcher PID or graph name (default: the only running graph)"
+    made = {
+        "list": sub.add_parser("list", help="topics: type, rate, publisher, subscribers"),
+        "echo": sub.add_parser("echo", help="print a topic's messages as `bag echo` does"),
+        "hz": sub.add_parser("hz", help="a topic's rate, once a second"),
+        "nodes": sub.add_parser("nodes", help="nodes: state, restarts, CPU seconds, drops"),
+    }
+    for name, each in made.items():
+        each.add_argument("--run", default=None, metavar="RUN", help=run_help)
+        each.add_argument(
+            "--wait",
+            type=float,
+            default=0.0,
+            metavar="SECS",
+            help="wait up to SECS for the graph to be running (default: not at all)",
+        )
+        if name in ("echo", "hz"):
+            each.add_argument("topic", help="node/output, as `topic list` names it")
+        each.set_defaults(handler="cli.topic")
+    made["echo"].add_argument("--limit", type=int, default=None, help="stop after N messages")
+    made["echo"].add_argument("--full", action="store_true", help="print arrays in full")
+    made["echo"].add_argument(
+        "--timeout", type=float, default=10.0, metavar="SECS", help="stop after SECS without one"
+    )
+    pace = made["echo"].add_mutually_exclusive_group()
+    pace.add_argument(
+        "--max-hz",
+        type=float,
+        default=10.0,
+        metavar="HZ",
+        help="print a fresh message at most HZ times a second (default 10; between them the "
+        "publisher sends this client nothing)",
+    )
+    pace.add_argument(
+        "--every", action="store_true", help="print every message (costs a copy of each)"
+    )
+    made["hz"].add_argument("--secs", type=positive_secs, default=None, help="stop after SECS")
+    made["hz"].add_argument("--window", type=int, default=1000, help="periods in the window")
+
+
 def _keys(commands: Commands) -> None:
     parser = commands.add_parser(
         "keys",
@@ -212,3 +279,44 @@ def _keys(commands: Commands) -> None:
     parser.add_argument("--overwrite", action="store_true", help="make: replace a host's key")
     add_keys_option(parser)
     parser.set_defaults(handler="cli.keys", parser=parser)
+
+
+def _calibrate(commands: Commands) -> None:
+    parser = commands.add_parser(
+        "calibrate",
+        help="calibrate a rig: pressure zero, free bubble, intrinsics, camera mounts (docs/devices.md)",
+        description="Calibrate a rig once, and after a bubble swap: the pressure sensors' "
+        "zero, the free bubbles' statistics, the cameras' intrinsics and their mounts from "
+        "grasps of a known cylinder. Writes the calibration file the hardware graph reads.",
+    )
+    parser.add_argument("--out", type=Path, required=True, help="the calibration file to write")
+    parser.add_argument("--name", default="", help="the rig's name (default: the file's stem)")
+    parser.add_argument("--address", default="192.168.1.20", help="the WSG 50's address")
+    parser.add_argument("--port", type=int, default=1000, help="the WSG 50's TCP port")
+    for side in ("left", "right"):
+        parser.add_argument(
+            f"--{side}-camera", default="", metavar="ID", help=f"the {side} camera's id"
+        )
+        parser.add_argument(
+            f"--{side}-bridge", default="", metavar="SERIAL", help=f"the {side} bridge's serial"
+        )
+    parser.add_argument(
+        "--use-case",
+        default="MODE_9_5FPS_2000",
+        help="the cameras' use case (the longest exposure: the least noise)",
+    )
+    parser.add_argument(
+        "--radius-mm", type=float, default=30.0, help="the calibration cylinder's radius"
+    )
+    parser.add_argument("--grasps", type=int, default=6, help="how many grasps (3 to 6)")
+    _add_emulate(parser, "calibrate the emulated rig (its lab places the cylinder)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    parser.set_defaults(handler="cli.calibrate", parser=parser)
+
+
+def _add_emulate(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--emulate`` and ``--rig FILE`` (``sim.rig_launch``)."""
+    parser.add_argument("--emulate", action="store_true", help=what)
+    parser.add_argument(
+        "--rig", default=None, metavar="FILE", help="with --emulate: an as-built rig (rigs/*.yaml)"
+    )

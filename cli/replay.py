@@ -39,7 +39,7 @@ def main(args: argparse.Namespace) -> int:
 
     try:
         if args.graph is not None:
-            from runtime.graph import load_document
+            from runtime.graphfile import load_document
 
             graph = load_document(args.graph)
         else:
@@ -48,7 +48,9 @@ def main(args: argparse.Namespace) -> int:
             if not text:
                 print(f"{args.bag}: the bag stores no graph; pass --graph", file=sys.stderr)
                 return 2
-            graph = yaml.safe_load(text)
+            from runtime.graphfile import parse_yaml
+
+            graph = parse_yaml(text, f"{args.bag}: the stored graph")
         if args.no_hosts:
             if args.host is not None:
                 raise GraphError("--no-hosts and --host: give one of them")

@@ -146,6 +146,17 @@ def launch(
     return launcher.run()
 
 
+def emulated(doc: dict[str, Any], rig_file: str | None) -> dict[str, Any]:
+    """The graph on an emulated rig (``sim.rig_launch``); its errors as graph errors."""
+    from sim.rig_launch import activate, emulate
+
+    try:
+        rig, feed, _ = activate(rig_file)
+        return emulate(doc, rig=rig, feed=feed)
+    except ValueError as err:
+        raise GraphError(str(err)) from err
+
+
 def main(args: argparse.Namespace) -> int:
     """``launch.py [run] GRAPH ...``: check the graph, then run it or say it is OK."""
     if args.view == "spawn" and not args.check:
@@ -161,6 +172,10 @@ def main(args: argparse.Namespace) -> int:
     source = str(args.graph)
     try:
         doc = graphs.load_document(args.graph)
+        if args.emulate:
+            doc = emulated(doc, args.rig)
+        elif args.rig:
+            raise GraphError(f"{source}: --rig needs --emulate")
         only = [n for n in args.only.split(",") if n]
         doc = graphs.apply_overrides(
             doc, sets=args.sets, swaps=args.swaps, only=only, source=source

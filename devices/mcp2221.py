@@ -22,6 +22,8 @@ what to do: a permission error the udev rule to add, an unplugged bridge
 from __future__ import annotations
 
 import errno
+import importlib
+import os
 import time
 from typing import Any
 
@@ -45,6 +47,7 @@ CANCEL_TRANSFER = 0x10
 SET_SPEED = 0x20
 READ_FAILED = 0x41
 FAILED_COUNT = 127
+BACKEND_ENV = "SOFTBUBBLE_USB_BACKEND"
 
 UDEV_RULE = (
     'SUBSYSTEM=="usb", ATTRS{idVendor}=="04d8", ATTRS{idProduct}=="00dd", '
@@ -68,10 +71,26 @@ class BridgeNotFound(DeviceError):
 def default_backend() -> Any:
     """A libusb-1.0 backend for pyusb: the one the ``libusb-package`` wheel ships.
 
+    ``$SOFTBUBBLE_USB_BACKEND`` (``module:function``) names another backend's factory
+    instead: the emulated rig's (``sim.emulated_rig:usb_backend``) is how the hardware
+    graph's own pressure node reads emulated bridges.
+
     Raises:
         DeviceError: neither that library nor the system's libusb-1.0 loads.
     """
-    import libusb_package
+    named = os.environ.get(BACKEND_ENV, "")
+    if named:
+        module, _, factory = named.partition(":")
+        try:
+            return getattr(importlib.import_module(module), factory)()
+        except (ImportError, AttributeError, ValueError) as err:
+            raise DeviceError(f"${BACKEND_ENV}={named!r}: no such backend factory ({err})") from err
+    try:
+        import libusb_package
+    except ImportError as err:
+        raise DeviceError(
+            f"pyusb has no libusb-1.0 backend: the `libusb-package` wheel is not installed ({err})"
+        ) from err
 
     backend = libusb_package.get_libusb1_backend()
     if backend is None:
@@ -124,6 +143,7 @@ class MCP2221(Device):
         self.backend = backend
         self.timeout_ms = timeout_ms
         self.device: Any = None
+        self.device_serial = serial  # the serial of the bridge found (when none was asked)
         self._interface = -1
         self._ep_out: Any = None
         self._ep_in: Any = None
@@ -139,7 +159,7 @@ class MCP2221(Device):
         if self.serial:
             dev = bridges.get(self.serial)
         elif len(bridges) == 1:
-            dev = next(iter(bridges.values()))
+            self.device_serial, dev = next(iter(bridges.items()))
         else:
             dev = None
         if dev is None:

@@ -1,4 +1,4 @@
-"""The four objects of the simulator, built from proximity-field primitives.
+"""The objects of the simulator (four household ones and the calibration cylinder), built from proximity-field primitives.
 
 Shared by the simulator (rendering contact) and the pose estimator (fitting): one
 description of each object. Every object lives in its geometry frame G (docs/design.md
@@ -56,6 +56,10 @@ def _at(
     child: Field, *, z_m: float = 0.0, x_m: float = 0.0, rot: np.ndarray | None = None
 ) -> Field:
     return Transformed(child, make_pose(rot, np.array([x_m, 0.0, z_m])))
+
+
+def _cylinder(d: dict[str, float]) -> tuple[Field, bool]:
+    return CappedCylinder(d["radius_m"], d["height_m"]), True
 
 
 def _mug(d: dict[str, float]) -> tuple[Field, bool]:
@@ -141,6 +145,8 @@ _BUILDERS: dict[
         {"width_m": 0.060, "body_height_m": 0.160, "neck_radius_m": 0.013, "neck_height_m": 0.030},
         _square_bottle,
     ),
+    # A plain cylinder of known radius: the calibration object (perception.calibration).
+    "cylinder": ("cylinder", {"radius_m": 0.030, "height_m": 0.160}, _cylinder),
     "wine_glass": (
         "wine_glass",
         {

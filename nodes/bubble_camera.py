@@ -10,24 +10,40 @@
     the world names in its state.
 
 ``bubble_camera.royale``
+    inputs: ``gripper`` (GripperState, optional): the measured opening, which places
+        each frame in the tool frame.
     outputs: ``image`` (ToFImage): a PMD pico flexx's frames through the royale SDK
         (``devices.royale``): depth z in metres with NaN where the SDK's confidence is 0
         or its noise over ``max_noise_m``, the gray (IR) channel as uint16, the camera's
-        own intrinsics, stamped with the SDK's frame time.
+        own intrinsics, stamped with the SDK's frame time, and ``tool_from_sensor``: the
+        camera's mount in its finger (the ``calibration`` file's, made for this camera's
+        id; the CAD mount without one, said once) at the gripper's opening at the
+        frame's stamp (``geometry.mount``). A frame waits up to ``opening_wait_secs``
+        for a gripper state stamped at or after it, then takes the newest opening; with
+        no gripper state at all it goes out without a pose (said once), and the contact
+        patch and shear tracker refuse it.
     ``roypy`` is imported when the node starts; without it setup fails saying what to
-    install and where. The use case (frame rate) must be one the camera lists.
+    install and where. The use case (frame rate) must be one the camera lists. A camera
+    unplugged mid-run (no frame for ``lost_after_secs``) is reported once, naming it,
+    and reopened every second until it delivers again.
 """
 
 from __future__ import annotations
 
 import queue
+import time
+from collections import deque
 from dataclasses import dataclass
 
-from devices.royale import MAX_NOISE_M, RoyaleCamera
+import numpy as np
+
+from devices.royale import MAX_NOISE_M, Frame, RoyaleCamera
+from geometry.mount import CAD_MOUNTS, CameraMounts, OpeningHistory
 from messages.base import Header
 from messages.errors import DeviceError, NodeError
 from messages.sim import WorldState
-from messages.types import MaskImage, ToFImage
+from messages.types import GripperState, MaskImage, ToFImage
+from perception.calibration.rigfile import CalibrationError, load_calibration
 from runtime.node import Node
 from runtime.registry import register
 from sim.tof import BubbleRenderer
@@ -60,13 +76,19 @@ class SimBubbleCamera(Node):
 class RoyaleParams:
     """``camera_id``: the camera's id ("" when only one is plugged in); ``use_case``: the
     SDK's mode name (frame rate and exposure limit), checked against the camera's own
-    list; ``exposure_us``: a fixed exposure (0: the use case's)."""
+    list; ``exposure_us``: a fixed exposure (0: the use case's); ``calibration``: the
+    rig's calibration file ("" : the CAD mount); ``opening_wait_secs``: how long a frame
+    waits for the gripper's opening at its stamp; ``lost_after_secs``: silence after
+    which the camera counts as unplugged."""
 
     sensor: str
     camera_id: str = ""
     use_case: str = "MODE_9_10FPS_1000"
     exposure_us: int = 0
     max_noise_m: float = MAX_NOISE_M
+    calibration: str = ""
+    opening_wait_secs: float = 0.1
+    lost_after_secs: float = 1.0
 
     def __post_init__(self) -> None:
         SensorParams(sensor=self.sensor)
@@ -76,13 +98,24 @@ class RoyaleParams:
             raise ValueError(f"`exposure_us` must be >= 0, got {self.exposure_us!r}")
         if not self.max_noise_m > 0:
             raise ValueError(f"`max_noise_m` must be > 0, got {self.max_noise_m!r}")
+        if not self.opening_wait_secs >= 0:
+            raise ValueError(f"`opening_wait_secs` must be >= 0, got {self.opening_wait_secs!r}")
+        if not self.lost_after_secs > 0:
+            raise ValueError(f"`lost_after_secs` must be > 0, got {self.lost_after_secs!r}")
+        if self.calibration:
+            try:
+                load_calibration(self.calibration)
+            except CalibrationError as err:
+                raise ValueError(f"`calibration`: {err}") from err
 
 
 @register("bubble_camera.royale")
 class RoyaleBubbleCamera(Node):
-    """Publishes a PMD pico flexx's frames (see the module docstring)."""
+    """Publishes a PMD pico flexx's frames, placed in the tool frame (module docstring)."""
 
     Params = RoyaleParams
+    inputs = {"gripper": GripperState}
+    optional_inputs = frozenset({"gripper"})
     outputs = {"image": ToFImage}
 
     def setup(self) -> None:
@@ -94,33 +127,114 @@ class RoyaleBubbleCamera(Node):
             self.camera.connect()
         except DeviceError as err:
             raise NodeError(f"{self.name}: {err}") from err
-        self.io.log.info("%s: camera %r, use case %s", self.name, self.camera.camera_id, p.use_case)
+        self.mounts = CAD_MOUNTS
+        if p.calibration:
+            try:
+                cal = load_calibration(p.calibration).camera(p.sensor, self.camera.camera_id)
+            except CalibrationError as err:
+                raise NodeError(f"{self.name}: calibration refused: {err}") from err
+            self.mounts = CameraMounts({p.sensor: cal.finger_from_sensor})
+            where = f"calibrated mount from {p.calibration}"
+        else:
+            where = "no calibration file: the CAD camera mount (run `launch.py calibrate`)"
+        self.io.log.info(
+            "%s: camera %r, use case %s, %s", self.name, self.camera.camera_id, p.use_case, where
+        )
+        self.openings = OpeningHistory()
+        self.pending: deque[tuple[Frame, float]] = deque()
+        self.unplaced = 0
+        self.last_frame_at: float | None = None  # watched from the first frame on
+        self.lost_at: float | None = None
+        self.next_try = 0.0
         self.io.add_timer(0.002, self.tick)
 
     def teardown(self) -> None:
         self.camera.disconnect()
 
+    def on_gripper(self, msg: GripperState) -> None:
+        self.openings.add(msg.header.stamp_nanos, msg.width_m)
+
     def tick(self) -> None:
-        """Publish the frames the SDK delivered since the last tick."""
-        k = self.camera.intrinsics
-        assert k is not None
+        """Take the frames the SDK delivered; publish those whose opening is known."""
+        now = time.monotonic()
         while True:
             try:
                 frame = self.camera.frames.get_nowait()
             except queue.Empty:
-                return
-            self.io.publish(
-                "image",
-                ToFImage(
-                    header=Header(
-                        stamp_nanos=frame.stamp_nanos, frame_id=f"{self.params.sensor}_sensor"
-                    ),
-                    sensor=self.params.sensor,
-                    depth_m=frame.depth_m,
-                    ir=frame.ir,
-                    fx_px=k.fx_px,
-                    fy_px=k.fy_px,
-                    cx_px=k.cx_px,
-                    cy_px=k.cy_px,
-                ),
+                break
+            self.pending.append((frame, now))
+            self.last_frame_at = now
+        if self.lost_at is not None and self.pending:
+            self.io.log.warning(
+                "%s: camera %r is back after %.1f s",
+                self.name,
+                self.camera.camera_id,
+                now - self.lost_at,
             )
+            self.lost_at = None
+        self._watch(now)
+        newest = self.openings.newest_nanos
+        while self.pending:
+            frame, arrived = self.pending[0]
+            if (newest is None or newest < frame.stamp_nanos) and (
+                now - arrived < self.params.opening_wait_secs
+            ):
+                return
+            self.pending.popleft()
+            self._publish(frame)
+
+    def _watch(self, now: float) -> None:
+        """Report a camera that went silent (unplugged), and reopen it every second."""
+        p = self.params
+        if self.last_frame_at is None:
+            return
+        if self.lost_at is None:
+            if now - self.last_frame_at < p.lost_after_secs:
+                return
+            self.lost_at = self.next_try = now
+            self.io.log.error(
+                "%s: camera %r delivered no frame for %.1f s (unplugged?); reopening it"
+                " every second",
+                self.name,
+                self.camera.camera_id,
+                now - self.last_frame_at,
+            )
+        if now < self.next_try:
+            return
+        self.next_try = now + 1.0
+        self.camera.disconnect()
+        try:
+            self.camera.connect()
+        except DeviceError:
+            return  # still gone: reported when it went
+
+    def _publish(self, frame: Frame) -> None:
+        p = self.params
+        k = self.camera.intrinsics
+        assert k is not None
+        width = self.openings.width_at(frame.stamp_nanos)
+        if width is None:
+            pose = np.zeros((4, 4))
+            self.unplaced += 1
+            if self.unplaced == 1:
+                self.io.log.warning(
+                    "%s: no gripper state yet: frames go out without `tool_from_sensor`"
+                    " (wire `gripper: gripper/state` to place them in the tool frame)",
+                    self.name,
+                )
+        else:
+            pose = self.mounts.tool_from_sensor(p.sensor, width)
+        self.io.publish(
+            "image",
+            ToFImage(
+                header=Header(stamp_nanos=frame.stamp_nanos, frame_id=f"{p.sensor}_sensor"),
+                sensor=p.sensor,
+                depth_m=frame.depth_m,
+                ir=frame.ir,
+                fx_px=k.fx_px,
+                fy_px=k.fy_px,
+                cx_px=k.cx_px,
+                cy_px=k.cy_px,
+                tool_from_sensor=pose,
+            ),
+        )

@@ -36,7 +36,7 @@ import numpy as np
 from geometry.camera import PinholeCamera
 from messages.base import Header
 from messages.types import ContactPatch, GripperState, MaskImage, ToFImage, pose_is_known
-from perception.contact import ContactParams, ContactPatcher
+from perception.contact import ContactParams, ContactPatcher, StampedHistory
 from runtime.node import Node
 from runtime.registry import register
 
@@ -97,7 +97,7 @@ class ContactPatchNode(Node):
         self.gripper_seen = False
         self.warned_mount: set[str] = set()
         self.open_still = False
-        self.gripper_states: deque[tuple[int, bool]] = deque(maxlen=GRIPPER_HISTORY)
+        self.gripper_states = StampedHistory(False, GRIPPER_HISTORY)
         self.ref_frames = {"left": 0, "right": 0}
 
     def on_gripper(self, msg: GripperState) -> None:
@@ -111,17 +111,7 @@ class ContactPatchNode(Node):
             self.patcher.clear_reference()
             self.ref_frames = {"left": 0, "right": 0}
         self.open_still = open_still
-        self.gripper_states.append((msg.header.stamp_nanos, open_still))
-
-    def _open_still_at(self, stamp_nanos: int) -> bool:
-        """Whether the gripper was open and still at a frame's stamp: its last state
-        stamped at or before it (the newest state when none is that old)."""
-        state = self.open_still
-        for stamp, open_still in self.gripper_states:
-            if stamp > stamp_nanos:
-                break
-            state = open_still
-        return state
+        self.gripper_states.record(msg.header.stamp_nanos, open_still)
 
     def on_left(self, msg: ToFImage) -> None:
         self._image("left", msg)
@@ -141,7 +131,7 @@ class ContactPatchNode(Node):
                 self.warned_mount.add(side)
             return
         if (
-            self._open_still_at(msg.header.stamp_nanos)
+            self.gripper_states.at(msg.header.stamp_nanos)
             and self.ref_frames[side] < self.params.reference_frames
         ):
             self.patcher.update_reference(side, msg.depth_m)

@@ -16,7 +16,10 @@
     An unplugged bridge is reported and looked for every ``retry_secs`` until it is
     back; three failed reads in a row reset the bridge. Stale readings (no conversion
     since the last read) are skipped and counted; saturated ones (counts outside the
-    calibrated 10-90 %) are published and reported when they start.
+    calibrated 10-90 %) are published and reported when they start. With a
+    ``calibration`` file (made for this bridge's serial, else refused naming both) the
+    sensor's zero is subtracted from every reading; without one the node says so once.
+    A machine without a libusb backend gets one line saying so, not a traceback.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from messages.base import Header
 from messages.errors import DeviceError, NodeError
 from messages.sim import WorldState
 from messages.types import Pressure
+from perception.calibration.rigfile import CalibrationError, load_calibration
 from runtime.node import Node
 from runtime.registry import register
 from sim import pressure
@@ -77,9 +81,15 @@ class UsbPressureParams:
     rate_hz: float = 100.0
     i2c_speed_hz: int = 100_000
     retry_secs: float = 0.5
+    calibration: str = ""
 
     def __post_init__(self) -> None:
         SensorParams(sensor=self.sensor)
+        if self.calibration:
+            try:
+                load_calibration(self.calibration)
+            except CalibrationError as err:
+                raise ValueError(f"`calibration`: {err}") from err
         if not 0 < self.address < 0x80:
             raise ValueError(f"`address` must be a 7-bit I2C address, got {self.address!r}")
         if not self.pmax_pa > self.pmin_pa:
@@ -103,10 +113,15 @@ class UsbPressure(Node):
 
     def setup(self) -> None:
         p = self.params
-        self.bridge = mcp2221.MCP2221(p.serial, backend=mcp2221.default_backend())
+        try:
+            backend = mcp2221.default_backend()
+        except DeviceError as err:
+            raise NodeError(f"{self.name}: {err}") from err
+        self.bridge = mcp2221.MCP2221(p.serial, backend=backend)
         self.sensor = AbpSensor(
             self.bridge, address=p.address, pmin_pa=p.pmin_pa, pmax_pa=p.pmax_pa
         )
+        self.offset_pa = 0.0
         self.failures = 0  # consecutive failed reads
         self.stale = 0
         self.saturated = False
@@ -116,8 +131,19 @@ class UsbPressure(Node):
             self._open()
         except DeviceError as err:
             raise NodeError(f"{self.name}: {err}") from err
+        if p.calibration:
+            try:
+                cal = load_calibration(p.calibration).pressure_sensor(
+                    p.sensor, self.bridge.device_serial
+                )
+            except CalibrationError as err:
+                raise NodeError(f"{self.name}: calibration refused: {err}") from err
+            self.offset_pa = cal.offset_pa
+            zero = f"zero {cal.offset_pa:.1f} +- {cal.offset_sigma_pa:.2f} Pa from {p.calibration}"
+        else:
+            zero = "no calibration file: the sensor's zero is not corrected"
         self.io.log.info(
-            "%s: reading %s, sensor at 0x%02x", self.name, self.bridge.where, p.address
+            "%s: reading %s, sensor at 0x%02x, %s", self.name, self.bridge.where, p.address, zero
         )
         self.io.add_timer(1.0 / p.rate_hz, self.tick)
 
@@ -195,6 +221,6 @@ class UsbPressure(Node):
                     stamp_nanos=self.io.now_nanos(), frame_id=f"{self.params.sensor}_bubble"
                 ),
                 sensor=self.params.sensor,
-                pressure_pa=reading.pressure_pa,
+                pressure_pa=reading.pressure_pa - self.offset_pa,
             ),
         )

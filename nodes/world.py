@@ -14,7 +14,13 @@ Ports:
         the scene lists ``ground_truth``. ``placement`` (messages.sim.PlacementTruth: placed
         or dropped, the gap it fell, how far the arm pushed past contact, its tilt):
         once, when the jaws open over a scene's ``support`` (``sim.support``): the
-        stacking task's truth.
+        stacking task's truth. ``wrench`` (WrenchTruth, source ``sim``): each bubble's
+        true contact wrench, when the scene lists ``wrench``.
+
+With ``rig_feed`` (a ZeroMQ endpoint) the world also publishes each state there for the
+emulated devices of an emulated rig (``sim.emulated_rig``: the camera and pressure
+emulators inside the hardware graph's own driver nodes). Served jaws move in real time
+from setup on (a gripper homes before the graph starts), then with the world's steps.
 
 Only this node integrates anything (the jaws' motion, the contacts' anchors), so no two
 processes keep their own copy of the world. When the scene's trajectory ends it asks
@@ -24,20 +30,27 @@ the graph to stop, with a one-line summary. A hardware graph drops this node.
 from __future__ import annotations
 
 import dataclasses
+import os
+import threading
 from dataclasses import dataclass
+from typing import Any
+
+import zmq
 
 from messages.base import Header
+from messages.codec import encode
 from messages.errors import NodeError
+from messages.force import WrenchTruth
 from messages.sim import PlacementTruth, WorldState
 from messages.types import GripperCommand, GroundTruth
 from runtime.node import Node
 from runtime.params import ExistingFile
 from runtime.registry import register
-from sim import World, ground_truth, load_scene, stamp_of
+from sim import World, ground_truth, load_scene, stamp_of, wrench_truth
 from sim.effects import resolve
 from sim.scene import Scene, SceneError
 from sim.wire import apply_command, to_message
-from sim.wsg50_server import WSG50Server
+from sim.wsg50_server import WSG50Server, step_in_real_time
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -52,6 +65,7 @@ class WorldParams:
     rate_scale: float = 1.0
     wsg50_port: int = -1
     wsg50_host: str = "127.0.0.1"
+    rig_feed: str = ""
 
     def __post_init__(self) -> None:
         if not self.rate_scale > 0:
@@ -89,7 +103,12 @@ class WorldNode(Node):
     Params = WorldParams
     inputs = {"command": GripperCommand}
     optional_inputs = frozenset({"command"})
-    outputs = {"state": WorldState, "ground_truth": GroundTruth, "placement": PlacementTruth}
+    outputs = {
+        "state": WorldState,
+        "ground_truth": GroundTruth,
+        "placement": PlacementTruth,
+        "wrench": WrenchTruth,
+    }
 
     def setup(self) -> None:
         self.scene = self.params.load()
@@ -109,11 +128,41 @@ class WorldNode(Node):
                     f"{self.name}: cannot serve the WSG 50 protocol on {host}:{port}: {err}"
                 ) from err
             self.io.log.info("%s: WSG 50 emulator listening on %s", self.name, self.server.address)
+            # Until the first step the jaws move in real time on their own (free of the
+            # object, which the scene has not moved yet): a driver homing in its setup
+            # sees its motion end before the graph starts.
+            self.prestart = threading.Event()
+            self.prestart_thread = threading.Thread(
+                target=step_in_real_time,
+                args=(self.server, lambda width_m: 0.0),
+                kwargs={"period_secs": self.scene.frame_period_secs, "stop": self.prestart},
+                daemon=True,
+            )
+            self.prestart_thread.start()
+        self.feed: zmq.Socket | None = None
+        self.gripper_faults: list[Any] = []  # sim.emulated_rig.Fault
+        if self.params.rig_feed:
+            from sim.emulated_rig import SESSION_ENV, session
+
+            if os.environ.get(SESSION_ENV):
+                faults = session().rig.faults
+                self.gripper_faults = [f for f in faults if f.device == "gripper"]
+            self.feed = zmq.Context.instance().socket(zmq.PUB)
+            self.feed.setsockopt(zmq.LINGER, 0)
+            try:
+                self.feed.bind(self.params.rig_feed)
+            except zmq.ZMQError as err:
+                raise NodeError(
+                    f"{self.name}: cannot bind the rig feed {self.params.rig_feed}: {err}"
+                ) from err
         self.io.add_timer(self.scene.frame_period_secs / self.params.rate_scale, self.tick)
 
     def teardown(self) -> None:
         if self.server is not None:
+            self.prestart.set()
             self.server.close()
+        if self.feed is not None:
+            self.feed.close(0)
 
     def on_command(self, msg: GripperCommand) -> None:
         if self.server is not None:
@@ -138,16 +187,25 @@ class WorldNode(Node):
             return
         if self.start_nanos is None:
             self.start_nanos = self.io.now_nanos()
+            if self.server is not None:
+                self.prestart.set()
+                self.prestart_thread.join()
         snap = self.server.stepped(self.world.step) if self.server else self.world.step()
+        self._drop_gripper(snap.time_secs)
         stamp = stamp_of(snap, self.start_nanos)
         self.max_force_n = max(self.max_force_n, snap.force_n)
         self.contact_frames += any(snap.in_contact.values())
-        self.io.publish("state", to_message(snap, self.scene, stamp))
+        state = to_message(snap, self.scene, stamp)
+        self.io.publish("state", state)
+        if self.feed is not None:
+            self.feed.send_multipart(encode("rig/state", state), copy=False)
         if "ground_truth" in self.world.effects:
             truth = ground_truth(
                 snap, self.world.model.class_label, stamp, noise_seed=self.scene.seed
             )
             self.io.publish("ground_truth", truth)
+        if "wrench" in self.world.effects:
+            self.io.publish("wrench", wrench_truth(snap, stamp))
         self._publish_placement(stamp)
         if self.world.done:
             contact = (
@@ -160,6 +218,19 @@ class WorldNode(Node):
                 f" {snap.frame_index + 1} frames ({contact}, peak grip force"
                 f" {self.max_force_n:.1f} N, final width {snap.width_m * 1000:.1f} mm,"
                 f" gripper {snap.gripper_state})"
+            )
+
+    def _drop_gripper(self, t_secs: float) -> None:
+        """An emulated rig's scripted fault: the WSG 50 drops its clients' connections."""
+        due = [f for f in self.gripper_faults if f.at_secs <= t_secs]
+        if due and self.server is not None:
+            self.gripper_faults = [f for f in self.gripper_faults if f not in due]
+            dropped = self.server.drop_clients()
+            self.io.log.warning(
+                "%s: emulated fault: the WSG 50 dropped %d connection(s) at t=%.2f s",
+                self.name,
+                dropped,
+                t_secs,
             )
 
     def _publish_placement(self, stamp: int) -> None:

@@ -19,13 +19,17 @@ Both bubbles' points are concatenated, with ``bubble`` 0 for left and 1 for righ
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
+from typing import Generic, TypeVar
 
 import cv2
 import numpy as np
 
 from geometry.camera import PinholeCamera
 from geometry.gripper import SIDES
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -175,3 +179,31 @@ class ContactPatcher:
             idx = np.linspace(0, len(points) - 1, self.params.max_points).astype(int)
             points, bubble = points[idx], bubble[idx]
         return GraspCloud(points.astype(np.float32), bubble, masks)
+
+
+class StampedHistory(Generic[T]):
+    """What something was at a given stamp: the last value stamped at or before it.
+
+    Nodes ask what the gripper was doing when a camera frame was taken (open and still:
+    a free-bubble frame; closed on the object: the tare), by the frame's stamp, not by
+    the newest state received: on a loaded machine small gripper messages overtake the
+    images, and a frame judged by a newer state would be misjudged. With no value that
+    old, the newest answers.
+    """
+
+    def __init__(self, initial: T, maxlen: int = 64) -> None:
+        self.latest = initial
+        self._items: deque[tuple[int, T]] = deque(maxlen=maxlen)
+
+    def record(self, stamp_nanos: int, value: T) -> None:
+        self.latest = value
+        self._items.append((stamp_nanos, value))
+
+    def at(self, stamp_nanos: int) -> T:
+        """The value at ``stamp_nanos`` (see the class docstring)."""
+        value = self.latest
+        for stamp, item in self._items:
+            if stamp > stamp_nanos:
+                break
+            value = item
+        return value

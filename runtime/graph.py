@@ -29,7 +29,6 @@ where its ports and parameters are declared); it starts no process.
 from __future__ import annotations
 
 import ipaddress
-import math
 import re
 import tempfile
 from collections import defaultdict
@@ -46,7 +45,7 @@ from runtime.graphfile import apply_overrides, load_document, parse_yaml
 from runtime.hosts import TOP_KEYS as HOSTS_TOP_KEYS
 from runtime.hosts import Hosts, check_hosts, check_mapping, check_placement
 from runtime.node import Node
-from runtime.params import ParamError, build_params
+from runtime.params import MAX_SECS, ParamError, build_params
 from runtime.registry import resolve
 
 __all__ = ["Graph", "InputSpec", "NodeSpec", "RestartSpec", "check", "load"]
@@ -57,6 +56,7 @@ RESTART_POLICIES = ("never", "on-failure")
 NODE_KEYS = {"impl", "params", "inputs", "restart", "required", "host", "hang_timeout_secs"}
 TOP_KEYS = {"nodes", "name", "description", *HOSTS_TOP_KEYS}
 MAX_QUEUE_SIZE = 2**31 - 1  # ZeroMQ's high-water mark is a C int
+MAX_RESTARTS = 1000
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_\-]*")
 # The launcher's run directory: tempfile.mkdtemp(prefix=f"{RUNDIR_PREFIX}{pid}-").
 RUNDIR_PREFIX = "sbg-"
@@ -95,8 +95,10 @@ class RestartSpec:
     def __post_init__(self) -> None:
         if self.policy not in RESTART_POLICIES:
             raise ValueError(f"`policy` must be one of {RESTART_POLICIES}, got {self.policy!r}")
-        if self.max_restarts < 0:
-            raise ValueError(f"`max_restarts` must be >= 0, got {self.max_restarts!r}")
+        if not 0 <= self.max_restarts <= MAX_RESTARTS:
+            raise ValueError(
+                f"`max_restarts` must be in [0, {MAX_RESTARTS}], got {self.max_restarts!r}"
+            )
         if not self.backoff_secs >= 0:
             raise ValueError(f"`backoff_secs` must be >= 0, got {self.backoff_secs!r}")
         if not self.backoff_max_secs >= self.backoff_secs:
@@ -371,8 +373,10 @@ def _check_node(
         if parsed is not None:
             inputs[str(port)] = parsed
     hang = body.get("hang_timeout_secs", 30.0)
-    if not isinstance(hang, int | float) or isinstance(hang, bool) or not 0 < hang < math.inf:
-        errors.append(f"{where}.hang_timeout_secs: must be a finite number > 0, got {hang!r}")
+    if not isinstance(hang, int | float) or isinstance(hang, bool) or not 0 < hang <= MAX_SECS:
+        errors.append(
+            f"{where}.hang_timeout_secs: must be a number in (0, {MAX_SECS:g}] s, got {hang!r}"
+        )
         hang = 30.0
     required = body.get("required", True)
     if not isinstance(required, bool):

@@ -15,31 +15,14 @@ from typing import Any
 import yaml
 
 from messages.errors import GraphError
-
-
-class _UniqueKeyLoader(yaml.SafeLoader):  # type: ignore[misc]
-    """``safe_load`` that refuses duplicate mapping keys instead of keeping the last."""
-
-
-def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> Any:
-    seen: set[Any] = set()
-    for key_node, _ in node.value:
-        key = loader.construct_object(key_node, deep=deep)
-        if key in seen:
-            raise yaml.constructor.ConstructorError(
-                None, None, f"duplicate key {key!r}", key_node.start_mark
-            )
-        seen.add(key)
-    return loader.construct_mapping(node, deep)
-
-
-_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+from messages.files import MAX_DEPTH, load_yaml, read_text
 
 
 def parse_yaml(text: str, source: str) -> Any:
-    """YAML text to Python data, safely; a syntax error or duplicate key raises GraphError."""
+    """YAML text to Python data, safely and within bounds (:mod:`messages.files`); a syntax
+    error, a duplicate key or a bound exceeded raises GraphError."""
     try:
-        return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+        return load_yaml(text)
     except yaml.YAMLError as err:
         raise GraphError(f"{source}: YAML error: {err}") from err
 
@@ -48,9 +31,9 @@ def load_document(path: str | Path) -> dict[str, Any]:
     """Read a graph file into a plain dict (not yet checked)."""
     path = Path(path)
     try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as err:
-        why = err.strerror if isinstance(err, OSError) else "not UTF-8 text"
+        text = read_text(path)
+    except (OSError, ValueError) as err:
+        why = err.strerror if isinstance(err, OSError) else str(err)
         raise GraphError(f"{path}: cannot read graph file: {why}") from err
     doc = parse_yaml(text, str(path))
     if not isinstance(doc, dict):
@@ -87,6 +70,10 @@ def _set(nodes: dict[str, Any], item: str, source: str) -> None:
     target, sep, value = item.partition("=")
     name, dot, param = target.partition(".")
     keys = param.split(".")
+    if len(keys) > MAX_DEPTH:
+        raise GraphError(
+            f"{source}: --set {item[:60]!r}: a PARAM path of more than {MAX_DEPTH} keys"
+        )
     if not sep or not dot or not all(keys) or name not in nodes:
         raise GraphError(
             f"{source}: --set {item!r}: expected NODE.PARAM=VALUE (PARAM may be a dotted "

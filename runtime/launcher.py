@@ -46,7 +46,7 @@ from messages.control import (
     StopRequest,
     WaitIdle,
 )
-from runtime import child, protocol
+from runtime import child, protocol, status
 from runtime.counters import balanced, delivered
 from runtime.graph import Graph, ipc_path
 from runtime.hostlink import HostLink, judge, wait_for_finals
@@ -228,7 +228,7 @@ class Launcher:
         name = proc.spec.name
         policy = proc.spec.restart
         if policy.policy == "on-failure" and proc.restarts < policy.max_restarts:
-            delay = min(policy.backoff_secs * 2**proc.restarts, policy.backoff_max_secs)
+            delay = min(policy.backoff_secs * 2 ** min(proc.restarts, 64), policy.backoff_max_secs)
             proc.restarts += 1
             proc.state = "waiting_restart"
             proc.restart_at = time.monotonic() + delay
@@ -399,10 +399,16 @@ class Launcher:
 
     def _supervise(self) -> None:
         deadline = None if self.duration_secs is None else time.monotonic() + self.duration_secs
+        published_at = 0.0
         while self.stop_reason is None:
             self._serve(100)
             self._reap()
             now = time.monotonic()
+            if now - published_at >= status.WRITE_EVERY_SECS and self.rundir is not None:
+                published_at = now  # for `launch.py topic` (runtime.status)
+                status.write(
+                    self.rundir, status.snapshot(self.graph, self.procs, now - self.started_at)
+                )
             for proc in self.procs.values():
                 if proc.state == "waiting_restart" and now >= proc.restart_at:
                     self._spawn(proc)

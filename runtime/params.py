@@ -120,8 +120,8 @@ def _unknown_keys(cls: type[Any], values: Mapping[str, Any], prefix: str) -> Non
             _unknown_keys(nested, value, f"{path}.")
 
 
-def _numbers(value: Any, path: str) -> Iterator[tuple[str, float]]:
-    if isinstance(value, float):
+def _numbers(value: Any, path: str) -> Iterator[tuple[str, float | int]]:
+    if isinstance(value, float | int) and not isinstance(value, bool):
         yield path, value
     elif isinstance(value, Mapping):
         for key, item in value.items():
@@ -132,21 +132,62 @@ def _numbers(value: Any, path: str) -> Iterator[tuple[str, float]]:
 
 
 def check_finite(values: Mapping[str, Any], prefix: str = "") -> None:
-    """Raise :class:`ParamError` for the first NaN or infinite number anywhere in ``values``."""
+    """Raise :class:`ParamError` for the first NaN or infinite number, or integer beyond 64
+    bits, anywhere in ``values`` (bounded: a graph file's size and depth are, see
+    :mod:`messages.files`)."""
     for path, number in _numbers(dict(values), ""):
-        if not math.isfinite(number):
+        if isinstance(number, int):
+            if not -(2**63) <= number < 2**64:
+                raise ParamError(f"{prefix}{path}", "must be an integer within 64 bits", number)
+        elif not math.isfinite(number):
             raise ParamError(f"{prefix}{path}", "must be a finite number", number)
 
 
-def _check_files(cls: type[Any], built: Any, prefix: str) -> None:
+# What a run can do with a time or a rate (a timer's period, a back-off, a timeout): a
+# field whose name says seconds or hertz (``unit_of``) is checked against these.
+MAX_SECS = 1e6  # 11.6 days: the longest wait, period or timeout a run takes
+MIN_PERIOD_SECS = 1e-6  # a rate above 1 MHz is no rate a timer or a device keeps
+
+
+def timer_period_nanos(period_secs: float) -> int:
+    """A timer's period in nanoseconds.
+
+    Raises:
+        ValueError: not in [:data:`MIN_PERIOD_SECS`, :data:`MAX_SECS`] (NaN included).
+    """
+    if not MIN_PERIOD_SECS <= period_secs <= MAX_SECS:
+        raise ValueError(
+            f"timer period_secs must be in [{MIN_PERIOD_SECS:g}, {MAX_SECS:g}], got {period_secs}"
+        )
+    return round(period_secs * 1e9)
+
+
+def _check_units(name: str, value: Any, path: str) -> None:
+    if not isinstance(value, float | int) or isinstance(value, bool):
+        return
+    unit = unit_of(name)
+    if unit == "s" and not abs(value) <= MAX_SECS:
+        raise ParamError(path, f"must be at most {MAX_SECS:g} s in size", value)
+    if unit == "Hz" and value and not 1 / MAX_SECS <= abs(value) <= 1 / MIN_PERIOD_SECS:
+        raise ParamError(
+            path,
+            f"must be 0 or between {1 / MAX_SECS:g} and {1 / MIN_PERIOD_SECS:g} Hz in size "
+            f"(a period of {MIN_PERIOD_SECS:g} s to {MAX_SECS:g} s)",
+            value,
+        )
+
+
+def _check_fields(cls: type[Any], built: Any, prefix: str) -> None:
+    """Files that must exist, and times and rates a run can use, at every depth."""
     hints = field_hints(cls)
     for f in dataclasses.fields(cls):
         value = getattr(built, f.name)
         if _must_exist(hints[f.name]):
             readable_file(value, f"{prefix}{f.name}")
+        _check_units(f.name, value, f"{prefix}{f.name}")
         nested = _dataclass_of(hints[f.name])
         if nested is not None and value is not None:
-            _check_files(nested, value, f"{prefix}{f.name}.")
+            _check_fields(nested, value, f"{prefix}{f.name}.")
 
 
 def anchor_files(
@@ -182,7 +223,11 @@ def _anchor(value: str, folders: Sequence[Path]) -> str:
 def readable_file(value: str, path: str) -> None:
     """Raise :class:`ParamError` unless ``value`` names a readable regular file."""
     file = Path(value)
-    if not file.exists():
+    try:
+        exists = file.exists()
+    except OSError as err:  # a name the OS refuses (too long)
+        raise ParamError(path, f"must name a readable file ({err.strerror})", value) from err
+    if not exists:
         raise ParamError(path, "must name an existing file (no such file)", value)
     if not file.is_file():
         raise ParamError(path, "must name a file (it is a directory or special file)", value)
@@ -292,8 +337,10 @@ def build_params(cls: type[Any], values: Mapping[str, Any] | None) -> Any:
 
     Raises:
         ParamError: (a ``ValueError``) an unknown key at any depth, a value of the wrong
-            type, a NaN or infinite number, a missing or unreadable :data:`ExistingFile`,
-            or the class's own check; it names the field, what is allowed and the value.
+            type, a NaN or infinite number, an integer beyond 64 bits, a time (``_secs``)
+            or rate (``_hz``) no run can use (:data:`MAX_SECS`, :data:`MIN_PERIOD_SECS`),
+            a missing or unreadable :data:`ExistingFile`, or the class's own check; it
+            names the field, what is allowed and the value.
     """
     values = dict(values or {})
     _unknown_keys(cls, values, "")
@@ -302,7 +349,7 @@ def build_params(cls: type[Any], values: Mapping[str, Any] | None) -> Any:
         built = msgspec.convert(values, cls, strict=False)
     except (msgspec.ValidationError, ValueError, TypeError) as err:
         raise rewrite(err, cls, values) from err
-    _check_files(cls, built, "")
+    _check_fields(cls, built, "")
     return built
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import difflib
 import importlib
+import re
 from collections.abc import Callable
 
 from runtime.node import Node
@@ -18,6 +19,8 @@ from runtime.node import Node
 _REGISTRY: dict[str, type[Node]] = {}
 _INDEXES: list[Callable[[], dict[str, str]]] = []
 _INDEX: dict[str, str] = {}
+# ``package.module:Class``: a dotted module name, never a file path (``./x.py:C``).
+_CLASS_PATH = re.compile(r"[A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*:[A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*")
 
 
 def register(name: str) -> Callable[[type[Node]], type[Node]]:
@@ -57,12 +60,19 @@ def class_path(cls: type[Node]) -> str:
 
 
 def _import_class(impl: str) -> type[Node]:
+    if not _CLASS_PATH.fullmatch(impl):
+        raise KeyError(
+            f"{impl[:200]!r} is not module:Class (a dotted Python module name, then a "
+            "class name; not a file path)"
+        )
     module_name, _, attr = impl.partition(":")
     try:
         module = importlib.import_module(module_name)
     except ImportError as err:
         raise KeyError(f"cannot import module {module_name!r} for {impl!r}: {err}") from err
-    cls = getattr(module, attr, None)
+    cls: object = module
+    for part in attr.split("."):
+        cls = getattr(cls, part, None)
     if not (isinstance(cls, type) and issubclass(cls, Node)):
         raise KeyError(f"{impl!r} is not a Node subclass")
     return cls

@@ -11,7 +11,7 @@ from typing import Any
 from messages.base import Message
 from messages.codec import decode, encode
 from runtime.node import Node
-from runtime.params import build_params
+from runtime.params import build_params, timer_period_nanos
 
 
 @dataclass
@@ -72,7 +72,7 @@ class FakeIO:
         return dict(self.dropped)
 
     def add_timer(self, period_secs: float, callback: Callable[[], None]) -> None:
-        period = int(period_secs * 1e9)
+        period = timer_period_nanos(period_secs)
         self._timers.append(_Timer(period, callback, self._now + period))
 
     def now_nanos(self) -> int:

@@ -22,6 +22,7 @@ from messages.codec import encode
 from messages.control import Control, Counts, FromNode, Idle, Stop, StopRequest, WaitIdle
 from runtime import protocol
 from runtime.counters import InputCounters
+from runtime.params import timer_period_nanos
 from runtime.protocol import ControlError
 from runtime.security import Guard, KeyPair, needs_curve, serve
 
@@ -153,9 +154,10 @@ class ZmqIO:
         self.published[topic] += 1
 
     def add_timer(self, period_secs: float, callback: Callable[[], None]) -> None:
-        if period_secs <= 0:
-            raise ValueError(f"{self.name}: timer period_secs must be > 0, got {period_secs}")
-        period = int(period_secs * 1e9)
+        try:
+            period = timer_period_nanos(period_secs)
+        except ValueError as err:
+            raise ValueError(f"{self.name}: {err}") from err
         self.timers.append(Timer(period, callback, time.monotonic_ns() + period))
 
     def now_nanos(self) -> int:

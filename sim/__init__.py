@@ -10,8 +10,9 @@ Library entry points (no runtime, no sockets):
   ``render_grasp("mug", tool_from_object, width_m=0.06, effects=("membrane", "depth"))``.
 
 An :class:`Instant` holds both bubbles' ``ToFImage`` (``images["left"]``), their true
-contact masks, ``Pressure`` messages (when ``pressure`` is on), the ``GripperState`` and
-the ``GroundTruth`` (when ``ground_truth`` is on), all with one stamp.
+contact masks, ``Pressure`` messages (when ``pressure`` is on), the ``GripperState``, the
+``GroundTruth`` (when ``ground_truth`` is on) and the ``WrenchTruth`` (when ``wrench`` is
+on), all with one stamp.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import numpy as np
 
 from geometry.gripper import SIDES
 from messages.base import Header
+from messages.force import WrenchTruth
 from messages.types import GripperState, GroundTruth, MaskImage, Pressure, ToFImage
 from sim.effects import ALL_EFFECTS, MINIMAL_EFFECTS, resolve
 from sim.scene import ObjectSpec, Scene, SceneError, load_scene, scene_from_dict
@@ -47,6 +49,7 @@ __all__ = [
     "resolve",
     "scene_from_dict",
     "stamp_of",
+    "wrench_truth",
 ]
 
 
@@ -76,6 +79,7 @@ class Instant:
     masks: dict[str, MaskImage] = field(default_factory=dict)
     pressures: dict[str, Pressure] = field(default_factory=dict)
     ground_truth: GroundTruth | None = None
+    wrench: WrenchTruth | None = None
     frames: dict[str, Any] = field(default_factory=dict)
 
 
@@ -113,6 +117,30 @@ def ground_truth(
         shear_left_m=np.asarray(snap.shear_in_tool_m["left"], dtype=np.float64),
         shear_right_m=np.asarray(snap.shear_in_tool_m["right"], dtype=np.float64),
         noise_seed=int(noise_seed),
+    )
+
+
+def wrench_truth(snap: WorldSnapshot, stamp_nanos: int) -> WrenchTruth:
+    """The world's true contact wrenches (``wrench`` effect), tool frame.
+
+    The object feels the opposite of what it does to both bubbles (the simulated world
+    has no other contact on it that pushes back: a support is kinematic).
+    """
+    force = np.zeros((2, 3))
+    torque = np.zeros((2, 3))
+    for i, side in enumerate(SIDES):
+        w = snap.wrench.get(side)
+        if w is not None:
+            force[i], torque[i] = w.force_n, w.torque_nm
+    return WrenchTruth(
+        header=Header(stamp_nanos=stamp_nanos, frame_id="tool"),
+        source="sim",
+        bubble_force_n=force,
+        bubble_torque_nm=torque,
+        object_force_n=-force.sum(axis=0),
+        object_torque_nm=-torque.sum(axis=0),
+        pressure_pa=[float(snap.pressure_pa[s]) for s in SIDES],
+        volume_m3=[float(snap.volume_m3.get(s, 0.0)) for s in SIDES],
     )
 
 
@@ -154,6 +182,8 @@ class Simulator:
                 snap, self.world.model.class_label, stamp, noise_seed=self.scene.seed
             )
             instant.masks = {s: f.contact_mask(stamp) for s, f in frames.items()}
+        if "wrench" in self.effects:
+            instant.wrench = wrench_truth(snap, stamp)
         return instant
 
 

@@ -17,7 +17,15 @@ tof_noise      camera  depth, ir               depth_m and amplitude with noise,
 pressure       world   -                       pressure_pa per bubble (gas law)
 gripper        world   pressure                speed-limited, force-controlled jaws
 ground_truth   world   -                       GroundTruth (pose, contact, shear)
+wrench         world   pressure                each bubble's true contact wrench
+slip           world   wrench                  the object slides under its load
 =============  ======  ======================  =====================================
+
+``wrench`` (``sim.friction``) also bounds each point's stick shift by its friction limit
+(``friction * p / stiffness``, smaller at the patch's edge) where ``shear`` renders the
+material's shift, so the dots show partial slip as the true wrench does. ``slip`` moves
+the object in the hand under the scene's ``load`` (weight, filling, a pull) against the
+bubbles' friction, so a firmer grasp holds what a light one drops.
 
 ``dot_pattern`` uses ``material_shift_m`` when ``shear`` is also listed (the dots move
 with the membrane); without ``shear`` the dots stay where the rest membrane holds them.
@@ -77,6 +85,8 @@ EFFECTS: dict[str, Effect] = {
             "speed-limited, force-controlled fingers",
         ),
         Effect("ground_truth", "world", (), ("ground_truth",), "true pose, contact, shear"),
+        Effect("wrench", "world", ("pressure",), ("wrench",), "true contact wrench per bubble"),
+        Effect("slip", "world", ("wrench",), ("slide_m",), "the object slides under its load"),
     )
 }
 

@@ -29,6 +29,25 @@ from geometry.se3 import invert
 
 
 @dataclass(frozen=True)
+class PatchSamples:
+    """The membrane samples of one bubble in contact (what ``sim.friction`` integrates).
+
+    ``points_in_tool`` are the pressed-in samples (tool frame), ``indentation_m`` how far
+    each is pressed in, ``area_m2`` its membrane area and ``projected_m2`` that area
+    projected on the plate, ``shift_in_tool_m`` the material's stick shift since the
+    anchor (tool (y, z), capped at the stick limit; zero without an anchor) and
+    ``normal_in_tool`` the plate's inward normal (the finger's x axis) in the tool frame.
+    """
+
+    points_in_tool: np.ndarray
+    indentation_m: np.ndarray
+    area_m2: np.ndarray
+    projected_m2: np.ndarray
+    shift_in_tool_m: np.ndarray
+    normal_in_tool: np.ndarray
+
+
+@dataclass(frozen=True)
 class ContactState:
     """One bubble's contact with the object at one instant (sample-grid model)."""
 
@@ -36,6 +55,7 @@ class ContactState:
     contact_area_m2: float
     in_contact: bool
     shear_in_tool_m: np.ndarray  # (2,) mean tangential membrane shift, tool (y, z)
+    samples: PatchSamples | None = None  # with ``keep_samples``, while in contact
 
 
 NO_SHEAR = np.zeros(2)
@@ -97,6 +117,7 @@ def contact_mechanics(
     tool_from_object: np.ndarray,
     anchor_tool_from_object: np.ndarray | None = None,
     max_shear_m: float = 0.006,
+    keep_samples: bool = False,
 ) -> ContactState:
     """Indentation, contact area and shear of one bubble on its sample grid.
 
@@ -109,6 +130,7 @@ def contact_mechanics(
         anchor_tool_from_object: the object's pose when this contact began (stick); None
             for no shear.
         max_shear_m: the stick limit: larger shifts slip and stay at this length.
+        keep_samples: also return the pressed samples (:class:`PatchSamples`).
     """
     object_from_finger = invert(tool_from_object) @ tool_from_finger
     pts = samples.points_f @ object_from_finger[:3, :3].T + object_from_finger[:3, 3]
@@ -127,13 +149,28 @@ def contact_mechanics(
     volume = float(np.sum(pen * area))
     projected = float(np.sum(area * samples.normals_f[idx, 0]))
     shear = NO_SHEAR
-    if anchor_tool_from_object is not None:
+    shift = None
+    p_tool = None
+    if anchor_tool_from_object is not None or keep_samples:
         pts_f = samples.points_f[idx] - pen[:, None] * samples.normals_f[idx]
         p_tool = pts_f @ tool_from_finger[:3, :3].T + tool_from_finger[:3, 3]
+    if anchor_tool_from_object is not None:
+        assert p_tool is not None
         shift = material_shift(p_tool, tool_from_object, anchor_tool_from_object, max_shear_m)
         weights = pen * area
         shear = (weights @ shift[:, 1:]) / weights.sum()
-    return ContactState(volume, projected, True, shear)
+    patch = None
+    if keep_samples:
+        assert p_tool is not None
+        patch = PatchSamples(
+            points_in_tool=p_tool,
+            indentation_m=pen,
+            area_m2=area,
+            projected_m2=area * samples.normals_f[idx, 0],
+            shift_in_tool_m=np.zeros((len(idx), 2)) if shift is None else shift[:, 1:],
+            normal_in_tool=tool_from_finger[:3, 0].copy(),
+        )
+    return ContactState(volume, projected, True, shear, patch)
 
 
 def material_shift(

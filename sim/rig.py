@@ -81,6 +81,13 @@ class BubbleSpec:
 
     ``compliance_m3_per_pa`` is how much the free membrane's volume grows per pascal
     (latex stretching elsewhere); ``max_shear_m`` is where stick turns to slip.
+
+    The contact's tangential mechanics (``sim.friction``, used by the ``wrench`` and
+    ``slip`` effects): ``friction`` is the latex's Coulomb coefficient on the object;
+    ``shear_stiffness_n_per_m3`` the tangential traction per metre of material shift
+    and per square metre of contact at the patch's centre; ``edge_stiffening`` how
+    much stiffer the patch's edge is (the stretched free membrane pulls on it), so the
+    edge reaches its friction limit and slips first.
     """
 
     semi_axis_normal_m: float = 0.04165
@@ -94,9 +101,14 @@ class BubbleSpec:
     max_shear_m: float = 0.006
     shear_blur_px: float = 20.0
     sample_spacing_m: float = 0.003
+    friction: float = 0.8
+    shear_stiffness_n_per_m3: float = 4.5e5
+    edge_stiffening: float = 1.0
 
     def __post_init__(self) -> None:
         positive(self, "ambient_pa", "max_shear_m", "sample_spacing_m")
+        positive(self, "friction", "shear_stiffness_n_per_m3")
+        nonnegative(self, "edge_stiffening")
         nonnegative(self, "inflation_pa", "dead_volume_m3", "compliance_m3_per_pa")
         nonnegative(self, "shear_blur_px")
 

@@ -3,8 +3,9 @@
 A scene names the object (one of ``geometry.objects``, with optional dimension
 overrides), its pose trajectory in the tool frame, the scripted gripper commands, the
 bubbles, the cameras, the dot pattern, the noise, the seed and the ``effects`` to
-simulate, and optionally a ``support`` the arm lowers the held object onto
-(``sim.support``). The hardware's sections (gripper, bubble, camera, pattern, noise,
+simulate, optionally a ``support`` the arm lowers the held object onto
+(``sim.support``), and the ``load`` on the held object (``sim.friction``: its mass, a
+filling, a pull; used by the ``slip`` effect). The hardware's sections (gripper, bubble, camera, pattern, noise,
 membrane) are defined in ``sim.rig``. Every section but ``object`` is optional and
 defaults to docs/facts.md figures::
 
@@ -40,7 +41,9 @@ import yaml
 
 from geometry.gripper import GripperGeometry
 from geometry.se3 import exp_so3, log_so3
+from messages.files import load_yaml, read_text
 from sim.effects import ALL_EFFECTS, resolve
+from sim.friction import LoadSpec
 from sim.rig import (
     BubbleSpec,
     CameraSpec,
@@ -127,6 +130,7 @@ class Scene:
     noise: NoiseSpec = field(default_factory=NoiseSpec)
     membrane: MembraneSpec = field(default_factory=MembraneSpec)
     support: SupportSpec | None = None  # a surface the arm lowers the object onto
+    load: LoadSpec = field(default_factory=LoadSpec)  # weight and pull (the ``slip`` effect)
     path: str = ""
 
     def __post_init__(self) -> None:
@@ -221,6 +225,7 @@ _SECTIONS: dict[str, type[Any]] = {
     "noise": NoiseSpec,
     "membrane": MembraneSpec,
     "support": SupportSpec,
+    "load": LoadSpec,
 }
 
 
@@ -328,24 +333,30 @@ def scene_path(path: str | Path) -> Path:
     the working directory, in the project (``scenes/mug_grasp.yaml`` works from any
     directory once the project is installed with ``pip install -e .``)."""
     p = Path(path)
-    if not p.is_absolute() and not p.exists() and (PROJECT_ROOT / p).exists():
-        return PROJECT_ROOT / p
+    try:
+        if not p.is_absolute() and not p.exists() and (PROJECT_ROOT / p).exists():
+            return PROJECT_ROOT / p
+    except OSError:  # a name the OS refuses (too long): reading it says so
+        pass
     return p
 
 
 def load_scene(path: str | Path) -> Scene:
-    """Load and check a scene file (``yaml.safe_load``); see :func:`scene_path`.
+    """Load and check a scene file (a regular file, YAML read within the bounds of
+    :mod:`messages.files`); see :func:`scene_path`.
 
     Raises:
         SceneError: unreadable file, bad YAML, or a bad field (named in the message).
     """
     p = scene_path(path)
     try:
-        text = p.read_text()
+        text = read_text(p)
     except OSError as err:
+        raise SceneError(f"{str(p)[:200]}: cannot read scene: {err.strerror}") from err
+    except ValueError as err:
         raise SceneError(f"{p}: cannot read scene: {err}") from err
     try:
-        data = yaml.safe_load(text)
+        data = load_yaml(text)
     except yaml.YAMLError as err:
         raise SceneError(f"{p}: bad YAML: {err}") from err
     return scene_from_dict(data, path=str(p))

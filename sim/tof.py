@@ -25,10 +25,12 @@ from typing import Any
 import cv2
 import numpy as np
 
+from geometry.camera import PinholeCamera
 from geometry.se3 import invert
 from messages.base import Header
 from messages.types import MaskImage, ToFImage
 from sim.effects import EFFECTS, camera_effects
+from sim.friction import slip_shift_m, stiffening
 from sim.membrane import CulledField, cull_to_bounds, march_to_surface
 from sim.scene import Scene
 from sim.world import WorldSnapshot
@@ -79,21 +81,36 @@ class BubbleFrame:
 class BubbleRenderer:
     """Renders one bubble of one scene (see the module docstring)."""
 
-    def __init__(self, scene: Scene, side: str) -> None:
+    def __init__(
+        self,
+        scene: Scene,
+        side: str,
+        *,
+        finger_from_sensor: np.ndarray | None = None,
+        camera: PinholeCamera | None = None,
+    ) -> None:
+        """``finger_from_sensor`` and ``camera`` replace the scene's nominal camera mount
+        and intrinsics (an as-built rig's camera, ``sim.emulated_rig``)."""
         if side not in SIDE_INDEX:
             raise ValueError(f"`side` must be 'left' or 'right', got {side!r}")
         self.scene = scene
         self.side = side
         self.effects = camera_effects(scene.resolved_effects)
+        self.friction = "wrench" in scene.resolved_effects
         self.calls: Counter[str] = Counter()
-        self.camera = scene.camera.intrinsics()
+        self.camera = camera if camera is not None else scene.camera.intrinsics()
         self.geometry = scene.gripper_geometry()
         self.model = scene.object_model()
         self.field = CulledField(self.model.field)
         self.bounds = self.field.bounds
         self.need_normals = "ir" in self.effects
         bubble = self.geometry.bubble
-        f_from_s = self.geometry.finger_from_sensor()
+        f_from_s = (
+            self.geometry.finger_from_sensor()
+            if finger_from_sensor is None
+            else np.asarray(finger_from_sensor, np.float64)
+        )
+        self.finger_from_sensor = f_from_s
         self._r_fs = f_from_s[:3, :3]
         self._o_f = f_from_s[:3, 3]
 
@@ -157,7 +174,7 @@ class BubbleRenderer:
         return BubbleFrame(self.side, frame, self.tool_from_sensor(snap.width_m))
 
     def tool_from_sensor(self, width_m: float) -> np.ndarray:
-        return self.geometry.tool_from_sensor(self.side, width_m)
+        return self.geometry.tool_from_finger(self.side, width_m) @ self.finger_from_sensor
 
     def _membrane(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
         # The membrane is a pure function of the object's pose and the opening: a held,
@@ -270,7 +287,14 @@ class BubbleRenderer:
         r = np.nan_to_num(frame["range_m"], nan=0.0)
         shift = r[..., None] * (self._unit32 @ lin.T.astype(np.float32)) + off.astype(np.float32)
         norm = np.sqrt(shift[..., 0] ** 2 + shift[..., 1] ** 2)
-        scale = np.minimum(1.0, self.scene.bubble.max_shear_m / np.maximum(norm, 1e-12))
+        limit: float | np.ndarray = self.scene.bubble.max_shear_m
+        if self.friction:
+            # Each point's friction limit (sim.friction): smaller towards the patch's edge.
+            indent = frame["indentation_m"]
+            g = stiffening(np.where(contact, indent, 0.0), self.scene.bubble.edge_stiffening)
+            pressure = snap.pressure_pa.get(self.side, 0.0)
+            limit = slip_shift_m(pressure, np.where(contact, g, 1.0), self.scene.bubble)
+        scale = np.minimum(1.0, limit / np.maximum(norm, 1e-12))
         frame["material_shift_m"] = shift * (scale * weight)[..., None].astype(np.float32)
 
     def _dot_pattern(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
@@ -319,6 +343,7 @@ class BubbleRenderer:
             np.float32
         )
         frame["invalid"] = invalid
+        frame["noise_m"] = sigma.astype(np.float32)  # the range noise's sigma, per pixel
 
     def texture(self) -> tuple[np.ndarray, tuple[float, float]]:
         """The printed sheet's albedo raster (built on first use) and its size in mm."""

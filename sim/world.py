@@ -11,6 +11,11 @@ is evaluated on its membrane sample grid (``sim.membrane.contact_mechanics``) wh
 effect needs it (``gripper``, ``pressure``, ``shear``, ``ground_truth``). A contact's
 anchor (the object's pose when that bubble first touched it) is what shear is measured
 against: material sticks to the object from then on, up to the slip limit.
+
+With ``wrench`` each bubble's true contact wrench is integrated over its pressed samples
+(``sim.friction``); with ``slip`` the object moves in the hand under the scene's
+``load`` against the bubbles' friction (its offset from the scripted pose is
+``WorldSnapshot.slide_m``), and a slipping bubble's anchor is dragged along.
 """
 
 from __future__ import annotations
@@ -20,13 +25,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from geometry.gripper import SIDES
+from sim.friction import BubbleWrench, SlipDynamics, bubble_wrench
 from sim.gripper import GripperDynamics
 from sim.membrane import ContactState, CulledField, contact_mechanics
 from sim.pressure import gauge_pressure_pa
 from sim.scene import Scene
 from sim.support import Placement, Support
 
-_CONTACT_EFFECTS = frozenset({"gripper", "pressure", "shear", "ground_truth"})
+_CONTACT_EFFECTS = frozenset({"gripper", "pressure", "shear", "ground_truth", "wrench", "slip"})
 
 
 @dataclass(frozen=True)
@@ -50,6 +56,14 @@ class WorldSnapshot:
     shear_in_tool_m: dict[str, np.ndarray] = field(
         default_factory=lambda: {s: np.zeros(2) for s in SIDES}
     )
+    # With ``wrench``: each bubble's true wrench and enclosed air volume.
+    wrench: dict[str, BubbleWrench] = field(default_factory=dict)
+    volume_m3: dict[str, float] = field(default_factory=dict)
+    # With ``slip``: the object's offset from its scripted pose (tool (y, z)), its
+    # velocity, and the external load on it (tool frame, weight and pull).
+    slide_m: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    slide_velocity_m_per_s: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    load_n: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
 
 class World:
@@ -67,7 +81,9 @@ class World:
         self.rest_volume_m3 = self.geometry.bubble.volume_m3() + scene.bubble.dead_volume_m3
         self.dynamics = GripperDynamics(scene.gripper, speed_limited="gripper" in effects)
         self.needs_contact = bool(effects & _CONTACT_EFFECTS)
-        self.tracks_anchors = bool(effects & {"shear", "ground_truth"})
+        self.tracks_anchors = bool(effects & {"shear", "ground_truth", "wrench"})
+        self.friction = "wrench" in effects
+        self.slip = SlipDynamics(scene.load, scene.bubble) if "slip" in effects else None
         self._script = sorted(scene.gripper.commands, key=lambda c: c.t_secs)
         self._next_command = 0
         self._anchors: dict[str, np.ndarray | None] = {s: None for s in SIDES}
@@ -79,6 +95,7 @@ class World:
             else None
         )
         self._release_due = False
+        self.placed: np.ndarray | None = None  # see place()
 
     @property
     def done(self) -> bool:
@@ -93,6 +110,11 @@ class World:
         self.dynamics.command(
             command, width_m=width_m, speed_m_per_s=speed_m_per_s, force_n=force_n
         )
+
+    def place(self, tool_from_object: np.ndarray | None) -> None:
+        """Hold the object at a pose from the next step on (a hand placing it, as the
+        emulated lab of a calibration does); None: back to the scene's trajectory."""
+        self.placed = None if tool_from_object is None else np.array(tool_from_object, float)
 
     def contact(
         self,
@@ -111,6 +133,7 @@ class World:
             tool_from_object=tool_from_object,
             anchor_tool_from_object=anchor,
             max_shear_m=self.scene.bubble.max_shear_m,
+            keep_samples=self.friction,
         )
 
     def pressure_pa(self, state: ContactState) -> float:
@@ -139,7 +162,7 @@ class World:
         """Advance to the next frame and return its snapshot."""
         self.frame_index += 1
         t = self.frame_index * self.scene.frame_period_secs
-        pose = self.scene.tool_from_object(t)
+        pose = self.scene.tool_from_object(t) if self.placed is None else self.placed
         while (
             self._next_command < len(self._script)
             and self._script[self._next_command].t_secs <= t + 1e-9
@@ -152,6 +175,8 @@ class World:
             self._next_command += 1
         pose = self._supported(pose, t)
         dt = self.scene.frame_period_secs if self.frame_index > 0 else 0.0
+        if self.slip is not None:
+            pose = self._slide(pose, t - dt, dt)
         # One contact evaluation per side and opening within a step: the gripper's force
         # loop and the snapshot share them. Anchors (for shear) are the previous
         # step's; a contact that starts now gets the current pose, i.e. zero shear.
@@ -173,6 +198,8 @@ class World:
         in_contact = {s: False for s in SIDES}
         pressure = {s: 0.0 for s in SIDES}
         shear = {s: np.zeros(2) for s in SIDES}
+        wrench: dict[str, BubbleWrench] = {}
+        volume: dict[str, float] = {}
         if self.needs_contact:
             for side, state in contacts(finger.width_m).items():
                 if self.tracks_anchors:
@@ -184,6 +211,14 @@ class World:
                 if "pressure" in self.effects:
                     pressure[side] = self.pressure_pa(state)
                 shear[side] = state.shear_in_tool_m
+                if self.friction:
+                    wrench[side], volume[side] = self._wrench(state, pressure[side])
+                if self.slip is not None:
+                    self.slip.hold(
+                        side, state.samples if state.in_contact else None, pressure[side]
+                    )
+            if self.slip is not None and finger.state == "holding" and all(in_contact.values()):
+                self.slip.held = True
         self.snapshot = WorldSnapshot(
             frame_index=self.frame_index,
             time_secs=t,
@@ -196,8 +231,47 @@ class World:
             pressure_pa=pressure,
             anchors={s: (None if a is None else a.copy()) for s, a in self._anchors.items()},
             shear_in_tool_m=shear,
+            wrench=wrench,
+            volume_m3=volume,
+            slide_m=np.zeros(2) if self.slip is None else self.slip.offset_m.copy(),
+            slide_velocity_m_per_s=(
+                np.zeros(2) if self.slip is None else self.slip.velocity_m_per_s.copy()
+            ),
+            load_n=np.zeros(3) if self.slip is None else self.scene.load.force_at(t),
         )
         return self.snapshot
+
+    # -- contact forces and slip (``sim.friction``) -------------------------------------
+
+    def _wrench(self, state: ContactState, pressure_pa: float) -> tuple[BubbleWrench, float]:
+        """A bubble's true wrench, and its air volume (cap and dead volume, gas law).
+
+        A contact that began this step has no anchor yet in ``state``: no stick shift."""
+        b = self.scene.bubble
+        air = (
+            self.rest_volume_m3
+            - state.displaced_volume_m3
+            + b.compliance_m3_per_pa * (pressure_pa - b.inflation_pa)
+        )
+        if not state.in_contact or state.samples is None:
+            return BubbleWrench.none(), air
+        assert state.samples is not None
+        return bubble_wrench(state.samples, pressure_pa, b), air
+
+    def _slide(self, pose: np.ndarray, t_prev: float, dt: float) -> np.ndarray:
+        """Integrate the object's slide over the last frame; the pose with it applied."""
+        assert self.slip is not None
+        if dt > 0 and self.snapshot is not None:
+            last = self.snapshot.tool_from_object
+            stick = {s: last[1:3, 3] - a[1:3, 3] for s, a in self._anchors.items() if a is not None}
+            drag = self.slip.step(t_prev, dt, stick)
+            for side, moved in drag.items():
+                anchor = self._anchors[side]
+                if anchor is not None:
+                    anchor[1:3, 3] += moved
+        slid = pose.copy()
+        slid[1:3, 3] += self.slip.offset_m
+        return slid
 
     # -- a support under the held object (the stacking task, ``sim.support``) ---------
 

@@ -22,6 +22,7 @@ the wrong size ``E_CMD_FORMAT_ERROR``, a value out of range ``E_RANGE_ERROR``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import select
 import socket
@@ -113,6 +114,18 @@ class WSG50Server:
         thread.start()
         self._threads.append(thread)
         return self
+
+    def drop_clients(self) -> int:
+        """Close every client's connection and keep listening (a cable pulled and put back,
+        a gripper that reboots); returns how many were open."""
+        dropped = 0
+        for conn in list(self._connections):
+            if conn.open:
+                conn.open = False
+                with contextlib.suppress(OSError):
+                    conn.sock.shutdown(socket.SHUT_RDWR)
+                dropped += 1
+        return dropped
 
     def close(self) -> None:
         self._closing.set()

@@ -33,7 +33,7 @@ from messages.types import (
     ToFImage,
 )
 from viz.rerun_log import mask_centroid
-from viz.shapes import object_mesh, sensor_from_object
+from viz.shapes import camera_pose, object_mesh, sensor_from_object
 
 SIDES = ("left", "right")
 BAR_PX = 44
@@ -144,7 +144,8 @@ class MosaicState:
         if self.pose is not None and self.pose.status in ("ok", "recovered"):
             poses.append((self.pose.tool_from_object, ESTIMATE_BGR))
         for tool_from_object, color in poses:
-            pts = mesh.transformed(sensor_from_object(side, self.width_m, tool_from_object))
+            camera_in_tool = camera_pose(side, self.width_m, self.images.get(side))
+            pts = mesh.transformed(sensor_from_object(camera_in_tool, tool_from_object))
             hull = outline_px(camera, pts)
             if hull is not None:
                 cv2.polylines(panel, [hull], True, color, 1, cv2.LINE_AA)

@@ -3,8 +3,9 @@
 Entity tree (one recording; the timeline ``stamp`` is each message's header stamp):
 
 * ``tool``: the gripper tool frame, the 3D space.
-* ``tool/{side}_sensor``: the bubble camera: ``Transform3D`` (``tool_from_sensor`` at the
-  gripper's measured opening) and ``Pinhole`` (its intrinsics, RDF: x right, y down, z
+* ``tool/{side}_sensor``: the bubble camera: ``Transform3D`` (the ``tool_from_sensor``
+  its frames carry; for frames that carry none, the CAD mount at the gripper's measured
+  opening) and ``Pinhole`` (its intrinsics, RDF: x right, y down, z
   forward); under it, 2D in its image: ``depth`` (``DepthImage``, metres, ``meter=1``),
   ``ir`` (``Image``), ``shear`` (``Arrows2D``: the mean shear from the mask's centroid),
   ``mask/{node}`` (``SegmentationImage``), ``overlay`` (the shear tracker's drawing).
@@ -29,7 +30,6 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from geometry.gripper import tool_from_sensor
 from messages.base import Message
 from messages.sim import PlacementTruth
 from messages.types import (
@@ -45,9 +45,10 @@ from messages.types import (
     ShearEstimate,
     TaskEvent,
     ToFImage,
+    pose_is_known,
 )
 from viz.display import require_display
-from viz.shapes import object_mesh
+from viz.shapes import camera_pose, object_mesh
 
 TIMELINE = "stamp"
 BUBBLE_COLORS = np.array([[66, 135, 245], [245, 130, 48]], dtype=np.uint8)  # left, right
@@ -121,6 +122,7 @@ class RerunLogger:
         self.masks: dict[str, np.ndarray] = {}
         self.shapes: dict[str, tuple[int, int]] = {}
         self.intrinsics: dict[str, tuple[float, ...]] = {}
+        self.placed: set[str] = set()  # sides whose frames carry their camera pose
         self.pose_status = "ok"
         self.meshes_logged: set[tuple[str, str]] = set()
         self.logged: Counter[str] = Counter()
@@ -142,6 +144,9 @@ class RerunLogger:
     def _log_ToFImage(self, topic: str, msg: ToFImage) -> None:
         side = _sensor(msg.sensor, msg.header.frame_id)
         base = f"tool/{side}_sensor"
+        if pose_is_known(msg.tool_from_sensor):
+            self.placed.add(side)
+            self._camera(side, camera_pose(side, 0.0, msg))
         image = msg.depth_m if msg.depth_m.size else msg.ir
         height, width = image.shape
         self.shapes[side] = (height, width)
@@ -196,11 +201,13 @@ class RerunLogger:
         if self.width_m is None or abs(msg.width_m - self.width_m) > WIDTH_STEP_M:
             self.width_m = msg.width_m
             for side in ("left", "right"):
-                pose = tool_from_sensor(side, msg.width_m)
-                self.rec.log(
-                    f"tool/{side}_sensor",
-                    rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]),
-                )
+                if side not in self.placed:
+                    self._camera(side, camera_pose(side, msg.width_m))
+
+    def _camera(self, side: str, pose: np.ndarray) -> None:
+        self.rec.log(
+            f"tool/{side}_sensor", rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3])
+        )
 
     def _log_ContactPatch(self, topic: str, msg: ContactPatch) -> None:
         colors = BUBBLE_COLORS[np.minimum(msg.bubble, 1)]

@@ -17,6 +17,7 @@ from geometry.fields import Box, CappedCylinder, Capsule, Field, Frustum, Sphere
 from geometry.gripper import tool_from_sensor
 from geometry.objects import NAMES, make
 from geometry.se3 import invert
+from messages.types import ToFImage, pose_is_known
 
 SEGMENTS = 32  # around the axis of a body of revolution
 ARC_STEPS = 6  # per quarter circle of a capsule's or sphere's profile
@@ -111,6 +112,18 @@ def object_mesh(name: str) -> Mesh | None:
     return field_mesh(make(name).field)
 
 
-def sensor_from_object(side: str, width_m: float, tool_from_object: np.ndarray) -> np.ndarray:
-    """Pose of the object in ``side``'s camera frame at jaw opening ``width_m``."""
-    return invert(tool_from_sensor(side, width_m)) @ tool_from_object
+def camera_pose(side: str, width_m: float, image: ToFImage | None = None) -> np.ndarray:
+    """``side``'s camera in the tool frame: where ``image`` (its newest frame) says it was
+    taken (the pose its source placed it at: the scene's or the rig calibration's mount at
+    the opening of its stamp, ``geometry.mount``); the CAD mount at ``width_m`` for a
+    frame that carries none, or without a frame."""
+    if image is not None and pose_is_known(image.tool_from_sensor):
+        return np.asarray(image.tool_from_sensor, dtype=np.float64)
+    return tool_from_sensor(side, width_m)
+
+
+def sensor_from_object(
+    tool_from_sensor_pose: np.ndarray, tool_from_object: np.ndarray
+) -> np.ndarray:
+    """Pose of the object in the frame of a camera at ``tool_from_sensor_pose``."""
+    return invert(tool_from_sensor_pose) @ tool_from_object

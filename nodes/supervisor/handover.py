@@ -1,15 +1,26 @@
 """``supervisor.handover`` (paper, task 3: shear-based release and handover).
 
 Closes the gripper on the object, waits for the grasp monitor's stable grasp, then
-watches both bubbles' shear; when the shear magnitude (the mean displacement per pixel
-of the membrane against the stable-grasp reference, ``ShearEstimate.magnitude_px``)
-stays above ``release_shear_px`` for ``confirm_frames`` frames (someone pulls), it opens
-the gripper and reports the pull direction. It ends the graph once the grasp is
+decides, for as long as it holds the object, between letting go and holding on:
+
+* **Release on a pull.** With the ``wrench`` input wired: when the bubbles' force on
+  the object has changed since the stable grasp by ``release_force_n`` or more, in a
+  direction other than straight up against ``gravity_in_tool`` (a person pulls), for
+  ``force_confirm_frames`` estimates (``perception.force.reflex.PullWatch``). Without
+  it, the paper's rule: when a bubble's shear magnitude (``ShearEstimate.magnitude_px``,
+  the mean displacement of the membrane against the stable-grasp reference) stays at
+  or above ``release_shear_px`` for ``confirm_frames`` frames.
+* **Squeeze on slip.** With the ``slip`` input wired and ``reflex`` on: a slip onset
+  that is not a pull (the object is getting heavier) raises the grip force
+  (``perception.force.reflex.GripReflex``) up to ``max_grip_force_n``.
+
+It reports the pull's direction with the release, and ends the graph once the grasp is
 released, or at ``timeout_secs``.
 
 Ports:
     inputs: ``grasp`` (GraspState); ``shear`` (ShearEstimate); ``pose`` (PoseEstimate,
-        optional: the last estimate is reported with each event).
+        optional: the last estimate is reported with each event); ``wrench``
+        (WrenchEstimate, optional); ``slip`` (SlipState, optional).
     outputs: ``command`` (GripperCommand), ``event`` (TaskEvent, task ``handover``).
 """
 
@@ -20,14 +31,24 @@ from dataclasses import dataclass
 import numpy as np
 
 from messages import GraspState, PoseEstimate, ShearEstimate
+from messages.force import SlipState, WrenchEstimate
 from nodes.supervisor.base import SingleGraspTask, TaskParams
+from perception.force.reflex import GripReflex, PullWatch, ReflexParams
 from runtime.registry import register
 
 
 @dataclass(frozen=True, kw_only=True)
 class HandoverParams(TaskParams):
+    """The release rules (shear, or force with ``wrench`` wired) and the slip reflex."""
+
     release_shear_px: float = 1.5
     confirm_frames: int = 3
+    release_force_n: float = 0.6
+    force_confirm_frames: int = 2
+    gravity_in_tool: tuple[float, float, float] = (0.0, -1.0, 0.0)
+    reflex: bool = True
+    max_grip_force_n: float = 40.0
+    friction: float = 0.8
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -35,6 +56,15 @@ class HandoverParams(TaskParams):
             raise ValueError(f"`release_shear_px` must be > 0, got {self.release_shear_px!r}")
         if self.confirm_frames < 1:
             raise ValueError(f"`confirm_frames` must be >= 1, got {self.confirm_frames!r}")
+        if not self.release_force_n > 0:
+            raise ValueError(f"`release_force_n` must be > 0, got {self.release_force_n!r}")
+        if self.force_confirm_frames < 1:
+            raise ValueError(
+                f"`force_confirm_frames` must be >= 1, got {self.force_confirm_frames!r}"
+            )
+        if not self.friction > 0:
+            raise ValueError(f"`friction` must be > 0, got {self.friction!r}")
+        ReflexParams(max_force_n=self.max_grip_force_n)
 
 
 class ShearWatch:
@@ -65,19 +95,65 @@ def describe_shear(msg: ShearEstimate) -> str:
 
 @register("supervisor.handover")
 class HandoverSupervisor(SingleGraspTask):
-    """Release the object when a pull shears the bubbles (see the module docstring)."""
+    """Release the object on a pull, squeeze it on slip (see the module docstring)."""
 
     Params = HandoverParams
-    inputs = {"grasp": GraspState, "shear": ShearEstimate, "pose": PoseEstimate}
-    optional_inputs = frozenset({"pose"})
+    inputs = {
+        "grasp": GraspState,
+        "shear": ShearEstimate,
+        "pose": PoseEstimate,
+        "wrench": WrenchEstimate,
+        "slip": SlipState,
+    }
+    optional_inputs = frozenset({"pose", "wrench", "slip"})
     task = "handover"
 
     def setup(self) -> None:
         super().setup()
-        self.watch = ShearWatch(self.params.release_shear_px, self.params.confirm_frames)
+        p = self.params
+        self.watch = ShearWatch(p.release_shear_px, p.confirm_frames)
+        self.pull = PullWatch(p.release_force_n, p.force_confirm_frames, p.gravity_in_tool)
+        self.reflex = GripReflex(
+            ReflexParams(max_force_n=p.max_grip_force_n), p.grasp_force_n, p.friction
+        )
+        self.uses_force = False
+        self.object_force_n: np.ndarray | None = None
+
+    def on_stable(self) -> None:
+        if self.object_force_n is not None:
+            self.pull.start(self.object_force_n)
 
     def on_shear(self, msg: ShearEstimate) -> None:
-        if self.state != "holding":
+        if self.state != "holding" or self.uses_force:
             return
         if self.watch.update(msg):
             self.release(f"pull {describe_shear(msg)}")
+
+    def on_wrench(self, msg: WrenchEstimate) -> None:
+        self.uses_force = True
+        self.object_force_n = msg.object_force_n
+        if self.state != "holding":
+            return
+        if self.pull.reference is None:
+            self.pull.start(msg.object_force_n)
+        if self.pull.update(msg.object_force_n):
+            change = self.pull.change_n
+            self.release(
+                f"pull of {np.linalg.norm(change):.2f} N along tool"
+                f" ({change[0]:.2f}, {change[1]:.2f}, {change[2]:.2f})"
+            )
+
+    def on_slip(self, msg: SlipState) -> None:
+        if self.state != "holding" or not msg.onset or not self.params.reflex:
+            return
+        if self.pull.count > 0:
+            return  # a pull is building: the release, not a squeeze, answers it
+        load = 0.0 if self.object_force_n is None else float(np.hypot(*self.object_force_n[1:]))
+        force = self.reflex.on_slip(msg.header.stamp_nanos / 1e9, load)
+        if force is None:
+            return
+        self.command("grasp", self.params.grasp_width_m, force_n=force)
+        self.event(
+            "squeeze",
+            f"{msg.sensor} bubble slips ({msg.onset}, use {msg.use:.2f}); grip {force:.1f} N",
+        )

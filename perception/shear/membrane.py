@@ -143,6 +143,12 @@ class MembraneGeometry:
             ``(s1, s2, d1, d2)``: 1D tangent coordinates of the reference points and
             their tangential displacements (m), for the pixels where all are finite.
         """
+        return self.tangential_displacement_full(flow, indices, depth_cur_m)[:4]
+
+    def tangential_displacement_full(
+        self, flow: np.ndarray, indices: np.ndarray, depth_cur_m: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`tangential_displacement_m` plus the flat indices of the pixels kept."""
         map_x = self.grid_x + flow[..., 0]
         map_y = self.grid_y + flow[..., 1]
         # NaN outside the image or next to invalid depth.
@@ -169,4 +175,4 @@ class MembraneGeometry:
         t = self.basis
         d1 = t[0, 0] * x + t[0, 1] * y + t[0, 2] * z
         d2 = t[1, 0] * x + t[1, 1] * y + t[1, 2] * z
-        return self.positions_m[0][indices], self.positions_m[1][indices], d1, d2
+        return self.positions_m[0][indices], self.positions_m[1][indices], d1, d2, indices

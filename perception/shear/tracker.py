@@ -106,6 +106,11 @@ class ShearTracker:
         return self._ref is not None
 
     @property
+    def reference_geometry(self) -> MembraneGeometry | None:
+        """The reference membrane's geometry (None without a reference or its depth)."""
+        return None if self._ref is None else self._ref.geometry
+
+    @property
     def reference_shape(self) -> tuple[int, int] | None:
         """``(rows, cols)`` of the reference image, or None without a reference."""
         return None if self._ref is None else self._ref.full_shape

@@ -8,10 +8,21 @@ import numpy as np
 import pytest
 
 from devices.royale import convert
+from geometry.camera import PinholeCamera
+from geometry.gripper import tool_from_sensor
+from geometry.se3 import make_pose, rotation_about
+from messages.base import Header
 from messages.errors import NodeError
+from messages.types import GripperState
 from nodes.bubble_camera import RoyaleBubbleCamera
-from runtime.testing import make_node
-from tests.devices import fake_roypy
+from nodes.contact_patch import ContactPatchNode
+from runtime.testing import feed, make_node
+from sim import render_grasp
+from sim.emulated_rig import sdk_points
+from sim.royale_sdk import roypy as fake_roypy
+from sim.scene import CameraSpec
+
+CAMERA: PinholeCamera = CameraSpec().intrinsics()
 
 
 def _points(height: int = 171, width: int = 224) -> np.ndarray:
@@ -43,7 +54,13 @@ def test_node_publishes_frames_with_the_cameras_intrinsics(monkeypatch: pytest.M
     roypy = fake_roypy.module("0005-1203-0034-2215")
     monkeypatch.setitem(sys.modules, "roypy", roypy)
     node, io = make_node(
-        RoyaleBubbleCamera, {"sensor": "left", "use_case": "MODE_5_45FPS_500", "exposure_us": 300}
+        RoyaleBubbleCamera,
+        {
+            "sensor": "left",
+            "use_case": "MODE_5_45FPS_500",
+            "exposure_us": 300,
+            "opening_wait_secs": 0.0,  # no gripper wired: publish at once, without a pose
+        },
     )
     camera = roypy.cameras["0005-1203-0034-2215"]
     assert camera.use_case == "MODE_5_45FPS_500" and camera.exposure_us == 300
@@ -81,3 +98,42 @@ def test_unknown_use_case_and_camera_are_listed(monkeypatch: pytest.MonkeyPatch)
         make_node(RoyaleBubbleCamera, {"sensor": "left"})
     with pytest.raises(NodeError, match=r"no use case 'MODE_X'; it offers \['MODE_9_5FPS_2000'"):
         make_node(RoyaleBubbleCamera, {"sensor": "left", "camera_id": "B", "use_case": "MODE_X"})
+
+
+def test_royale_frames_are_placed_in_the_tool_frame_and_make_a_contact_patch(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The hardware graph's path: the SDK's points, the gripper's opening at the frame's
+    stamp, the contact patch. (Before frames carried ``tool_from_sensor`` the contact
+    patch refused every one of them: no patch came.)"""
+    roypy = fake_roypy.module("CAM-L")
+    monkeypatch.setitem(sys.modules, "roypy", roypy)
+    camera_node, camera_io = make_node(RoyaleBubbleCamera, {"sensor": "left"})
+    camera = roypy.cameras["CAM-L"]
+    patch_node, patch_io = make_node(
+        ContactPatchNode, {"reference_frames": 1, "contact": {"min_component_px": 20}}
+    )
+    mug = make_pose(rotation_about(np.array([1.0, 0.0, 0.0]), np.pi / 2))  # axis along tool y
+    free = make_pose(trans=np.array([0.0, 0.0, 0.5]))  # far from both bubbles
+    for k, (width, pose) in enumerate(((0.11, free), (0.06, mug))):
+        stamp = (k + 1) * 100_000_000
+        instant = render_grasp("mug", pose, width, effects=("depth", "ir"))
+        camera.emit(sdk_points(instant.frames["left"].arrays, CAMERA), stamp_us=stamp // 1000)
+        state = GripperState(
+            header=Header(stamp_nanos=stamp + 1), width_m=width, speed_m_per_s=0.0, force_n=0.0
+        )
+        feed(camera_node, "gripper", state)
+        feed(patch_node, "gripper", state)
+        camera_node.tick()
+        image = camera_io.published["image"][-1]
+        assert np.allclose(image.tool_from_sensor, tool_from_sensor("left", width), atol=1e-6)
+        right = instant.images["right"]
+        right.header.stamp_nanos = stamp
+        feed(patch_node, "left", image)
+        feed(patch_node, "right", right)
+    (_, patch) = patch_io.published["patch"]
+    left = patch.points_in_tool[patch.bubble == 0]
+    assert len(left) > 100
+    # On the mug (radius 40 mm about tool y), where the left bubble (tool x > 0) meets it.
+    radius = np.hypot(left[:, 0], left[:, 2])
+    assert np.median(np.abs(radius - 0.04)) < 0.002 and np.all(left[:, 0] > 0)

@@ -160,3 +160,16 @@ def test_node_images_are_bit_identical_to_the_library(tmp_path: Path) -> None:
     lib_image = sim.render(scene_path, state.time_secs).images["right"]
     assert node_image.depth_m.tobytes() == lib_image.depth_m.tobytes()
     assert node_image.ir.tobytes() == lib_image.ir.tobytes()
+
+
+def test_world_publishes_its_wrench_only_when_the_scene_lists_it(tmp_path: Path) -> None:
+    effects = ["membrane", "depth", "pressure", "gripper", "wrench"]
+    _, io = _run_world(_scene_file(tmp_path, effects=effects))
+    wrenches = io.published["wrench"]
+    states = io.published["state"]
+    assert [w.header.stamp_nanos for w in wrenches] == [s.header.stamp_nanos for s in states]
+    last = wrenches[-1]
+    assert last.source == "sim" and last.bubble_force_n[0, 0] > 0 > last.bubble_force_n[1, 0]
+    np.testing.assert_allclose(last.object_force_n, -last.bubble_force_n.sum(axis=0))
+    _, plain = _run_world(_scene_file(tmp_path))
+    assert "wrench" not in plain.published

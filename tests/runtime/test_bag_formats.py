@@ -15,9 +15,10 @@ import nodes.recorder  # noqa: F401  (registers the implementations the replay g
 import nodes.replay  # noqa: F401
 from cli.run import launch
 from messages.base import Header, Message
+from messages.meaning import NOTES, unit_of
 from messages.types import ContactPatch, OverlayImage, Pressure, Tick, ToFImage
 from runtime.bag import PACKING, PACKING_V1, BagReader, BagWriter
-from runtime.bag.schema import NOTES, reader_guide, unit_of
+from runtime.bag.schema import reader_guide
 from runtime.replaygraph import ReplayOptions, build_replay_graph
 
 V1_BAG = Path(__file__).parent / "data" / "bag_v1_multipart.mcap"

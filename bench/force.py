@@ -1,0 +1,445 @@
+"""The bubble as a force sensor: ``python -m bench.force``.
+
+Four sweeps on simulated grasps (``bench.force_data``: random objects, grips and loads,
+every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` effects):
+
+* ``wrench``: error against time per method (``physics``, ``ridge``) and per dot-flow
+  setting (Farneback at half and quarter resolution, DIS at half): each setting's
+  features of the *calibration* grasps (seeds ``0 .. n-1``) fit both methods, which are
+  scored on *held-out* grasps (seeds ``n .. 2n-1``: other objects, grips and loads).
+  Errors per bubble and frame in contact: force (N), torque (N m), force in percent of
+  the bubble's true load; median and p90; plus the share of frames within the goal
+  (10% or 0.3 N, whichever is larger). Time: features and estimate of both bubbles per
+  frame on one core (the least of ``TIMING_REPEATS`` runs of the first test grasp's
+  frames, thread CPU time), and the rate it allows.
+* ``slip``: per bubble and held-out grasp whose patch slipped (truth), the detector's
+  edge onset against the truth's (the first frame any of the patch slips) and its patch
+  onset against the first frame the whole patch slips: detected (within
+  ``MAX_LATE_FRAMES`` after), latency in frames and ms (negative: before the truth);
+  false alarms per minute of still holding (onsets while the truth is stuck and stays
+  so for ``MAX_EARLY_FRAMES``).
+* ``reflex``: grasps whose load outgrows the grip (fillings, and weights held too
+  lightly), run closed loop twice, without and with the reflex (slip onset: raise the
+  grip, bounded per object, ``perception.force.reflex``); kept (slid less than
+  ``DROP_M``) or dropped.
+* ``handover``: the handover's pull (``scenes/handover_task.yaml`` with the pull's start
+  drawn as ``bench.tasks`` draws it): frames from the pull's start to the release
+  decision by the shear rule (the paper's: 1.5 px for 3 frames) and by the force rule
+  (the supervisor's with ``wrench`` wired), in data time; and the held-still scene's
+  false releases. Decisions only: the graph's latency adds the pipeline's
+  (``bench.tasks``).
+
+``--quick`` runs two grasps per set, one reflex grasp and one handover.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+import sim
+from bench.common import Row, main, median, one_core, percentile, progress
+from bench.force_data import OBJECTS, Frame, draw, free_and_still, samples
+from geometry.camera import PinholeCamera
+from geometry.gripper import SIDES
+from perception.force.estimators import METHODS, Calibration, calibrate, estimate
+from perception.force.features import BubbleFeatures, ContactFeatures, FeatureParams
+from perception.force.reflex import GripReflex, PullWatch, ReflexParams
+from perception.force.slip import SlipDetector
+from perception.grasp import GraspMonitor
+from perception.shear import ShearParams, ShearTracker, tool_basis
+
+SETTINGS = {
+    "fb_half": ShearParams(scale=0.5, warm_start=True),
+    "fb_quarter": ShearParams(scale=0.25, warm_start=True),
+    "dis_half": ShearParams(method="dis", scale=0.5, warm_start=True),
+}
+DEFAULT_SETTING = "fb_half"
+TIMING_REPEATS = 3
+MAX_LATE_FRAMES = 15
+MAX_EARLY_FRAMES = 15
+DROP_M = 0.010
+GOAL_FRACTION, GOAL_N = 0.10, 0.3
+
+
+@dataclass
+class Recorded:
+    """One grasp's frames, with the features of every setting."""
+
+    frames: list[Frame]
+    by_setting: dict[str, list[dict[str, ContactFeatures]]] = field(default_factory=dict)
+    frame_secs: float = 0.0
+
+
+class Bubbles:
+    """Both bubbles' feature extraction as the ``wrench`` node does it, for one setting."""
+
+    def __init__(self, flow: ShearParams) -> None:
+        self.extractors = {s: BubbleFeatures(FeatureParams(flow=flow)) for s in SIDES}
+
+    def frame(self, inst: sim.Instant, scene: sim.Scene) -> dict[str, ContactFeatures]:
+        snap = inst.snapshot
+        out = {}
+        for side in SIDES:
+            img, ext = inst.images[side], self.extractors[side]
+            camera = PinholeCamera.from_frame(img)
+            if free_and_still(snap, scene):
+                ext.free_frame(img.depth_m, snap.pressure_pa[side])
+                ext.untare()
+            elif snap.gripper_state == "holding" and not ext.tared:
+                ext.tare(img.ir, img.depth_m, camera, img.tool_from_sensor)
+            out[side] = ext.update(
+                img.ir, img.depth_m, snap.pressure_pa[side], camera, img.tool_from_sensor
+            )
+        return out
+
+
+def record_all(seed: int, duration_secs: float) -> Recorded:
+    """Render one grasp once; every setting extracts its features from the same frames."""
+    spec = draw(seed, duration_secs=duration_secs)
+    simulator = sim.Simulator(spec.scene)
+    bubbles = {name: Bubbles(flow) for name, flow in SETTINGS.items()}
+    rec = Recorded([], {name: [] for name in SETTINGS})
+    none = sim.friction.BubbleWrench.none()
+    while not simulator.world.done:
+        inst = simulator.step()
+        snap = inst.snapshot
+        for name, b in bubbles.items():
+            rec.by_setting[name].append(b.frame(inst, spec.scene))
+        rec.frames.append(
+            Frame(
+                t_secs=snap.time_secs,
+                features=rec.by_setting[DEFAULT_SETTING][-1],
+                force_n={s: snap.wrench.get(s, none).force_n for s in SIDES},
+                torque_nm={s: snap.wrench.get(s, none).torque_nm for s in SIDES},
+                slipping={s: snap.wrench.get(s, none).slipping_fraction for s in SIDES},
+                slide_m=snap.slide_m.copy(),
+                feature_secs=0.0,
+            )
+        )
+    return rec
+
+
+def time_setting(seed: int, duration_secs: float, setting: str, cal: Calibration) -> float:
+    """Seconds per frame (both bubbles: features and both methods' estimates), the least
+    of ``TIMING_REPEATS`` runs over one grasp's frames, thread CPU time."""
+    spec = draw(seed, duration_secs=duration_secs)
+    simulator = sim.Simulator(spec.scene)
+    instants = []
+    while not simulator.world.done:
+        instants.append(simulator.step())
+    best = float("inf")
+    for _ in range(TIMING_REPEATS):
+        bubbles = Bubbles(SETTINGS[setting])
+        start = time.thread_time()
+        for inst in instants:
+            feats = bubbles.frame(inst, spec.scene)
+            for side in SIDES:
+                estimate(feats[side], side, cal, "physics")
+        best = min(best, (time.thread_time() - start) / len(instants))
+    return best
+
+
+def wrench_rows(cal_recs: list[Recorded], test_recs: list[Recorded], secs: dict[str, float]):
+    rows: list[Row] = []
+    cals: dict[str, Calibration] = {}
+    for setting in SETTINGS:
+        data = []
+        for rec in cal_recs:
+            frames = [
+                dataclasses.replace(f, features=feats)
+                for f, feats in zip(rec.frames, rec.by_setting[setting], strict=True)
+            ]
+            data += samples(frames)
+        cal = calibrate(data, rig="sim", source="bench.force")
+        cals[setting] = cal
+        for method in METHODS:
+            ferr, terr, pct, within = [], [], [], []
+            for rec in test_recs:
+                for f, feats in zip(rec.frames, rec.by_setting[setting], strict=True):
+                    for side in SIDES:
+                        if not feats[side].in_contact or not np.any(f.force_n[side]):
+                            continue
+                        w = estimate(feats[side], side, cal, method)
+                        e = float(np.linalg.norm(w.force_n - f.force_n[side]))
+                        load = float(np.linalg.norm(f.force_n[side]))
+                        ferr.append(e)
+                        terr.append(float(np.linalg.norm(w.torque_nm - f.torque_nm[side])))
+                        pct.append(100.0 * e / load)
+                        within.append(e <= max(GOAL_FRACTION * load, GOAL_N))
+            rows.append(
+                {
+                    "sweep": "wrench",
+                    "setting": setting,
+                    "method": method,
+                    "samples": len(ferr),
+                    "force_err_n_median": median(ferr),
+                    "force_err_n_p90": percentile(ferr, 90),
+                    "force_err_pct_median": median(pct),
+                    "torque_err_nm_median": median(terr),
+                    "torque_err_nm_p90": percentile(terr, 90),
+                    "within_goal_fraction": float(np.mean(within)) if within else float("nan"),
+                    "ms_per_frame": secs[setting] * 1000.0,
+                    "rate_hz": 1.0 / secs[setting],
+                }
+            )
+    return rows, cals
+
+
+def first(flags: list[bool]) -> int | None:
+    return next((i for i, f in enumerate(flags) if f), None)
+
+
+def slip_rows(test_recs: list[Recorded], cal: Calibration, period_secs: float) -> list[Row]:
+    """Onsets against the truth's, and false alarms while held still (module docstring)."""
+    found: dict[str, list[float]] = {"edge": [], "patch": []}
+    missed = {"edge": 0, "patch": 0}
+    false_alarms, still_secs = 0, 0.0
+    for rec in test_recs:
+        for side in SIDES:
+            detector = SlipDetector(friction=cal.friction)
+            onsets: dict[str, int] = {}
+            stable = False
+            for i, f in enumerate(rec.frames):
+                feats = f.features[side]
+                if (
+                    not stable
+                    and feats.tracked
+                    and i > 0
+                    and rec.frames[i - 1].features[side].tracked
+                ):
+                    detector.reference()  # the tare and a frame more: the grasp is held
+                    stable = True
+                w = estimate(feats, side, cal, "physics")
+                report = detector.update(feats, w.force_n, f.t_secs)
+                truth_now = f.slipping[side]
+                soon = [g.slipping[side] for g in rec.frames[i : i + MAX_EARLY_FRAMES]]
+                if report.onset:
+                    onsets.setdefault(report.onset, i)
+                    if report.onset == "edge" and max(soon) == 0.0:
+                        false_alarms += 1
+                if stable and max(soon) == 0.0 and truth_now == 0.0:
+                    still_secs += period_secs
+            truth = {
+                "edge": first([f.slipping[side] > 0.0 for f in rec.frames]),
+                "patch": first([f.slipping[side] >= 1.0 for f in rec.frames]),
+            }
+            for phase in ("edge", "patch"):
+                if truth[phase] is None:
+                    continue
+                # A patch onset found as an edge onset counts (the detector went there).
+                got = [onsets.get(p) for p in (("edge",) if phase == "edge" else ("patch",))]
+                got = [g for g in got if g is not None]
+                lag = got[0] - truth[phase] if got else None
+                if lag is not None and -MAX_EARLY_FRAMES <= lag <= MAX_LATE_FRAMES:
+                    found[phase].append(float(lag))
+                else:
+                    missed[phase] += 1
+    rows: list[Row] = []
+    for phase in ("edge", "patch"):
+        lags = found[phase]
+        total = len(lags) + missed[phase]
+        rows.append(
+            {
+                "sweep": "slip",
+                "setting": DEFAULT_SETTING,
+                "method": f"onset_{phase}",
+                "samples": total,
+                "detected_fraction": len(lags) / total if total else float("nan"),
+                "onset_frames_median": median(lags),
+                "onset_ms_median": median(lags) * period_secs * 1000.0,
+                "onset_frames_max": max(lags) if lags else float("nan"),
+                "false_alarms_per_min": false_alarms / (still_secs / 60.0)
+                if still_secs
+                else float("nan"),
+                "still_secs": still_secs,
+            }
+        )
+    return rows
+
+
+def closed_loop(seed: int, duration_secs: float, cal: Calibration, *, reflex: bool) -> dict:
+    """One grasp whose load outgrows its grip, with or without the reflex."""
+    spec = draw(seed, duration_secs=duration_secs, load="fill")
+    scene = spec.scene
+    simulator = sim.Simulator(scene)
+    bubbles = Bubbles(SETTINGS[DEFAULT_SETTING])
+    monitor = GraspMonitor()
+    detectors = {s: SlipDetector(friction=cal.friction) for s in SIDES}
+    limit = OBJECTS[spec.object][3]
+    grip = GripReflex(ReflexParams(max_force_n=limit), spec.grip_n, cal.friction)
+    stable = False
+    while not simulator.world.done:
+        inst = simulator.step()
+        snap = inst.snapshot
+        stamp = sim.stamp_of(snap)
+        for side in SIDES:
+            monitor.update_pressure(side, snap.pressure_pa[side], stamp)
+        status = monitor.update_gripper(snap.speed_m_per_s, snap.width_m, stamp)
+        feats = bubbles.frame(inst, scene)
+        if status.stable and not stable:
+            for d in detectors.values():
+                d.reference()
+        stable = status.stable
+        wrenches = {s: estimate(feats[s], s, cal, "physics") for s in SIDES}
+        load = float(np.hypot(*sum(w.force_n for w in wrenches.values())[1:]))
+        for side in SIDES:
+            report = detectors[side].update(feats[side], wrenches[side].force_n, snap.time_secs)
+            if reflex and report.onset:
+                force = grip.on_slip(snap.time_secs, load)
+                if force is not None:
+                    simulator.world.command("grasp", width_m=0.0, speed_m_per_s=0.08, force_n=force)
+    slide = float(np.linalg.norm(simulator.world.snapshot.slide_m))
+    return {
+        "object": spec.object,
+        "kept": slide < DROP_M,
+        "slide_mm": slide * 1000.0,
+        "raises": grip.raises,
+        "final_grip_n": grip.force_n,
+        "max_grip_n": limit,
+    }
+
+
+def reflex_rows(seeds: list[int], duration_secs: float, cal: Calibration) -> list[Row]:
+    rows: list[Row] = []
+    for reflex in (False, True):
+        runs = [closed_loop(s, duration_secs, cal, reflex=reflex) for s in seeds]
+        rows.append(
+            {
+                "sweep": "reflex",
+                "setting": "on" if reflex else "off",
+                "method": "physics",
+                "samples": len(runs),
+                "kept": sum(r["kept"] for r in runs),
+                "dropped": sum(not r["kept"] for r in runs),
+                "slide_mm_median": median([r["slide_mm"] for r in runs]),
+                "raises_median": median([float(r["raises"]) for r in runs]),
+                "objects": ",".join(
+                    f"{r['object']}:{'kept' if r['kept'] else 'dropped'}" for r in runs
+                ),
+            }
+        )
+    return rows
+
+
+def handover_runs(seed: int, cal: Calibration) -> dict:
+    """Frames from the pull's start to each rule's release, and false releases held still."""
+    rng = np.random.default_rng([seed, 3])
+    start = float(rng.uniform(1.4, 2.2))
+    base = sim.load_scene("scenes/handover_task.yaml")
+    z0 = 0.005
+    keys = [(0.0, z0), (start, z0), (start + 1.0, z0 + 0.015), (4.0, z0 + 0.040)]
+    pulled = dataclasses.replace(
+        base,
+        seed=200 + seed,
+        trajectory=tuple(sim.scene.Keyframe(t_secs=t, xyz_m=(0.0, 0.0, z)) for t, z in keys),
+        gripper=dataclasses.replace(
+            base.gripper,
+            commands=(
+                sim.rig.ScriptedCommand(
+                    t_secs=0.3, command="grasp", width_m=0.07, speed_m_per_s=0.05, force_n=12.0
+                ),
+            ),
+        ),
+    )
+    held = dataclasses.replace(pulled, trajectory=pulled.trajectory[:1])
+    out = {}
+    for name, scene in (("pull", pulled), ("hold", held)):
+        simulator = sim.Simulator(scene)
+        bubbles = Bubbles(SETTINGS[DEFAULT_SETTING])
+        monitor = GraspMonitor()
+        trackers = {s: ShearTracker(ShearParams(scale=0.5, warm_start=True)) for s in SIDES}
+        above = dict.fromkeys(SIDES, 0)
+        pull = PullWatch(0.6, 2)
+        decided: dict[str, float] = {}
+        stable = False
+        while not simulator.world.done:
+            inst = simulator.step()
+            snap = inst.snapshot
+            stamp = sim.stamp_of(snap)
+            for side in SIDES:
+                monitor.update_pressure(side, snap.pressure_pa[side], stamp)
+            status = monitor.update_gripper(snap.speed_m_per_s, snap.width_m, stamp)
+            feats = bubbles.frame(inst, scene)
+            force = -sum(estimate(feats[s], s, cal, "physics").force_n for s in SIDES)
+            if status.stable and not stable:
+                pull.start(force)
+                for side in SIDES:
+                    img = inst.images[side]
+                    trackers[side].set_reference(
+                        img.ir, img.depth_m, PinholeCamera.from_frame(img),
+                        tool_basis(img.tool_from_sensor),
+                    )  # fmt: skip
+            stable = stable or status.stable
+            if not stable:
+                continue
+            if "force" not in decided and pull.update(force):
+                decided["force"] = snap.time_secs
+            for side in SIDES:
+                img = inst.images[side]
+                r = trackers[side].update(img.ir, img.depth_m)
+                sheared = r.direction_defined and r.magnitude_px >= 1.5
+                above[side] = above[side] + 1 if sheared else 0
+                if above[side] >= 3 and "shear" not in decided:
+                    decided["shear"] = snap.time_secs
+        out[name] = decided
+    return {"start": start, **out}
+
+
+def handover_rows(seeds: list[int], cal: Calibration, period_secs: float) -> list[Row]:
+    runs = [handover_runs(s, cal) for s in seeds]
+    rows: list[Row] = []
+    for rule in ("shear", "force"):
+        lat = [1000.0 * (r["pull"][rule] - r["start"]) for r in runs if rule in r["pull"]]
+        rows.append(
+            {
+                "sweep": "handover",
+                "setting": "decision",
+                "method": rule,
+                "samples": len(runs),
+                "released_fraction": len(lat) / len(runs),
+                "release_latency_ms_median": median(lat),
+                "release_latency_frames_median": median(lat) / (period_secs * 1000.0),
+                "false_release_rate": float(np.mean([rule in r["hold"] for r in runs])),
+            }
+        )
+    return rows
+
+
+def run(quick: bool) -> list[Row]:
+    one_core()
+    n = 2 if quick else 8
+    duration = 2.0 if quick else 3.0
+    cal_seeds, test_seeds = list(range(n)), list(range(n, 2 * n))
+    cal_recs = [record_all(s, duration) for s in progress(cal_seeds, "bench.force calibration")]
+    test_recs = [record_all(s, duration) for s in progress(test_seeds, "bench.force held-out")]
+    placeholder = calibrate(
+        [s for rec in cal_recs for s in samples(rec.frames)], rig="sim", source="timing"
+    )
+    secs = {
+        setting: time_setting(test_seeds[0], min(duration, 2.0), setting, placeholder)
+        for setting in progress(list(SETTINGS), "bench.force timing")
+    }
+    rows, cals = wrench_rows(cal_recs, test_recs, secs)
+    cal = cals[DEFAULT_SETTING]
+    period = draw(0).scene.frame_period_secs
+    rows += slip_rows(test_recs, cal, period)
+    reflex_seeds = [n * 2 + i for i in range(1 if quick else 8)]
+    rows += reflex_rows(reflex_seeds, 4.0 if not quick else 3.0, cal)
+    rows += handover_rows([0] if quick else [0, 1, 2, 3], cal, period)
+    return rows
+
+
+COLUMNS = [
+    "sweep", "setting", "method", "samples", "force_err_n_median", "force_err_pct_median",
+    "torque_err_nm_median", "within_goal_fraction", "ms_per_frame", "rate_hz",
+    "detected_fraction", "onset_frames_median", "onset_ms_median", "false_alarms_per_min",
+    "kept", "dropped", "release_latency_ms_median", "false_release_rate",
+]  # fmt: skip
+
+
+if __name__ == "__main__":
+    main("force", run, columns=COLUMNS)

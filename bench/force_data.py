@@ -1,0 +1,216 @@
+"""Grasps with known wrenches: the force estimators' calibration and test data.
+
+A *grasp* is a short simulated scene drawn from a seed: an object (mug, PET bottle,
+square bottle, wine glass) grasped with a random force, then loaded by its weight, a
+filling, or a pull in a random direction of the tool's (y, z) plane, some past the
+bubbles' friction (the ``wrench`` and ``slip`` effects, ``sim/friction.py``). Each is
+rendered with every sensor effect (ToF noise, IR dots) and turned, frame by frame and
+bubble by bubble, into the estimators' features (``perception.force.features``) beside
+the world's true wrench and slip: :func:`record`.
+
+The calibration procedure in the simulated world is: record the calibration grasps
+(seeds ``0 .. n-1``), fit every method (``perception.force.estimators.calibrate``),
+write the file the ``wrench`` node reads::
+
+    python -m bench.force_data --grasps 12 --out models/force/sim.json
+
+On a real rig the same fit runs on grasps whose true wrench comes from known loads or a
+wrist force-torque sensor (docs/force.md). ``bench.force`` scores on other seeds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+import sim
+from geometry.camera import PinholeCamera
+from geometry.gripper import SIDES
+from perception.force.estimators import Calibration, Sample, calibrate
+from perception.force.features import BubbleFeatures, ContactFeatures
+
+ROOT = Path(__file__).resolve().parents[1]
+CALIBRATION = ROOT / "models" / "force" / "sim.json"
+OBJECTS = {
+    # object, held pose (tool xyz), grasp width hint, mass (kg), max grip force (N)
+    "mug": ((0.0, 0.0, 0.005), 0.07, 0.35, 40.0),
+    "pet_bottle": ((0.0, 0.03, 0.0), 0.06, 0.5, 30.0),
+    "square_bottle": ((0.0, 0.015, 0.0), 0.06, 0.5, 30.0),
+    "wine_glass": ((0.0, -0.0375, 0.0), 0.05, 0.2, 12.0),
+}
+LOADS = ("fill", "pull", "still")
+EFFECTS = [
+    *("membrane", "depth", "tof_noise", "ir", "dot_pattern", "shear", "pressure"),
+    *("gripper", "wrench", "slip"),
+]
+
+
+@dataclass(frozen=True)
+class GraspSpec:
+    """One drawn grasp (see the module docstring)."""
+
+    seed: int
+    object: str
+    load: str
+    grip_n: float
+    scene: sim.Scene
+
+
+def draw(seed: int, *, duration_secs: float = 3.0, load: str | None = None) -> GraspSpec:
+    """The grasp of ``seed``: object, grip, load (``fill``, ``pull``, ``still``)."""
+    rng = np.random.default_rng([seed, 31])
+    name = list(OBJECTS)[seed % len(OBJECTS)]
+    xyz, width, mass, _ = OBJECTS[name]
+    kind = load or LOADS[(seed // len(OBJECTS)) % len(LOADS)]
+    grip = float(rng.uniform(5.0, 12.0))
+    angle = float(rng.uniform(0, 2 * np.pi))
+    gravity = [0.0, float(np.cos(angle)), float(np.sin(angle))]
+    t_load = 1.0
+    data: dict[str, object] = {
+        "name": f"force_{seed}",
+        "seed": 1000 + seed,
+        "duration_secs": duration_secs,
+        "effects": EFFECTS,
+        "object": {"name": name},
+        "mount_rpy_deg": [0, -90, -90],
+        "trajectory": [{"t_secs": 0.0, "xyz_m": list(xyz)}],
+        "gripper": {
+            "commands": [
+                {
+                    "t_secs": 0.1,
+                    "command": "grasp",
+                    "width_m": width,
+                    "speed_m_per_s": 0.08,
+                    "force_n": grip,
+                }
+            ]
+        },  # fmt: skip
+    }
+    load_spec: dict[str, object] = {"mass_kg": mass, "gravity_in_tool": gravity}
+    if kind == "fill":
+        load_spec.update(
+            fill_kg_per_s=float(rng.uniform(0.2, 0.8)) * grip / 6.0,
+            fill_from_secs=t_load,
+            max_mass_kg=5.0,
+        )
+    elif kind == "pull":
+        pull_angle = float(rng.uniform(0, 2 * np.pi))
+        peak = float(rng.uniform(0.8, 2.5)) * grip
+        direction = [0.0, float(np.cos(pull_angle)), float(np.sin(pull_angle))]
+        load_spec["pull"] = [
+            {"t_secs": 0.0, "force_n": [0.0, 0.0, 0.0]},
+            {"t_secs": t_load, "force_n": [0.0, 0.0, 0.0]},
+            {"t_secs": duration_secs, "force_n": [peak * d for d in direction]},
+        ]
+    data["load"] = load_spec
+    scene = sim.scene_from_dict(data, path=f"<force grasp {seed}>")
+    return GraspSpec(seed, name, kind, grip, scene)
+
+
+@dataclass
+class Frame:
+    """One frame of a recorded grasp: per side features, truth and timing."""
+
+    t_secs: float
+    features: dict[str, ContactFeatures]
+    force_n: dict[str, np.ndarray]
+    torque_nm: dict[str, np.ndarray]
+    slipping: dict[str, float]  # true share of the patch's area slipping
+    slide_m: np.ndarray
+    feature_secs: float
+
+
+def free_and_still(snap: sim.WorldSnapshot, scene: sim.Scene) -> bool:
+    """The gripper open and still: the free bubble (what the nodes use too)."""
+    return snap.width_m >= scene.gripper.max_width_m - 1e-3 and snap.speed_m_per_s < 1e-3
+
+
+def record(spec: GraspSpec) -> list[Frame]:
+    """Render a grasp and extract every frame's features beside its truth."""
+    simulator = sim.Simulator(spec.scene)
+    extractors = {s: BubbleFeatures() for s in SIDES}
+    frames: list[Frame] = []
+    while not simulator.world.done:
+        inst = simulator.step()
+        snap = inst.snapshot
+        features: dict[str, ContactFeatures] = {}
+        start = time.perf_counter()
+        holding = snap.gripper_state == "holding"
+        for side in SIDES:
+            img = inst.images[side]
+            if free_and_still(snap, spec.scene):
+                extractors[side].free_frame(img.depth_m, snap.pressure_pa[side])
+            if holding and not extractors[side].tared:
+                extractors[side].tare(
+                    img.ir, img.depth_m, PinholeCamera.from_frame(img), img.tool_from_sensor
+                )
+            elif snap.width_m >= spec.scene.gripper.max_width_m - 1e-3:
+                extractors[side].untare()
+            features[side] = extractors[side].update(
+                img.ir,
+                img.depth_m,
+                snap.pressure_pa[side],
+                PinholeCamera.from_frame(img),
+                img.tool_from_sensor,
+            )
+        elapsed = time.perf_counter() - start
+        none = sim.friction.BubbleWrench.none()
+        frames.append(
+            Frame(
+                t_secs=snap.time_secs,
+                features=features,
+                force_n={s: snap.wrench.get(s, none).force_n for s in SIDES},
+                torque_nm={s: snap.wrench.get(s, none).torque_nm for s in SIDES},
+                slipping={s: snap.wrench.get(s, none).slipping_fraction for s in SIDES},
+                slide_m=snap.slide_m.copy(),
+                feature_secs=elapsed,
+            )
+        )
+    return frames
+
+
+def samples(frames: list[Frame]) -> list[Sample]:
+    """Every bubble of every frame as a calibration sample."""
+    return [
+        Sample(s, f.features[s], f.force_n[s], f.torque_nm[s], f.slipping[s] >= 1.0)
+        for f in frames
+        for s in SIDES
+    ]
+
+
+def calibrate_on(seeds: list[int], *, duration_secs: float = 3.0) -> Calibration:
+    """Record the grasps of ``seeds`` and fit every method on them."""
+    data: list[Sample] = []
+    for seed in seeds:
+        data += samples(record(draw(seed, duration_secs=duration_secs)))
+    return calibrate(
+        data,
+        rig="sim",
+        source=f"bench.force_data: simulated grasps, seeds {seeds[0]}..{seeds[-1]}",
+    )
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m bench.force_data")
+    parser.add_argument("--grasps", type=int, default=12, help="calibration grasps (seeds 0..n-1)")
+    parser.add_argument("--duration", type=float, default=3.0, help="seconds per grasp")
+    parser.add_argument("--out", type=Path, default=CALIBRATION)
+    args = parser.parse_args(argv)
+    if args.grasps < 1:
+        parser.error("--grasps must be >= 1")
+    cal = calibrate_on(list(range(args.grasps)), duration_secs=args.duration)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    cal.save(args.out)
+    print(f"wrote {args.out} ({cal.samples} samples; friction {cal.friction:.3f})", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
+
+
+__all__ = ["CALIBRATION", "Frame", "GraspSpec", "calibrate_on", "draw", "record", "samples"]

@@ -1,0 +1,312 @@
+"""Contact wrench from one bubble's features: a physics model and a ridge regressor.
+
+Both give the force the object exerts on a bubble's membrane and its torque about the
+tool frame's origin, tool frame, N and N m, with a one-sigma uncertainty per component
+(the calibration's residual spread), and what physics leaves open is calibrated per rig
+(:func:`calibrate`, docs/force.md):
+
+``physics``
+    * normal: the pressurised membrane presses with its gauge pressure over the patch,
+      ``N = gain * p * A`` (``A`` projected on the plate), along the plate's outward
+      normal (the object pushes the membrane towards the plate);
+    * tangential, per tool axis ``j`` (y, z): the latex shears with a stiffness,
+      ``F_j = k_j (A s_j) - c_j V``, where ``s`` is the dots' mean shift over the patch
+      and ``V`` the displaced volume (``c`` absorbs the dots' apparent shift from the
+      indentation alone, seen through an angled camera);
+    * torque: the force applied at the patch's centroid, plus a torsional stiffness
+      about the plate's normal, ``k_t A theta``.
+    ``gain``, ``k``, ``c`` and ``k_t`` are least-squares fits against a rig's truth.
+
+``ridge``
+    A linear map from a fixed set of nonlinear features (products of pressure, area,
+    volume, shifts, torsion and the centroid, :func:`feature_vector`) to the six wrench
+    components, per bubble side, fitted by ridge regression on standardised features.
+
+Anything the features cannot see the estimators cannot either: a force along a
+direction the dots do not move in (a patch too small to track) reads as zero; the
+normal force of a patch under the contact threshold is missed.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from perception.force.features import ContactFeatures
+
+METHODS = ("physics", "ridge")
+SIDES = ("left", "right")
+
+
+@dataclass(frozen=True)
+class BubbleWrench:
+    """One bubble's estimated wrench (on the membrane from the object), tool frame."""
+
+    force_n: np.ndarray
+    torque_nm: np.ndarray
+    force_sigma_n: np.ndarray
+    torque_sigma_nm: np.ndarray
+
+    @classmethod
+    def zero(cls) -> BubbleWrench:
+        return cls(np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
+
+
+@dataclass(frozen=True, kw_only=True)
+class PhysicsCalibration:
+    """The physics model's per-rig constants (see the module docstring)."""
+
+    gain: float = 1.0
+    unseen_gain: float = 0.0
+    stiffness_n_per_m3: tuple[float, float] = (4.5e5, 4.5e5)
+    indent_bias_n_per_m3: tuple[float, float] = (0.0, 0.0)
+    torsion_n_per_m_rad: float = 0.0
+    force_sigma_n: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    torque_sigma_nm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class RidgeCalibration:
+    """Per side: feature means and scales, weights ``(features + 1, 6)``, sigmas (6,)."""
+
+    mean: dict[str, list[float]] = field(default_factory=dict)
+    scale: dict[str, list[float]] = field(default_factory=dict)
+    weights: dict[str, list[list[float]]] = field(default_factory=dict)
+    sigma: dict[str, list[float]] = field(default_factory=dict)
+    ridge: float = 1e-3
+
+
+@dataclass(frozen=True, kw_only=True)
+class Calibration:
+    """A rig's force calibration: both methods' constants and the friction coefficient
+    the slip detector compares loads against (``friction``: tangential over normal force
+    when the whole patch slips, fitted from slipping frames when there are any)."""
+
+    rig: str = "uncalibrated"
+    source: str = ""
+    physics: PhysicsCalibration = field(default_factory=PhysicsCalibration)
+    ridge: RidgeCalibration = field(default_factory=RidgeCalibration)
+    friction: float = 0.8
+    samples: int = 0
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), indent=1, sort_keys=True)
+
+    @classmethod
+    def from_dict(cls, data: Any, where: str = "<calibration>") -> Calibration:
+        """Build from parsed JSON; errors name ``where`` and the field."""
+        if not isinstance(data, dict):
+            raise ValueError(f"{where}: a calibration must be a JSON object")
+        try:
+            physics = PhysicsCalibration(
+                **{
+                    k: tuple(v) if isinstance(v, list) else v
+                    for k, v in data.get("physics", {}).items()
+                }
+            )
+            ridge = RidgeCalibration(**data.get("ridge", {}))
+            rest = {k: v for k, v in data.items() if k not in ("physics", "ridge")}
+            return cls(physics=physics, ridge=ridge, **rest)
+        except TypeError as err:
+            raise ValueError(f"{where}: {err}") from err
+
+    @classmethod
+    def load(cls, path: str | Path) -> Calibration:
+        """Read a calibration file (JSON)."""
+        p = Path(path)
+        try:
+            data = json.loads(p.read_text())
+        except (OSError, json.JSONDecodeError) as err:
+            raise ValueError(f"{p}: cannot read the force calibration: {err}") from err
+        return cls.from_dict(data, str(p))
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(self.to_json() + "\n")
+
+
+# -- physics ------------------------------------------------------------------------------
+
+
+def unseen_m2(f: ContactFeatures) -> float:
+    """The regressor of the patch the camera does not see: the pressure's rise (the gas
+    law's measure of all the displaced volume) per seen mean indentation, ``dp A / V``."""
+    if f.volume_m3 <= 1e-9:
+        return 0.0
+    return f.pressure_rise_pa * f.area_m2 / f.volume_m3 * 1e-6
+
+
+def physics_wrench(f: ContactFeatures, cal: PhysicsCalibration) -> BubbleWrench:
+    """The physics model's wrench for one bubble (zero out of contact)."""
+    if not f.in_contact:
+        return BubbleWrench.zero()
+    force = (
+        -f.pressure_pa * (cal.gain * f.area_m2 + cal.unseen_gain * unseen_m2(f)) * f.normal_in_tool
+    )
+    k, c = cal.stiffness_n_per_m3, cal.indent_bias_n_per_m3
+    for j in (0, 1):
+        force[1 + j] += k[j] * f.area_m2 * f.shift_m[j] - c[j] * f.volume_m3
+    torque = np.cross(f.centroid_in_tool, force)
+    torque[0] += cal.torsion_n_per_m_rad * f.area_m2 * f.torsion_rad
+    return BubbleWrench(
+        force, torque, np.asarray(cal.force_sigma_n, float), np.asarray(cal.torque_sigma_nm, float)
+    )
+
+
+# -- ridge --------------------------------------------------------------------------------
+
+
+def feature_vector(f: ContactFeatures) -> np.ndarray:
+    """The regressor's inputs for one bubble (zeros out of contact)."""
+    if not f.in_contact:
+        return np.zeros(FEATURES)
+    p, a, v = f.pressure_pa / 1000.0, f.area_m2 * 1e4, f.volume_m3 * 1e6
+    dp, u = f.pressure_rise_pa / 1000.0, unseen_m2(f) * 1e4
+    s, core, edge = f.shift_m * 1e3, f.core_shift_m * 1e3, f.edge_shift_m * 1e3
+    c = f.centroid_in_tool * 1e3
+    pa = p * a
+    return np.array(
+        [
+            p, a, v, pa, p * v, a * a,
+            a * s[0], a * s[1], v * s[0], v * s[1], pa * s[0], pa * s[1],
+            s[0], s[1], core[0], core[1], edge[0], edge[1],
+            f.torsion_rad, a * f.torsion_rad,
+            c[0], c[1], c[2],
+            c[1] * pa, c[2] * pa, c[0] * a * s[0], c[0] * a * s[1], c[1] * a * s[1],
+            c[2] * a * s[0], c[1] * v, c[2] * v,
+            dp, p * u, u, dp * a,
+        ]
+    )  # fmt: skip
+
+
+FEATURES = 35
+
+
+def ridge_wrench(f: ContactFeatures, side: str, cal: RidgeCalibration) -> BubbleWrench:
+    """The regressor's wrench for one bubble (zero out of contact or uncalibrated)."""
+    if not f.in_contact or side not in cal.weights:
+        return BubbleWrench.zero()
+    x = (feature_vector(f) - np.asarray(cal.mean[side])) / np.asarray(cal.scale[side])
+    y = np.append(x, 1.0) @ np.asarray(cal.weights[side])
+    sigma = np.asarray(cal.sigma[side])
+    return BubbleWrench(y[:3], y[3:], sigma[:3], sigma[3:])
+
+
+def estimate(f: ContactFeatures, side: str, cal: Calibration, method: str) -> BubbleWrench:
+    """One bubble's wrench by ``method`` (``physics`` or ``ridge``)."""
+    if method == "physics":
+        return physics_wrench(f, cal.physics)
+    if method == "ridge":
+        return ridge_wrench(f, side, cal.ridge)
+    raise ValueError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
+
+
+# -- calibration --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One bubble at one frame: its features and its true wrench (tool frame)."""
+
+    side: str
+    features: ContactFeatures
+    force_n: np.ndarray
+    torque_nm: np.ndarray
+    slipping: bool = False
+
+
+def _lstsq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.linalg.lstsq(a, b, rcond=None)[0]
+
+
+def calibrate_physics(samples: list[Sample]) -> PhysicsCalibration:
+    """Least-squares fits of the physics model's constants (samples in contact, tracked)."""
+    used = [s for s in samples if s.features.in_contact and s.features.tracked]
+    if len(used) < 4:
+        raise ValueError(f"calibration needs at least 4 tracked contact samples, got {len(used)}")
+    a = np.array(
+        [
+            [
+                s.features.pressure_pa * s.features.area_m2,
+                s.features.pressure_pa * unseen_m2(s.features),
+            ]
+            for s in used
+        ]
+    )
+    normal = np.array([-(s.force_n @ s.features.normal_in_tool) for s in used])
+    gain, unseen = (float(v) for v in _lstsq(a, normal))
+    stiffness, bias = [], []
+    for j in (0, 1):
+        a = np.array(
+            [[s.features.area_m2 * s.features.shift_m[j], -s.features.volume_m3] for s in used]
+        )
+        k, c = _lstsq(a, np.array([s.force_n[1 + j] for s in used]))
+        stiffness.append(float(k))
+        bias.append(float(c))
+    base = PhysicsCalibration(
+        gain=gain,
+        unseen_gain=unseen,
+        stiffness_n_per_m3=tuple(stiffness),
+        indent_bias_n_per_m3=tuple(bias),
+    )  # type: ignore[arg-type]
+    # Torsion: what the centroid's moment leaves of the torque about x.
+    rest = np.array([s.torque_nm[0] - physics_wrench(s.features, base).torque_nm[0] for s in used])
+    twist = np.array([s.features.area_m2 * s.features.torsion_rad for s in used])
+    kt = float(twist @ rest / max(twist @ twist, 1e-18))
+    base = PhysicsCalibration(**{**asdict(base), "torsion_n_per_m_rad": kt})
+    errors = [(physics_wrench(s.features, base), s) for s in used]
+    fs = np.sqrt(np.mean([(w.force_n - s.force_n) ** 2 for w, s in errors], axis=0))
+    ts = np.sqrt(np.mean([(w.torque_nm - s.torque_nm) ** 2 for w, s in errors], axis=0))
+    return PhysicsCalibration(
+        **{
+            **asdict(base),
+            "force_sigma_n": tuple(map(float, fs)),
+            "torque_sigma_nm": tuple(map(float, ts)),
+        }
+    )
+
+
+def calibrate_ridge(samples: list[Sample], ridge: float = 1e-3) -> RidgeCalibration:
+    """Ridge fits per side of the wrench on :func:`feature_vector` (contact samples)."""
+    out: dict[str, Any] = {"mean": {}, "scale": {}, "weights": {}, "sigma": {}}
+    for side in SIDES:
+        used = [s for s in samples if s.side == side and s.features.in_contact]
+        if len(used) < FEATURES:
+            continue
+        x = np.array([feature_vector(s.features) for s in used])
+        y = np.array([np.concatenate([s.force_n, s.torque_nm]) for s in used])
+        mean, scale = x.mean(axis=0), x.std(axis=0)
+        scale[scale < 1e-9] = 1.0
+        z = np.hstack([(x - mean) / scale, np.ones((len(x), 1))])
+        reg = ridge * len(x) * np.eye(z.shape[1])
+        reg[-1, -1] = 0.0  # the intercept is not shrunk
+        w = np.linalg.solve(z.T @ z + reg, z.T @ y)
+        sigma = np.sqrt(np.mean((z @ w - y) ** 2, axis=0))
+        out["mean"][side], out["scale"][side] = mean.tolist(), scale.tolist()
+        out["weights"][side], out["sigma"][side] = w.tolist(), sigma.tolist()
+    return RidgeCalibration(**out, ridge=ridge)
+
+
+def calibrate_friction(samples: list[Sample], default: float = 0.8) -> float:
+    """Tangential over normal force where the whole patch slipped (median), else ``default``."""
+    ratios = [
+        float(np.hypot(*s.force_n[1:]) / abs(s.force_n @ s.features.normal_in_tool))
+        for s in samples
+        if s.slipping and s.features.in_contact and abs(s.force_n @ s.features.normal_in_tool) > 0.2
+    ]
+    return float(np.median(ratios)) if ratios else default
+
+
+def calibrate(samples: list[Sample], *, rig: str, source: str) -> Calibration:
+    """Fit every method on ``samples`` (a rig's grasps with their true wrenches)."""
+    return Calibration(
+        rig=rig,
+        source=source,
+        physics=calibrate_physics(samples),
+        ridge=calibrate_ridge(samples),
+        friction=calibrate_friction(samples),
+        samples=len(samples),
+    )

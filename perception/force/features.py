@@ -1,0 +1,253 @@
+"""What one bubble's sensors say about its contact: the inputs of every force estimator.
+
+Per frame of one bubble, from its depth and IR images and its pressure:
+
+* the **patch**: pixels pressed in against the free bubble's depth (the contact filter of
+  ``perception.contact``), its **area projected on the plate** (each pixel's footprint
+  ``r^2 dOmega / |d . m|``, ``m`` the plate's normal, ``d`` the pixel's ray) and its
+  **displaced volume** (the footprint times how far the membrane moved in), its
+  centroid in the tool frame, and the **pressure's rise** over the free bubble's (the
+  gas law makes it a measure of the whole displaced volume, seen or not);
+* the **dots' tangential displacement** in metres along the tool's y and z: dense
+  flow of the IR dot pattern against the *tare* frame (the jaws just closed on the
+  object, before it loads them tangentially: the bubble's zero, as a force-torque
+  sensor is tared), warm-started frame to frame, each dot back-projected before and
+  after (``perception.shear.ShearTracker`` does the flow and the geometry). The mean
+  over the patch, over its core and over its edge (pixels within ``edge_px`` of the
+  patch's border), and the rotation of the patch's dots about the plate's normal.
+  (Against the free bubble instead, the flow must follow the whole indentation, and
+  its error, a millimetre and more of apparent shift that depends on the object,
+  swamps the shear.)
+
+Frames: tool (``docs/design.md``). The plate's inward normal is tool -x on the left
+bubble (its plate sits at +x) and +x on the right one, so it follows from the camera's
+pose that each frame carries.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from geometry.camera import PinholeCamera
+from geometry.planar import rotation_about_centroid
+from perception.contact import ContactParams, ContactPatcher, contact_mask
+from perception.shear import ShearParams, ShearTracker, resize_for_flow, tool_basis
+
+
+@dataclass(frozen=True, kw_only=True)
+class FeatureParams:
+    """Knobs of the feature extraction.
+
+    Attributes:
+        contact: the contact filter against the free bubble (a lower threshold than the
+            pose's patch: a force needs the whole pressed area, rim included).
+        flow: the dot flow (Farneback at half resolution, warm-started).
+        edge_px: working-resolution pixels from the patch's border that count as its edge.
+        min_patch_px: fewer working pixels of tracked patch than this: no tangential
+            measurement (the patch is too small to measure).
+    """
+
+    contact: ContactParams = field(
+        default_factory=lambda: ContactParams(threshold_m=0.0015, min_component_px=40)
+    )
+    flow: ShearParams = field(
+        default_factory=lambda: ShearParams(scale=0.5, warm_start=True, min_valid_fraction=0.01)
+    )
+    edge_px: int = 3
+    min_patch_px: int = 12
+
+    def __post_init__(self) -> None:
+        if self.edge_px < 1:
+            raise ValueError(f"`edge_px` must be >= 1, got {self.edge_px!r}")
+        if self.min_patch_px < 3:
+            raise ValueError(f"`min_patch_px` must be >= 3, got {self.min_patch_px!r}")
+
+
+@dataclass(frozen=True)
+class ContactFeatures:
+    """One bubble's contact at one frame (see the module docstring); SI units, tool frame.
+
+    ``tracked`` is False while the dots cannot be followed (no free reference yet, or a
+    patch under ``min_patch_px``): the shifts are then zero.
+    """
+
+    in_contact: bool
+    tracked: bool
+    pressure_pa: float
+    pressure_rise_pa: float  # over the free bubble's
+    area_m2: float
+    volume_m3: float
+    centroid_in_tool: np.ndarray  # (3,)
+    normal_in_tool: np.ndarray  # (3,), the plate's inward normal
+    shift_m: np.ndarray  # (2,) mean over the patch, tool (y, z)
+    core_shift_m: np.ndarray  # (2,)
+    edge_shift_m: np.ndarray  # (2,)
+    torsion_rad: float  # about tool +x
+    patch_px: int
+
+    @classmethod
+    def empty(cls, pressure_pa: float, normal_in_tool: np.ndarray) -> ContactFeatures:
+        zero2 = np.zeros(2)
+        return cls(
+            False, False, pressure_pa, 0.0, 0.0, 0.0, np.zeros(3), normal_in_tool, zero2, zero2,
+            zero2, 0.0, 0,
+        )  # fmt: skip
+
+
+def inward_normal_in_tool(tool_from_sensor: np.ndarray) -> np.ndarray:
+    """The plate's inward normal: towards the other finger (tool -x for the left plate)."""
+    return np.array([-1.0 if tool_from_sensor[0, 3] > 0 else 1.0, 0.0, 0.0])
+
+
+def rim_correction(indent_m: np.ndarray, threshold_m: float) -> float:
+    """How much larger the patch is than its part pressed past the threshold.
+
+    A cylinder pressed ``d`` into the membrane touches a band ``2 sqrt(2 R d)`` wide; the
+    filter sees only where the indentation exceeds the threshold ``t``, a band
+    ``2 sqrt(2 R (d - t))`` wide: the ratio is ``sqrt(d / (d - t))`` whatever ``R``.
+    ``d`` is a robust maximum (the 95th percentile) of the patch's indentation.
+    """
+    finite = indent_m[np.isfinite(indent_m)]
+    if finite.size == 0:
+        return 1.0
+    deepest = float(np.percentile(finite, 95))
+    if deepest <= threshold_m * 1.25:
+        return math.sqrt(5.0)
+    return math.sqrt(deepest / (deepest - threshold_m))
+
+
+def footprint_m2(depth_m: np.ndarray, camera: PinholeCamera, normal_in_sensor: np.ndarray):
+    """Each pixel's footprint projected on a plane normal to ``normal_in_sensor``, and
+    its range (m); NaN where the depth is invalid."""
+    rays = camera.unit_rays()
+    rng = depth_m / rays[..., 2]
+    cos = np.abs(rays @ normal_in_sensor)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        area = rng * rng * camera.pixel_solid_angle_sr() / np.maximum(cos, 0.05)
+    return area, rng
+
+
+class BubbleFeatures:
+    """One bubble's feature extractor: the free reference, the dots' tare, each frame.
+
+    Typical use: :meth:`free_frame` while the gripper is open and still (nothing
+    touching), :meth:`tare` on the frame the jaws close on the object (before it loads
+    the bubbles tangentially), :meth:`update` for every frame, :meth:`untare` when the
+    jaws open.
+    """
+
+    def __init__(self, params: FeatureParams | None = None) -> None:
+        self.params = params or FeatureParams()
+        self._patcher = ContactPatcher(self.params.contact)
+        self._tracker = ShearTracker(self.params.flow)
+        self._free_pressure_pa = 0.0
+
+    @property
+    def has_reference(self) -> bool:
+        """Whether the free bubble's reference exists."""
+        return self._patcher.has_reference("bubble")
+
+    @property
+    def tared(self) -> bool:
+        return self._tracker.has_reference
+
+    def clear(self) -> None:
+        """Forget the free reference (a new one is being taken)."""
+        self._patcher.clear_reference("bubble")
+
+    def free_frame(self, depth_m: np.ndarray, pressure_pa: float) -> None:
+        """Add a frame of the free bubble to its reference (depth averaged; the newest
+        pressure is the free one)."""
+        self._patcher.update_reference("bubble", depth_m)
+        self._free_pressure_pa = pressure_pa
+
+    def tare(
+        self,
+        ir: np.ndarray,
+        depth_m: np.ndarray,
+        camera: PinholeCamera,
+        tool_from_sensor: np.ndarray,
+    ) -> None:
+        """Take this frame as the dots' zero tangential load (the jaws just closed)."""
+        self._tracker.set_reference(ir, depth_m, camera, tool_basis(tool_from_sensor))
+
+    def untare(self) -> None:
+        """The jaws opened: no tangential reference until the next :meth:`tare`."""
+        self._tracker.drop_reference()
+
+    def update(
+        self,
+        ir: np.ndarray,
+        depth_m: np.ndarray,
+        pressure_pa: float,
+        camera: PinholeCamera,
+        tool_from_sensor: np.ndarray,
+    ) -> ContactFeatures:
+        """The features of one frame (finite always; see :class:`ContactFeatures`)."""
+        normal = inward_normal_in_tool(tool_from_sensor)
+        free = self._patcher.reference("bubble")
+        if free is None or free.shape != depth_m.shape:
+            return ContactFeatures.empty(pressure_pa, normal)
+        mask = contact_mask(depth_m, free, self.params.contact)
+        if not mask.any():
+            return ContactFeatures.empty(pressure_pa, normal)
+        rot = tool_from_sensor[:3, :3]
+        rise = pressure_pa - self._free_pressure_pa
+        area_px, rng = footprint_m2(depth_m, camera, rot.T @ normal)
+        free_rng = free / camera.unit_rays()[..., 2]
+        indent = (free_rng - rng)[mask]
+        area = float(np.nansum(area_px[mask])) * rim_correction(
+            indent, self.params.contact.threshold_m
+        )
+        volume = float(np.nansum(area_px[mask] * indent))
+        points = camera.depth_to_points(depth_m)[mask]
+        weights = area_px[mask]
+        good = np.isfinite(points).all(axis=1) & np.isfinite(weights)
+        centroid_s = (points[good] * weights[good, None]).sum(0) / max(weights[good].sum(), 1e-12)
+        centroid = rot @ centroid_s + tool_from_sensor[:3, 3]
+        shifts = self._shifts(ir, depth_m, mask) if self.tared else None
+        if shifts is None:
+            zero2 = np.zeros(2)
+            return ContactFeatures(
+                True, False, pressure_pa, rise, area, volume, centroid, normal, zero2, zero2,
+                zero2, 0.0, int(mask.sum()),
+            )  # fmt: skip
+        mean, core, edge, torsion, count = shifts
+        return ContactFeatures(
+            True, True, pressure_pa, rise, area, volume, centroid, normal, mean, core, edge,
+            torsion, count,
+        )  # fmt: skip
+
+    def _shifts(
+        self, ir: np.ndarray, depth_m: np.ndarray, mask: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, int] | None:
+        """Mean, core and edge tangential shift of the patch's dots, their torsion."""
+        result = self._tracker.update(ir, depth_m, keep_fields=True)
+        geometry = self._tracker.reference_geometry
+        if result.flow is None or result.mask is None or geometry is None:
+            return None
+        scale = self.params.flow.scale
+        work_patch = resize_for_flow(mask.astype(np.float32), scale) >= 0.5
+        work_patch &= result.mask
+        if work_patch.sum() < self.params.min_patch_px:
+            return None
+        # The patch's edge: within edge_px of its border (distance inside the patch).
+        dist = cv2.distanceTransform(work_patch.astype(np.uint8), cv2.DIST_L2, 3)
+        indices = np.flatnonzero(work_patch)
+        work_depth = resize_for_flow(depth_m.astype(np.float32, copy=False), scale)
+        s1, s2, d1, d2, kept = geometry.tangential_displacement_full(
+            result.flow, indices, work_depth
+        )
+        if s1.size < self.params.min_patch_px:
+            return None
+        edge = dist.reshape(-1)[kept] <= self.params.edge_px
+        disp = np.stack([d1, d2], axis=1)
+        mean = disp.mean(axis=0)
+        core = disp[~edge].mean(axis=0) if (~edge).sum() >= 3 else mean
+        rim = disp[edge].mean(axis=0) if edge.sum() >= 3 else mean
+        torsion, _ = rotation_about_centroid(s1, s2, d1, d2)
+        return mean, core, rim, float(torsion), int(s1.size)

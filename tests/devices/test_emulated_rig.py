@@ -1,0 +1,130 @@
+"""``graphs/hardware.yaml`` itself, end to end, on the emulated rig (real processes)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from geometry.se3 import invert
+from messages.types import pose_is_known
+from runtime.bag import BagReader
+from tests.test_graphs import launch
+
+pytestmark = pytest.mark.timeout(300)
+
+PULL_SECS = 3.6  # scenes/rig_handover.yaml: the mug is held still until then
+
+
+def topics(bag: Path) -> dict[str, list]:
+    out: dict[str, list] = {}
+    for m in BagReader(bag).messages():
+        out.setdefault(m.topic, []).append(m.decode())
+    return out
+
+
+def pose_error(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """(axis degrees, offset mm) between two poses of the mug (its axis is object z)."""
+    axis = np.degrees(np.arccos(np.clip(abs(estimate[:3, 2] @ truth[:3, 2]), -1.0, 1.0)))
+    diff = invert(truth) @ estimate
+    return float(axis), float(np.linalg.norm(diff[:3, 3]) * 1000.0)
+
+
+def test_the_hardware_graph_hands_over_on_emulated_devices_and_replays(tmp_path: Path) -> None:
+    bag = tmp_path / "rig.mcap"
+    proc = launch("graphs/hardware.yaml", "--emulate", "--record", str(bag))
+    out = proc.stdout
+    assert proc.returncode == 0, out[-3000:]
+    # The drivers found the emulated devices, and said once that there is no calibration.
+    assert "connected to WSG 50 at 127.0.0.1" in out
+    assert out.count("no calibration file: the CAD camera mount") == 2
+    assert "refused" not in out and "Traceback" not in out, out[-3000:]
+    t = topics(bag)
+    start = t["rig_world/state"][0].header.stamp_nanos
+    events = [(e.event, (e.header.stamp_nanos - start) / 1e9) for e in t["supervisor/event"]]
+    names = [name for name, _ in events]
+    assert names == ["grasping", "stable", "release", "done"], events
+    release_secs = dict(events)["release"]
+    assert PULL_SECS < release_secs < PULL_SECS + 1.0, events
+
+    # Every frame is placed in the tool frame; the contact patch and shear use them.
+    for side in ("left", "right"):
+        frames = t[f"{side}_camera/image"]
+        assert len(frames) > 30 and all(pose_is_known(f.tool_from_sensor) for f in frames)
+    patches = [p for p in t["contact_patch/patch"] if len(p.points_in_tool)]
+    assert len(patches) > 10 and all(set(np.unique(p.bubble)) == {0, 1} for p in patches)
+    assert any(s.has_reference and s.magnitude_px > 1.5 for s in t["shear/shear"])
+
+    # Poses `ok` at about the cameras' rate while the mug is held, and where it is.
+    truth = {m.header.stamp_nanos: m.tool_from_object for m in t["rig_world/ground_truth"]}
+    stamps = np.array(sorted(truth))
+    held = [
+        p
+        for p in t["pose/pose"]
+        if p.status == "ok" and (p.header.stamp_nanos - start) / 1e9 < PULL_SECS
+    ]
+    stable_secs = dict(events)["stable"]
+    rate_hz = len(held) / (PULL_SECS - stable_secs)
+    assert len(held) >= 10 and rate_hz > 5.0, (len(held), rate_hz)
+    for p in held:
+        near = stamps[np.argmin(np.abs(stamps - p.header.stamp_nanos))]
+        axis_deg, offset_mm = pose_error(p.tool_from_object, truth[near])
+        assert axis_deg < 3.0 and offset_mm < 2.0, (axis_deg, offset_mm)
+
+    # The recording replays: the task decides on the recorded data what it decided live.
+    replayed = tmp_path / "replay.mcap"
+    proc = launch(
+        "replay", str(bag), "--swap", "supervisor", "--lockstep", "--record", str(replayed)
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:]
+    again = [e.event for e in topics(replayed)["supervisor/event"]]
+    assert again == names
+
+
+FAULTS = """
+rig: faulty
+faults:
+  - {device: gripper, at_secs: 0.5}
+  - {device: left_camera, at_secs: 1.2, for_secs: 1.5}
+  - {device: right_pressure, at_secs: 1.5, for_secs: 0.6}
+"""
+
+
+def test_faults_on_the_emulated_rig_are_named_recovered_and_recorded(tmp_path: Path) -> None:
+    rig = tmp_path / "faulty.yaml"
+    rig.write_text(FAULTS)
+    bag = tmp_path / "faults.mcap"
+    proc = launch("graphs/hardware.yaml", "--emulate", "--rig", str(rig), "--record", str(bag))
+    out = proc.stdout
+    assert proc.returncode == 0, out[-3000:]
+    assert "Traceback" not in out, out[-3000:]
+    lines = out.splitlines()
+
+    def one(pattern: str) -> str:
+        (line,) = [line for line in lines if pattern in line]
+        return line
+
+    # Each fault: one line naming the device, then one when it recovered.
+    assert "[gripper] WARNING gripper: WSG 50 at 127.0.0.1" in one("connection lost")
+    assert "[gripper] WARNING gripper: WSG 50 at 127.0.0.1" in one("reconnected after")
+    assert "'EMU-CAM-L' delivered no frame" in one("[left_camera] ERROR")
+    assert "'EMU-CAM-L' is back after" in one("[left_camera] WARNING")
+    assert "'EMU-BUBBLE-R'" in one("[right_pressure] ERROR") and "gone" in one("gone (unplugged?)")
+    assert "'EMU-BUBBLE-R' is back after" in one("[right_pressure] WARNING")
+    assert "handover: done" in out  # the task went on
+
+    # The recording holds each device's data before its fault and after it recovered.
+    t = topics(bag)
+    start = t["rig_world/state"][0].header.stamp_nanos
+
+    def secs(msgs: list) -> np.ndarray:
+        return np.array([(m.header.stamp_nanos - start) / 1e9 for m in msgs])
+
+    left = secs(t["left_camera/image"])
+    assert (left < 1.2).sum() >= 5 and (left > 2.7).sum() >= 5
+    assert not ((left > 1.25) & (left < 2.7)).any()  # unplugged: no frame
+    right = secs(t["right_pressure/pressure"])
+    assert (right < 1.5).sum() >= 50 and (right > 2.1).sum() >= 50
+    gripper = secs(t["gripper/state"])
+    assert (gripper < 0.5).sum() >= 5 and (gripper > 1.0).sum() >= 50

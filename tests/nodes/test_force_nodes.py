@@ -1,0 +1,142 @@
+"""The ``wrench`` and ``slip`` nodes and the handover's force rules, through FakeIO."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import sim
+from messages.base import Header
+from messages.force import BubbleContact, SlipState, WrenchEstimate
+from messages.types import GraspState, GripperState, Pressure
+from nodes.slip import SlipNode
+from nodes.supervisor.handover import HandoverSupervisor
+from nodes.wrench import WrenchNode
+from runtime.params import ParamError
+from runtime.testing import feed, make_node
+
+
+@pytest.fixture(scope="module")
+def fill_frames() -> list[sim.Instant]:
+    """A light grasp of a mug being filled: 2.7 s (it slips from about 2 s)."""
+    scene = sim.load_scene("scenes/mug_fill.yaml")
+    scene = dataclasses.replace(scene, duration_secs=2.7)
+    simulator = sim.Simulator(scene)
+    frames = []
+    while not simulator.world.done:
+        frames.append(simulator.step())
+    return frames
+
+
+def drive_wrench(frames: list[sim.Instant]) -> tuple[WrenchNode, object]:
+    node, io = make_node(WrenchNode, {})
+    for inst in frames:
+        feed(node, "gripper", inst.gripper)
+        for side in ("left", "right"):
+            feed(node, f"{side}_pressure", inst.pressures[side])
+        for side in ("left", "right"):
+            feed(node, side, inst.images[side])
+    return node, io
+
+
+def test_wrench_node_estimates_the_grip_and_the_weight(fill_frames: list[sim.Instant]) -> None:
+    _, io = drive_wrench(fill_frames)
+    estimates = io.published["wrench"]
+    contacts = io.published["contact"]
+    assert len(contacts) == 2 * len(fill_frames)
+    assert len(estimates) == len(fill_frames)  # one per pair of frames of an instant
+    by_stamp = {e.header.stamp_nanos: e for e in estimates}
+    # At 1.5 s: 6 N of grip, about 0.35 + 0.25 kg of mug and water carried.
+    inst = next(i for i in fill_frames if i.snapshot.time_secs >= 1.5)
+    est, truth = by_stamp[inst.stamp_nanos], inst.wrench
+    assert truth is not None and est.method == "physics"
+    assert est.in_contact == [True, True]
+    np.testing.assert_allclose(est.bubble_force_n[:, 0], truth.bubble_force_n[:, 0], atol=1.5)
+    assert est.object_force_n[1] == pytest.approx(truth.object_force_n[1], abs=1.5)
+    assert np.all(est.object_force_sigma_n > 0)
+    # Before the jaws close: no contact, no force.
+    first = estimates[0]
+    assert first.in_contact == [False, False] and not np.any(first.bubble_force_n)
+
+
+def test_slip_node_reports_an_onset_once_the_patch_slips(fill_frames: list[sim.Instant]) -> None:
+    _, wio = drive_wrench(fill_frames)
+    node, io = make_node(SlipNode, {})
+    stable_at = next(i for i in fill_frames if i.snapshot.time_secs >= 0.9).stamp_nanos
+    feed(
+        node, "grasp", GraspState(header=Header(stamp_nanos=stable_at), stable=True, event="stable")
+    )
+    for msg in wio.published["contact"]:
+        if msg.header.stamp_nanos >= stable_at:
+            feed(node, "contact", msg)
+    states: list[SlipState] = io.published["slip"]
+    onsets = [(s.header.stamp_nanos, s.sensor, s.onset) for s in states if s.onset]
+    assert onsets, "the filled mug slips"
+    true_edge = next(
+        i.stamp_nanos
+        for i in fill_frames
+        if i.snapshot.wrench and i.snapshot.wrench["left"].slipping_fraction > 0
+    )
+    # Detected within half a second of the truth's first slipping point (either side).
+    assert abs(onsets[0][0] - true_edge) / 1e9 < 0.5
+    before = [s for s in states if s.header.stamp_nanos < true_edge - int(0.5e9)]
+    assert before and not any(s.onset for s in before)
+
+
+def test_wrench_node_refuses_a_missing_calibration_naming_the_field() -> None:
+    with pytest.raises(ParamError, match="calibration"):
+        make_node(WrenchNode, {"calibration": "models/force/none.json"})
+
+
+def _wrench(stamp: int, fz: float, fy: float = 3.4) -> WrenchEstimate:
+    z3 = np.zeros(3)
+    return WrenchEstimate(
+        header=Header(stamp_nanos=stamp),
+        method="physics",
+        bubble_force_n=np.zeros((2, 3)),
+        bubble_torque_nm=np.zeros((2, 3)),
+        bubble_force_sigma_n=np.zeros((2, 3)),
+        bubble_torque_sigma_nm=np.zeros((2, 3)),
+        object_force_n=np.array([0.0, fy, fz]),
+        object_torque_nm=z3,
+        object_force_sigma_n=z3,
+        object_torque_sigma_nm=z3,
+        in_contact=[True, True],
+        area_m2=[0.002, 0.002],
+    )
+
+
+def _holding_handover() -> tuple[HandoverSupervisor, object]:
+    node, io = make_node(HandoverSupervisor, {"grasp_width_m": 0.07, "start_delay_secs": 0.0})
+    feed(node, "wrench", _wrench(10, 0.0))
+    feed(node, "grasp", GraspState(header=Header(stamp_nanos=20), stable=True, event="stable"))
+    assert node.state == "holding"
+    return node, io
+
+
+def test_handover_releases_on_a_pull_in_the_force() -> None:
+    node, io = _holding_handover()
+    feed(node, "wrench", _wrench(30, -0.7))
+    assert node.state == "holding"
+    feed(node, "wrench", _wrench(40, -0.9))
+    assert node.state == "releasing"
+    assert io.published["command"][-1].command == "release"
+
+
+def test_handover_squeezes_on_slip_when_the_load_grows_under_gravity() -> None:
+    node, io = _holding_handover()
+    feed(node, "wrench", _wrench(30, 0.0, fy=9.0))  # heavier: not a pull
+    feed(
+        node,
+        "slip",
+        SlipState(header=Header(stamp_nanos=40), sensor="left", phase="edge", onset="edge"),
+    )
+    command = io.published["command"][-1]
+    assert node.state == "holding" and command.command == "grasp"
+    assert 12.0 < command.force_n <= 40.0
+    events = [e.event for e in io.published["event"]]
+    assert "squeeze" in events and "release" not in events
+    assert isinstance(io.published["event"][-1].detail, str)
+    _ = (BubbleContact, GripperState, Pressure)

@@ -1,0 +1,186 @@
+"""perception.force: features, the estimators and their calibration, slip, the reflex."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from geometry.camera import PinholeCamera
+from perception.force.estimators import (
+    Calibration,
+    PhysicsCalibration,
+    Sample,
+    calibrate,
+    calibrate_physics,
+    estimate,
+    physics_wrench,
+)
+from perception.force.features import BubbleFeatures, ContactFeatures, rim_correction
+from perception.force.reflex import GripReflex, PullWatch, ReflexParams
+from perception.force.slip import SlipDetector, SlipParams
+
+LEFT_NORMAL = np.array([-1.0, 0.0, 0.0])
+
+
+def features(
+    *,
+    pressure_pa: float = 2000.0,
+    area_m2: float = 0.002,
+    shift_m: tuple[float, float] = (0.0, 0.0),
+    core: tuple[float, float] | None = None,
+    edge: tuple[float, float] | None = None,
+    centroid: tuple[float, float, float] = (0.04, 0.0, 0.01),
+    volume_m3: float = 8e-6,
+    rise_pa: float = 900.0,
+) -> ContactFeatures:
+    s = np.asarray(shift_m, float)
+    return ContactFeatures(
+        True, True, pressure_pa, rise_pa, area_m2, volume_m3, np.asarray(centroid, float),
+        LEFT_NORMAL, s, np.asarray(core if core is not None else s, float),
+        np.asarray(edge if edge is not None else s, float), 0.0, 500,
+    )  # fmt: skip
+
+
+def test_physics_model_presses_along_the_plate_and_shears_with_the_dots() -> None:
+    cal = PhysicsCalibration(gain=1.0, stiffness_n_per_m3=(1e6, 1e6))
+    w = physics_wrench(features(shift_m=(-0.001, 0.0)), cal)
+    # The object pushes the left membrane towards its plate (+x) with p A.
+    assert w.force_n[0] == pytest.approx(2000.0 * 0.002)
+    assert w.force_n[1] == pytest.approx(-1e6 * 0.002 * 0.001)
+    np.testing.assert_allclose(w.torque_nm, np.cross([0.04, 0.0, 0.01], w.force_n))
+    out = dataclasses.replace(features(), in_contact=False)
+    assert not np.any(physics_wrench(out, cal).force_n)
+
+
+def test_calibration_recovers_the_constants_of_a_physics_world() -> None:
+    rng = np.random.default_rng(0)
+    truth = PhysicsCalibration(gain=1.3, stiffness_n_per_m3=(8e5, 1.2e6))
+    data = []
+    for _ in range(60):
+        f = features(
+            pressure_pa=float(rng.uniform(1200, 4000)),
+            area_m2=float(rng.uniform(0.001, 0.003)),
+            shift_m=tuple(rng.uniform(-0.003, 0.003, 2)),
+            volume_m3=float(rng.uniform(2e-6, 2e-5)),
+            rise_pa=0.0,
+        )
+        w = physics_wrench(f, truth)
+        data.append(Sample("left", f, w.force_n, w.torque_nm))
+    fitted = calibrate_physics(data)
+    assert fitted.gain == pytest.approx(1.3, rel=1e-6)
+    assert fitted.stiffness_n_per_m3 == pytest.approx((8e5, 1.2e6), rel=1e-6)
+    assert max(fitted.force_sigma_n) < 1e-6
+    with pytest.raises(ValueError, match="at least 4"):
+        calibrate_physics(data[:2])
+
+
+def test_calibration_file_round_trips_and_a_bad_one_names_the_file(tmp_path: Path) -> None:
+    rng = np.random.default_rng(1)
+    data = []
+    for i in range(80):
+        f = features(
+            area_m2=float(rng.uniform(0.001, 0.003)), shift_m=tuple(rng.uniform(-0.002, 0.002, 2))
+        )
+        force = np.array([f.pressure_pa * f.area_m2, *(1e6 * f.area_m2 * f.shift_m)])
+        data.append(Sample("left" if i % 2 else "right", f, force, np.zeros(3)))
+    cal = calibrate(data, rig="test", source="synthetic")
+    path = tmp_path / "cal.json"
+    cal.save(path)
+    again = Calibration.load(path)
+    f = data[0].features
+    for method in ("physics", "ridge"):
+        np.testing.assert_allclose(
+            estimate(f, "left", again, method).force_n, estimate(f, "left", cal, method).force_n
+        )
+    with pytest.raises(ValueError, match="unknown method"):
+        estimate(f, "left", cal, "oracle")
+    path.write_text(json.dumps({"physics": {"stiffness": 1}}))
+    with pytest.raises(ValueError, match=str(path)):
+        Calibration.load(path)
+    with pytest.raises(ValueError, match="missing.json"):
+        Calibration.load(tmp_path / "missing.json")
+
+
+def test_features_are_finite_without_reference_without_contact_and_with_nan_depth() -> None:
+    camera = PinholeCamera.from_fov(64, 48, hfov_deg=62.0, vfov_deg=45.0)
+    pose = np.eye(4)
+    pose[0, 3] = 0.05
+    ir = np.full((48, 64), 1000, np.uint16)
+    depth = np.full((48, 64), 0.06, np.float32)
+    ext = BubbleFeatures()
+    f = ext.update(ir, depth, 1000.0, camera, pose)
+    assert not f.in_contact and f.area_m2 == 0.0 and np.isfinite(f.normal_in_tool).all()
+    ext.free_frame(depth, 1000.0)
+    assert not ext.update(ir, depth, 1000.0, camera, pose).in_contact
+    nan = np.full_like(depth, np.nan)
+    f = ext.update(ir, nan, 1000.0, camera, pose)
+    assert not f.in_contact and np.isfinite(f.shift_m).all()
+    # A patch pressed in, but too small to track the dots on: no tangential measurement.
+    pressed = depth.copy()
+    pressed[20:30, 28:38] -= 0.004
+    ext.tare(ir, depth, camera, pose)
+    f = ext.update(ir, pressed, 1200.0, camera, pose)
+    assert f.in_contact and f.area_m2 > 0 and f.pressure_rise_pa == pytest.approx(200.0)
+    assert f.normal_in_tool.tolist() == [-1.0, 0.0, 0.0]
+
+
+def test_rim_correction_is_the_cylinder_band_ratio_and_finite_when_shallow() -> None:
+    assert rim_correction(np.array([0.004] * 20), 0.001) == pytest.approx(np.sqrt(4 / 3))
+    assert np.isfinite(rim_correction(np.array([0.001]), 0.001))
+    assert rim_correction(np.array([np.nan]), 0.001) == 1.0
+
+
+def run_detector(shifts: list[tuple[float, float]], forces: list[float]) -> list[str]:
+    det = SlipDetector(SlipParams(), friction=0.8)
+    det.reference()
+    onsets = []
+    for i, ((core, edge), ft) in enumerate(zip(shifts, forces, strict=True)):
+        f = features(core=(core, 0.0), edge=(edge, 0.0), shift_m=(core, 0.0))
+        report = det.update(f, np.array([4.0, ft, 0.0]), i / 30)
+        onsets.append(report.onset)
+    return onsets
+
+
+def test_slip_detector_sees_the_edge_lag_then_the_whole_patch() -> None:
+    # Stick: the edge follows the core; then the edge stalls; then the load reaches
+    # the friction cone (4 N normal, friction 0.8: 3.2 N).
+    shifts = [(-0.0001 * i, -0.0001 * i) for i in range(10)]
+    shifts += [(-0.001 - 0.0002 * i, -0.001) for i in range(10)]
+    forces = [0.1 * i for i in range(20)] + [3.2] * 3
+    shifts += [shifts[-1]] * 3
+    onsets = run_detector(shifts, forces)
+    assert onsets.count("edge") == 1 and onsets.count("patch") == 1
+    assert onsets.index("edge") >= 10 and onsets.index("patch") == 20
+
+
+def test_slip_detector_stays_quiet_while_held_still_with_noise() -> None:
+    rng = np.random.default_rng(2)
+    noise = rng.normal(0, 0.00003, (300, 2))
+    onsets = run_detector([tuple(n) for n in noise], [1.0] * 300)
+    assert not any(onsets)
+
+
+def test_reflex_raises_to_what_the_load_needs_bounded_and_not_twice_at_once() -> None:
+    reflex = GripReflex(ReflexParams(max_force_n=12.0, cooldown_secs=0.1), 6.0, 0.8)
+    assert reflex.on_slip(1.0, 8.0) == pytest.approx(9.0)  # 1.5 x 6 N beats the 8 N needed
+    assert reflex.on_slip(1.05, 20.0) is None  # cooling down
+    assert reflex.on_slip(1.2, 20.0) == 12.0  # the object's bound
+    assert reflex.on_slip(1.5, 30.0) is None
+    with pytest.raises(ValueError, match="max_force_n"):
+        ReflexParams(max_force_n=100.0)
+
+
+def test_pull_is_told_from_a_heavier_load_by_its_direction() -> None:
+    watch = PullWatch(0.6, 2, gravity_in_tool=(0.0, -1.0, 0.0))
+    watch.start(np.array([0.0, 3.4, 0.0]))
+    # Filling: the bubbles push the object up harder.
+    assert not any(watch.update(np.array([0.0, 3.4 + d, 0.0])) for d in (1.0, 2.0, 3.0))
+    # A squeeze changes only the closing axis.
+    assert not watch.update(np.array([5.0, 3.4, 0.0]))
+    # A pull out along +z: the bubbles hold back along -z.
+    assert not watch.update(np.array([0.0, 3.4, -0.8]))
+    assert watch.update(np.array([0.0, 3.4, -1.0]))
