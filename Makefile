@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 VENV_STAMP := .venv/.installed
 
-.PHONY: run test lint format check venv clean
+.PHONY: run test test-fast lint format check venv clean
 
 $(VENV_STAMP): pyproject.toml
 	python3 -m venv .venv
@@ -30,8 +30,13 @@ format: $(VENV_STAMP)
 	$(PY) -m ruff format .
 	$(PY) -m ruff check --fix .
 
+# The one gate: lint and every test.
 test: $(VENV_STAMP) lint
 	$(PY) -m pytest
+
+# The loop to run every few minutes: the unit tests, no process started (under a minute).
+test-fast: $(VENV_STAMP)
+	$(PY) -m pytest -m "not spawns and not slow"
 
 clean:
 	rm -rf .venv

@@ -5,16 +5,25 @@ from __future__ import annotations
 
 import os
 import signal
-import sys
 
 
 def _interrupted(signum: int, frame: object) -> None:
     """Ctrl-C or SIGTERM outside a running graph: end now, quietly, with 128 + N.
 
     Installed before anything else is imported, so a signal during start-up is never a
-    traceback; the launcher installs its own handlers while it supervises a graph.
+    traceback; the launcher installs its own handlers while it supervises a graph. Once
+    ending, further signals are ignored (see :func:`_end`).
     """
-    raise SystemExit(128 + signum)
+    _end(128 + signum)
+
+
+def _end(code: object) -> None:
+    """Exit with ``code``, deaf to SIGINT and SIGTERM from now on: Python gives a signal
+    its default action again late in its shutdown, so a quick second or third Ctrl-C
+    would otherwise kill the process by SIGINT (exit -2) instead of the code it chose."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    raise SystemExit(code)
 
 
 if __name__ == "__main__":
@@ -31,4 +40,4 @@ from cli.main import main  # noqa: E402 - after the signal handlers and BLAS, on
 __all__ = ["main"]
 
 if __name__ == "__main__":
-    sys.exit(main())
+    _end(main())

@@ -4,10 +4,18 @@ Four sweeps on simulated grasps (``bench.force_data``: random objects, grips and
 every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` effects):
 
 * ``wrench``: error against time per method (``physics``, ``ridge``) and per dot-flow
-  setting (Farneback at half and quarter resolution, DIS at half): each setting's
-  features of the *calibration* grasps (seeds ``0 .. n-1``) fit both methods, which are
-  scored on *held-out* grasps (seeds ``n .. 2n-1``: other objects, grips and loads).
-  Errors per bubble and frame in contact: force (N), torque (N m), force in percent of
+  setting (Farneback at half and quarter resolution, DIS at half), on both worlds: each
+  setting's features of the *calibration* grasps fit both methods, which are scored on
+  *held-out* grasps. ``world.sim``: seeds ``0 .. n-1`` against ``n .. 2n-1`` (other
+  objects, grips and loads). MuJoCo (``world.mujoco``, whose engine computes the
+  contact forces): ``bench.worlds``' grasps (the four objects in turn, a 12 N grasp,
+  a 4 mm slide along the fingers; recorded once per scene and mesh in ``out/worlds``
+  or ``WORLDS_DIR``, shared with ``bench.worlds``), the first half against the second,
+  an 8 mm membrane mesh (12 mm with ``--quick``). The slip, reflex and handover sweeps
+  are ``world.sim``'s only (MuJoCo's object is held by a hand, without gravity: it
+  cannot slip out).
+  Errors per bubble and frame in contact while the object is held (slid less than
+  ``DROP_M``): force (N), torque (N m), force in percent of
   the bubble's true load; median and p90; plus the share of frames within the goal
   (10% or 0.3 N, whichever is larger). Time: features and estimate of both bubbles per
   frame on one core (the least of ``TIMING_REPEATS`` runs of the first test grasp's
@@ -29,22 +37,32 @@ every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` e
   false releases. Decisions only: the graph's latency adds the pipeline's
   (``bench.tasks``).
 
-``--quick`` runs two grasps per set, one reflex grasp and one handover.
+By default: 8 ``world.sim`` grasps per set, 8 MuJoCo grasps, 4 still holds of 15 s, 8
+reflex grasps, 4 handovers; ``--grasps``, ``--mujoco``, ``--still``, ``--reflex`` and
+``--handover`` set them. ``--quick`` runs two grasps per set of ``world.sim``, one
+MuJoCo grasp at a 12 mm mesh (scored on itself: a smoke test, not held out), one
+reflex grasp and one handover.
 """
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
+import os
+import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 import sim
 from bench.common import Row, main, median, one_core, percentile, progress
-from bench.force_data import OBJECTS, Frame, draw, free_and_still, samples
+from bench.force_data import DROP_M, OBJECTS, Frame, draw, free_and_still, held, samples
 from geometry.camera import PinholeCamera
 from geometry.gripper import SIDES
+from messages.force import WrenchTruth
 from perception.force.estimators import METHODS, Calibration, calibrate, estimate
 from perception.force.features import BubbleFeatures, ContactFeatures, FeatureParams
 from perception.force.reflex import GripReflex, PullWatch, ReflexParams
@@ -57,11 +75,10 @@ SETTINGS = {
     "fb_quarter": ShearParams(scale=0.25, warm_start=True),
     "dis_half": ShearParams(method="dis", scale=0.5, warm_start=True),
 }
-DEFAULT_SETTING = "fb_half"
+DEFAULT_SETTING = "dis_half"  # FeatureParams' default
 TIMING_REPEATS = 3
 MAX_LATE_FRAMES = 15
 MAX_EARLY_FRAMES = 15
-DROP_M = 0.010
 GOAL_FRACTION, GOAL_N = 0.10, 0.3
 
 
@@ -97,24 +114,26 @@ class Bubbles:
         return out
 
 
-def record_all(seed: int, duration_secs: float) -> Recorded:
-    """Render one grasp once; every setting extracts its features from the same frames."""
-    spec = draw(seed, duration_secs=duration_secs)
-    simulator = sim.Simulator(spec.scene)
-    bubbles = {name: Bubbles(flow) for name, flow in SETTINGS.items()}
-    rec = Recorded([], {name: [] for name in SETTINGS})
-    none = sim.friction.BubbleWrench.none()
-    while not simulator.world.done:
-        inst = simulator.step()
+def features_of(
+    instants: list[sim.Instant],
+    scene: sim.Scene,
+    truths: list[WrenchTruth],
+    settings: tuple[str, ...] = (),
+) -> Recorded:
+    """Every setting's (default: all) features of one grasp's frames, beside the truth."""
+    bubbles = {name: Bubbles(SETTINGS[name]) for name in settings or SETTINGS}
+    rec = Recorded([], {name: [] for name in bubbles})
+    for inst, truth in zip(instants, truths, strict=True):
         snap = inst.snapshot
         for name, b in bubbles.items():
-            rec.by_setting[name].append(b.frame(inst, spec.scene))
+            rec.by_setting[name].append(b.frame(inst, scene))
+        none = sim.friction.BubbleWrench.none()
         rec.frames.append(
             Frame(
                 t_secs=snap.time_secs,
-                features=rec.by_setting[DEFAULT_SETTING][-1],
-                force_n={s: snap.wrench.get(s, none).force_n for s in SIDES},
-                torque_nm={s: snap.wrench.get(s, none).torque_nm for s in SIDES},
+                features=rec.by_setting[next(iter(bubbles))][-1],
+                force_n={s: truth.bubble_force_n[i] for i, s in enumerate(SIDES)},
+                torque_nm={s: truth.bubble_torque_nm[i] for i, s in enumerate(SIDES)},
                 slipping={s: snap.wrench.get(s, none).slipping_fraction for s in SIDES},
                 slide_m=snap.slide_m.copy(),
                 feature_secs=0.0,
@@ -123,16 +142,50 @@ def record_all(seed: int, duration_secs: float) -> Recorded:
     return rec
 
 
-def time_setting(seed: int, duration_secs: float, setting: str, cal: Calibration) -> float:
-    """Seconds per frame (both bubbles: features and both methods' estimates), the least
-    of ``TIMING_REPEATS`` runs over one grasp's frames, thread CPU time."""
+def record_all(
+    seed: int, duration_secs: float, *, load: str | None = None, settings: tuple[str, ...] = ()
+) -> Recorded:
+    """Render one grasp of the simulated world once; every setting (default: all)
+    extracts its features from the same frames."""
+    spec = draw(seed, duration_secs=duration_secs, load=load)
+    simulator = sim.Simulator(spec.scene)
+    instants = []
+    while not simulator.world.done:
+        instants.append(simulator.step())
+    truths = [inst.wrench for inst in instants]
+    assert all(t is not None for t in truths)
+    return features_of(instants, spec.scene, truths, settings)  # type: ignore[arg-type]
+
+
+def mujoco_grasps(count: int, spacing_m: float, workdir: Path) -> list[Recorded]:
+    """``bench.worlds``' grasps on the MuJoCo world (recorded once per scene and mesh in
+    ``workdir``, shared with ``bench.worlds``), with the engine's wrench as the truth."""
+    from bench import worlds
+    from runtime.bag import BagReader
+
+    rng = np.random.default_rng(worlds.SEED)
+    out = []
+    for k in progress(range(count), "bench.force mujoco"):
+        scene_path, bag, _ = worlds.recorded_grasp(k, rng, spacing_m, workdir)
+        instants = worlds.replay_mujoco(scene_path, bag)
+        with BagReader(bag) as reader:
+            truths = [m.decode() for m in reader.messages(["world/wrench"])]
+        out.append(features_of(instants, sim.load_scene(scene_path), truths))
+    return out
+
+
+def time_setting(
+    seed: int, duration_secs: float, setting: str, cal: Calibration, repeats: int
+) -> float:
+    """Seconds per frame (both bubbles: features and the physics estimate), the least
+    of ``repeats`` runs over one grasp's frames, thread CPU time."""
     spec = draw(seed, duration_secs=duration_secs)
     simulator = sim.Simulator(spec.scene)
     instants = []
     while not simulator.world.done:
         instants.append(simulator.step())
     best = float("inf")
-    for _ in range(TIMING_REPEATS):
+    for _ in range(repeats):
         bubbles = Bubbles(SETTINGS[setting])
         start = time.thread_time()
         for inst in instants:
@@ -143,7 +196,10 @@ def time_setting(seed: int, duration_secs: float, setting: str, cal: Calibration
     return best
 
 
-def wrench_rows(cal_recs: list[Recorded], test_recs: list[Recorded], secs: dict[str, float]):
+def wrench_rows(
+    world: str, cal_recs: list[Recorded], test_recs: list[Recorded], secs: dict[str, float]
+) -> tuple[list[Row], dict[str, Calibration]]:
+    """Each setting's calibration on ``cal_recs``, each method scored on ``test_recs``."""
     rows: list[Row] = []
     cals: dict[str, Calibration] = {}
     for setting in SETTINGS:
@@ -154,14 +210,14 @@ def wrench_rows(cal_recs: list[Recorded], test_recs: list[Recorded], secs: dict[
                 for f, feats in zip(rec.frames, rec.by_setting[setting], strict=True)
             ]
             data += samples(frames)
-        cal = calibrate(data, rig="sim", source="bench.force")
+        cal = calibrate(data, rig=world, source="bench.force")
         cals[setting] = cal
         for method in METHODS:
             ferr, terr, pct, within = [], [], [], []
             for rec in test_recs:
                 for f, feats in zip(rec.frames, rec.by_setting[setting], strict=True):
                     for side in SIDES:
-                        if not feats[side].in_contact or not np.any(f.force_n[side]):
+                        if not (feats[side].in_contact and np.any(f.force_n[side]) and held(f)):
                             continue
                         w = estimate(feats[side], side, cal, method)
                         e = float(np.linalg.norm(w.force_n - f.force_n[side]))
@@ -173,6 +229,7 @@ def wrench_rows(cal_recs: list[Recorded], test_recs: list[Recorded], secs: dict[
             rows.append(
                 {
                     "sweep": "wrench",
+                    "world": world,
                     "setting": setting,
                     "method": method,
                     "samples": len(ferr),
@@ -245,6 +302,7 @@ def slip_rows(test_recs: list[Recorded], cal: Calibration, period_secs: float) -
         rows.append(
             {
                 "sweep": "slip",
+                "world": "sim",
                 "setting": DEFAULT_SETTING,
                 "method": f"onset_{phase}",
                 "samples": total,
@@ -310,6 +368,7 @@ def reflex_rows(seeds: list[int], duration_secs: float, cal: Calibration) -> lis
         rows.append(
             {
                 "sweep": "reflex",
+                "world": "sim",
                 "setting": "on" if reflex else "off",
                 "method": "physics",
                 "samples": len(runs),
@@ -397,6 +456,7 @@ def handover_rows(seeds: list[int], cal: Calibration, period_secs: float) -> lis
         rows.append(
             {
                 "sweep": "handover",
+                "world": "sim",
                 "setting": "decision",
                 "method": rule,
                 "samples": len(runs),
@@ -409,10 +469,31 @@ def handover_rows(seeds: list[int], cal: Calibration, period_secs: float) -> lis
     return rows
 
 
-def run(quick: bool) -> list[Row]:
+@dataclass(frozen=True)
+class Sizes:
+    """How much each sweep runs (the default run; ``--quick`` and the flags change it)."""
+
+    grasps: int = 8  # world.sim grasps per set (calibration, held out)
+    duration_secs: float = 3.0
+    mujoco: int = 8  # MuJoCo grasps (half calibration, half held out)
+    mujoco_mesh_m: float = 0.008
+    still: int = 4  # still holds of 15 s for the false alarms
+    still_secs: float = 15.0
+    reflex: int = 8
+    handover: int = 4
+    timing_repeats: int = TIMING_REPEATS
+
+
+QUICK = Sizes(
+    grasps=2, duration_secs=1.8, mujoco=1, mujoco_mesh_m=0.012, still=1, still_secs=3.0,
+    reflex=1, handover=1, timing_repeats=1,
+)  # fmt: skip
+
+
+def run(quick: bool, sizes: Sizes | None = None) -> list[Row]:
     one_core()
-    n = 2 if quick else 8
-    duration = 2.0 if quick else 3.0
+    z = QUICK if quick else (sizes or Sizes())
+    n, duration = z.grasps, z.duration_secs
     cal_seeds, test_seeds = list(range(n)), list(range(n, 2 * n))
     cal_recs = [record_all(s, duration) for s in progress(cal_seeds, "bench.force calibration")]
     test_recs = [record_all(s, duration) for s in progress(test_seeds, "bench.force held-out")]
@@ -420,21 +501,36 @@ def run(quick: bool) -> list[Row]:
         [s for rec in cal_recs for s in samples(rec.frames)], rig="sim", source="timing"
     )
     secs = {
-        setting: time_setting(test_seeds[0], min(duration, 2.0), setting, placeholder)
+        setting: time_setting(
+            test_seeds[0], 1.2 if quick else 2.0, setting, placeholder, z.timing_repeats
+        )
         for setting in progress(list(SETTINGS), "bench.force timing")
     }
-    rows, cals = wrench_rows(cal_recs, test_recs, secs)
+    rows, cals = wrench_rows("sim", cal_recs, test_recs, secs)
     cal = cals[DEFAULT_SETTING]
+    # The second world: the engine's contact forces, calibrated on its own grasps.
+    # (--quick: one grasp, scored on itself: a smoke test, not held out.)
+    with tempfile.TemporaryDirectory() as tmp:
+        workdir = Path(tmp) if quick else Path(os.environ.get("WORLDS_DIR", "out/worlds"))
+        workdir.mkdir(parents=True, exist_ok=True)
+        recs = mujoco_grasps(z.mujoco, z.mujoco_mesh_m, workdir)
+    half = max(1, z.mujoco // 2)
+    rows += wrench_rows("mujoco", recs[:half], recs[half:] or recs, secs)[0]
     period = draw(0).scene.frame_period_secs
-    rows += slip_rows(test_recs, cal, period)
-    reflex_seeds = [n * 2 + i for i in range(1 if quick else 8)]
-    rows += reflex_rows(reflex_seeds, 4.0 if not quick else 3.0, cal)
-    rows += handover_rows([0] if quick else [0, 1, 2, 3], cal, period)
+    # Long still holds for the false alarms (the default setting only).
+    still = [
+        record_all(100 + i, z.still_secs, load="still", settings=(DEFAULT_SETTING,))
+        for i in progress(range(z.still), "bench.force still holds")
+    ]
+    rows += slip_rows(test_recs + still, cal, period)
+    reflex_seeds = [n * 2 + i for i in range(z.reflex)]
+    rows += reflex_rows(reflex_seeds, 2.5 if quick else 4.0, cal)
+    rows += handover_rows(list(range(z.handover)), cal, period)
     return rows
 
 
 COLUMNS = [
-    "sweep", "setting", "method", "samples", "force_err_n_median", "force_err_pct_median",
+    "sweep", "world", "setting", "method", "samples", "force_err_n_median", "force_err_pct_median",
     "torque_err_nm_median", "within_goal_fraction", "ms_per_frame", "rate_hz",
     "detected_fraction", "onset_frames_median", "onset_ms_median", "false_alarms_per_min",
     "kept", "dropped", "release_latency_ms_median", "false_release_rate",
@@ -442,4 +538,21 @@ COLUMNS = [
 
 
 if __name__ == "__main__":
-    main("force", run, columns=COLUMNS)
+    parser = argparse.ArgumentParser(add_help=False)
+    parser.add_argument("--grasps", type=int, default=Sizes.grasps, help="sim grasps per set")
+    parser.add_argument("--mujoco", type=int, default=Sizes.mujoco, help="MuJoCo grasps")
+    parser.add_argument("--still", type=int, default=Sizes.still, help="15 s still holds")
+    parser.add_argument("--reflex", type=int, default=Sizes.reflex, help="reflex grasps")
+    parser.add_argument("--handover", type=int, default=Sizes.handover, help="handovers")
+    extra, rest = parser.parse_known_args()
+    counts = (extra.grasps, extra.mujoco, extra.still, extra.reflex, extra.handover)
+    if extra.grasps < 2 or extra.mujoco < 2 or min(counts) < 1:
+        sys.exit(f"bench.force: --grasps and --mujoco must be >= 2, the rest >= 1, got {extra}")
+    chosen = Sizes(
+        grasps=extra.grasps,
+        mujoco=extra.mujoco,
+        still=extra.still,
+        reflex=extra.reflex,
+        handover=extra.handover,
+    )
+    main("force", lambda quick: run(quick, chosen), columns=COLUMNS, argv=rest)

@@ -14,7 +14,10 @@ run's seed (the seeds are in the table):
   tap re-acquired). Axis angle and off-axis distance (median, p95), time to re-acquire,
   and the latency from a camera frame to its pose estimate (median, p99).
 * ``handover``: ``graph.yaml`` on a scene whose pull starts at a random time, and the
-  same scene held still. Success: released after the pull started, within 1 s.
+  same scene held still. Success: released after the pull started, within 1 s. The
+  supervisor releases on the pull it sees in the bubbles' force (``wrench``);
+  ``handover_shear`` runs the same scenes with the paper's shear rule
+  (``supervisor.release_on=shear``), side by side.
   Release latency (pull start to the release command's frame), false-release rate
   (releases during the still hold), camera frame to shear estimate latency.
 * ``stacking``: ``graphs/stacking.yaml`` lowering a mug or a square bottle onto a
@@ -51,8 +54,8 @@ import yaml
 from bench.common import Row, main, median, percentile, progress
 
 ROOT = Path(__file__).resolve().parents[1]
-TASKS = ("dish_loading", "antagonism", "handover", "stacking")
-RUNS = {"dish_loading": 2, "antagonism": 2, "handover": 3, "stacking": 4}
+TASKS = ("dish_loading", "antagonism", "handover", "handover_shear", "stacking")
+RUNS = {"dish_loading": 2, "antagonism": 2, "handover": 3, "handover_shear": 3, "stacking": 4}
 TOPICS = (
     "^(supervisor/event|world/state|world/ground_truth|world/placement|pose/pose|shear/shear"
     "|classifier/probabilities)$"
@@ -207,7 +210,7 @@ def pull_start_nanos(topics: dict[str, list]) -> int | None:
     return moved[0] if moved else None
 
 
-def handover(seed: int, tmp: Path) -> list[dict[str, Any]]:
+def handover(seed: int, tmp: Path, *extra: str) -> list[dict[str, Any]]:
     rng = np.random.default_rng([seed, 3])
     start = float(rng.uniform(1.4, 2.2))
     z0 = 0.005
@@ -223,12 +226,14 @@ def handover(seed: int, tmp: Path) -> list[dict[str, Any]]:
         ],
     )
     held = write_scene("scenes/mug_hold.yaml", tmp / "hold.yaml", seed=200 + seed)
-    _, _, topics, wall = launch("graph.yaml", tmp / "pull.mcap", "--set", f"world.scene={pulled}")
+    _, _, topics, wall = launch(
+        "graph.yaml", tmp / "pull.mcap", "--set", f"world.scene={pulled}", *extra
+    )
     pull = pull_start_nanos(topics)
     releases = [s for s, _ in events(topics, "release")]
     latency = (releases[0] - pull) / 1e9 if releases and pull is not None else None
     _, _, held_topics, held_wall = launch(
-        "graph.yaml", tmp / "hold.mcap", "--set", f"world.scene={held}"
+        "graph.yaml", tmp / "hold.mcap", "--set", f"world.scene={held}", *extra
     )
     return [
         {
@@ -274,6 +279,7 @@ RUNNERS = {
     "dish_loading": dish_loading,
     "antagonism": antagonism,
     "handover": handover,
+    "handover_shear": lambda seed, tmp: handover(seed, tmp, "--set", "supervisor.release_on=shear"),
     "stacking": stacking,
 }
 

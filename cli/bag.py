@@ -6,9 +6,9 @@ python launch.py bag recover FILE OUT
 python launch.py bag echo FILE --topic T [--limit N] [--full] [--strict]
 python launch.py bag diff A B [--topic T ...] [--rtol R] [--atol A] [--ignore FIELD ...] [--strict]
 
-``bag diff`` compares messages of a topic in order, field by field, decoded from each bag's
-stored description (no project classes needed); numbers and arrays with ``numpy.isclose``
-tolerances (NaN equals NaN). It exits 0 when there is no difference, 1 when there is, 2 on
+``bag diff`` pairs the messages of a topic by stamp and compares them field by field,
+decoded from each bag's stored description, wall-clock fields left out
+(:mod:`runtime.bag.diff`). It exits 0 when there is no difference, 1 when there is, 2 on
 an error. ``bag echo`` and ``bag diff`` skip a message that cannot be decoded, say so and
 go on (echo exits 1, diff counts it as a difference); ``--strict`` stops at it (exit 2).
 """
@@ -19,19 +19,21 @@ import argparse
 import datetime
 import logging
 import sys
-from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 
+from cli.options import same_file
 from messages.errors import BagError
 from messages.files import load_yaml
-from runtime.bag import BagMessage, BagReader, BagWriter
+from runtime.bag import BagReader, BagWriter
+from runtime.bag.diff import diff_bags, summary
 
 log = logging.getLogger(__name__)
+SHOWN = 10  # skipped messages named one by one; the rest are counted
 
 # -- shared formatting ---------------------------------------------------------------------------
 
@@ -197,15 +199,21 @@ def echo_lines(
 # -- recover -------------------------------------------------------------------------------------
 
 
-def recover(src: Path, dst: Path) -> tuple[int, list[str]]:
-    """Copy every readable message of ``src`` into a complete bag ``dst`` (with a summary).
+def recover(src: Path, dst: Path) -> tuple[int, list[str], list[str]]:
+    """Copy every readable message of ``src`` into a complete bag ``dst`` (with a summary),
+    past the ones that cannot be decoded.
 
     Returns:
-        The number of messages copied and the problems met reading ``src``.
+        The number of messages copied, why each skipped message was skipped, and the
+        problems met reading ``src``.
+
+    Raises:
+        BagError: ``dst`` is ``src`` (by any path: a link, the same inode).
     """
-    if src.resolve() == dst.resolve():
+    if same_file(src, dst):
         raise BagError(f"{src}: recover writes a new file; give another output path")
     problems: list[str] = []
+    skipped: list[str] = []
     with BagReader(src, warn=problems.append) as reader:
         copied = 0
         with BagWriter(dst) as writer:
@@ -213,134 +221,19 @@ def recover(src: Path, dst: Path) -> tuple[int, list[str]]:
             if run:
                 writer.add_metadata("softbubble.run", run)
             for msg in reader.messages():
-                writer.copy_message(msg)
+                try:
+                    msg.decode_plain()  # what cannot be decoded is not worth recovering
+                    writer.copy_message(msg)
+                except BagError as err:
+                    skipped.append(str(err))
+                    continue
                 copied += 1
             old = reader.drops()
             writer.set_runtime_drops({t: d.get("runtime", 0) for t, d in old.items()})
             for topic, d in old.items():
                 if topic in writer.counts:
                     writer.counts[topic].rejected = d.get("rejected", 0)
-    return copied, problems
-
-
-# -- diff ----------------------------------------------------------------------------------------
-
-
-@dataclass
-class Difference:
-    topic: str
-    index: int
-    field: str
-    detail: str
-
-    def __str__(self) -> str:
-        return f"{self.topic} #{self.index} {self.field}: {self.detail}"
-
-
-def compare_values(
-    a: Any,
-    b: Any,
-    *,
-    rtol: float,
-    atol: float,
-    path: str = "",
-    ignore: frozenset[str] = frozenset(),
-) -> list[tuple[str, str]]:
-    """Differences between two decoded values as ``(field path, what differs)``."""
-    if path in ignore:
-        return []
-    if isinstance(a, dict) and isinstance(b, dict):
-        out: list[tuple[str, str]] = []
-        for key in sorted(set(a) | set(b)):
-            sub = f"{path}.{key}" if path else str(key)
-            if sub in ignore:
-                continue
-            if key not in a or key not in b:
-                out.append((sub, "only in " + ("B" if key not in a else "A")))
-                continue
-            out += compare_values(a[key], b[key], rtol=rtol, atol=atol, path=sub, ignore=ignore)
-        return out
-    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
-        x, y = np.asarray(a), np.asarray(b)
-        if x.shape != y.shape or x.dtype != y.dtype:
-            return [(path, f"{x.dtype}{list(x.shape)} vs {y.dtype}{list(y.shape)}")]
-        if x.dtype.kind in "biuf":
-            close = np.isclose(x, y, rtol=rtol, atol=atol, equal_nan=True)
-            if not close.all():
-                diff = np.abs(x.astype(np.float64) - y.astype(np.float64))
-                worst = float(np.nanmax(np.where(close, 0.0, diff))) if diff.size else 0.0
-                return [
-                    (
-                        path,
-                        f"{int((~close).sum())} of {x.size} elements differ, max |a-b| {worst:.6g}",
-                    )
-                ]
-            return []
-        return [] if np.array_equal(x, y) else [(path, "arrays differ")]
-    if isinstance(a, list | tuple) and isinstance(b, list | tuple):
-        if len(a) != len(b):
-            return [(path, f"length {len(a)} vs {len(b)}")]
-        out = []
-        for i, (x, y) in enumerate(zip(a, b, strict=True)):
-            out += compare_values(x, y, rtol=rtol, atol=atol, path=f"{path}[{i}]", ignore=ignore)
-        return out
-    numeric = (int, float)
-    if isinstance(a, numeric) and isinstance(b, numeric) and not isinstance(a, bool | str):
-        if isinstance(b, bool):
-            return [] if a == b else [(path, f"{a!r} vs {b!r}")]
-        if np.isclose(float(a), float(b), rtol=rtol, atol=atol, equal_nan=True):
-            return []
-        return [(path, f"{a!r} vs {b!r}")]
-    return [] if a == b else [(path, f"{a!r} vs {b!r}")]
-
-
-def diff_bags(
-    path_a: Path,
-    path_b: Path,
-    topics: Sequence[str] | None = None,
-    *,
-    rtol: float = 1e-9,
-    atol: float = 0.0,
-    ignore: Sequence[str] = (),
-    strict: bool = False,
-) -> list[Difference]:
-    """Per-message differences of the decoded fields of ``topics`` (default: every topic).
-
-    A message that cannot be decoded on either side is one ``(undecodable)`` difference
-    and the comparison goes on; with ``strict`` its :class:`BagError` ends the diff.
-    """
-    skip = frozenset(ignore)
-    with BagReader(path_a) as ra, BagReader(path_b) as rb:
-        if topics:
-            ra.require_topics(topics)
-            rb.require_topics(topics)
-            chosen = list(topics)
-        else:
-            chosen = sorted(set(ra.topics()) | set(rb.topics()))
-        out: list[Difference] = []
-        for topic in chosen:
-            msgs_a: list[BagMessage] = list(ra.messages([topic]))
-            msgs_b: list[BagMessage] = list(rb.messages([topic]))
-            if len(msgs_a) != len(msgs_b):
-                out.append(
-                    Difference(topic, -1, "(count)", f"{len(msgs_a)} vs {len(msgs_b)} messages")
-                )
-            for index, (ma, mb) in enumerate(zip(msgs_a, msgs_b, strict=False)):
-                ta, tb = ma.channel.schema.type_name, mb.channel.schema.type_name
-                if ta != tb:
-                    out.append(Difference(topic, index, "(type)", f"{ta} vs {tb}"))
-                    continue
-                try:
-                    plain_a = ma.decode_plain()
-                    plain_b = mb.decode_plain()
-                except BagError as err:
-                    if strict:
-                        raise
-                    out.append(Difference(topic, index, "(undecodable)", str(err)))
-                    continue
-                found = compare_values(plain_a, plain_b, rtol=rtol, atol=atol, ignore=skip)
-                out += [Difference(topic, index, name, detail) for name, detail in found]
-        return out
+    return copied, skipped, problems
 
 
 # -- bag main ------------------------------------------------------------------------------------
@@ -353,11 +246,18 @@ def main(args: argparse.Namespace) -> int:
             print(info_text(args.file, show_graph=args.graph))
             return 0
         if args.bag_command == "recover":
-            copied, problems = recover(args.file, args.out)
+            copied, lost, problems = recover(args.file, args.out)
             for problem in problems:
                 print(f"warning: {problem}", file=sys.stderr)
+            for why in lost[:SHOWN]:
+                print(f"skipped: {why}", file=sys.stderr)
             print(f"{args.out}: {copied} message(s) recovered from {args.file}")
-            return 0
+            if lost:
+                print(
+                    f"bag recover: {len(lost)} message(s) could not be decoded and were left out",
+                    file=sys.stderr,
+                )
+            return 1 if lost else 0
         if args.bag_command == "echo":
             skipped: list[str] = []
             lines = echo_lines(
@@ -391,6 +291,5 @@ def main(args: argparse.Namespace) -> int:
         print(d)
     if len(diffs) > args.max_lines:
         print(f"... and {len(diffs) - args.max_lines} more")
-    messages = len({(d.topic, d.index) for d in diffs})
-    print(f"{len(diffs)} difference(s) in {messages} message(s)" if diffs else "no differences")
+    print(summary(diffs))
     return 1 if diffs else 0

@@ -13,34 +13,63 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import shutil
 import sys
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import cv2
+import numpy as np
 
 from messages.base import Message
 from messages.errors import BagError
-from messages.types import GraspState, TaskEvent, ToFImage
+from messages.types import GraspState, PoseEstimate, TaskEvent, ToFImage
 from runtime.bag import BagReader
-from viz.mosaic import MosaicState
+from viz.mosaic import MosaicState, depth_range
 
 
 @dataclass
 class Decoded:
-    """What a bag held that today's classes could not decode, per type name."""
+    """What a bag held that could not be used, per type name: messages today's classes
+    cannot decode (``undecodable``), and decoded ones that cannot be drawn or converted
+    (``unusable``: a NaN focal length, a stamp beyond what Foxglove's time can hold), with
+    the first reason of each type."""
 
-    undecodable: Counter[str]
+    undecodable: Counter[str] = field(default_factory=Counter)
+    unusable: Counter[str] = field(default_factory=Counter)
+    why: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def total(self) -> int:
+        return sum(self.undecodable.values()) + sum(self.unusable.values())
+
+    def guard(self, topic: str, msg: Message, use: Callable[[], object]) -> None:
+        """``use()`` the message; a damaged value it cannot take is skipped and counted."""
+        try:
+            use()
+        except (ValueError, OverflowError, TypeError, ZeroDivisionError) as err:
+            self.skip(topic, msg, str(err))
+
+    def skip(self, topic: str, msg: Message, why: str) -> None:
+        name = type(msg).__name__
+        self.unusable[name] += 1
+        self.why.setdefault(name, f"{topic}: {why}")
 
     def report(self, path: Path) -> None:
         for name, count in sorted(self.undecodable.items()):
             print(
                 f"warning: {path}: {count} {name} message(s) not decodable today; skipped",
+                file=sys.stderr,
+            )
+        for name, count in sorted(self.unusable.items()):
+            print(
+                f"warning: {path}: {count} {name} message(s) with values that cannot be used "
+                f"(first: {self.why[name]}); skipped",
                 file=sys.stderr,
             )
 
@@ -90,20 +119,22 @@ def written_whole(out: Path) -> Iterator[Path]:
     part.replace(out)
 
 
-def view_bag(path: Path, out: Path | None, *, object_name: str = "") -> Counter[str]:
-    """Log a bag into Rerun: into ``out`` (.rrd) or a spawned viewer. Returns counts per type."""
+def view_bag(
+    path: Path, out: Path | None, skipped: Decoded, *, object_name: str = ""
+) -> Counter[str]:
+    """Log a bag into Rerun: into ``out`` (.rrd) or a spawned viewer. Returns counts per
+    type; what it skips is counted in ``skipped``."""
     import rerun as rr
 
     from viz.rerun_log import RerunLogger, flush, spawn_viewer
 
     rec = rr.RecordingStream("softbubble", recording_id=path.stem)
     logger = RerunLogger(rec, object_name=object_name)
-    skipped = Decoded(Counter())
     if out is not None:
         with written_whole(out) as part:
             rec.save(part)
             for topic, _, msg in bag_messages(path, skipped):
-                logger.log(topic, msg)
+                skipped.guard(topic, msg, lambda: logger.log(topic, msg))  # noqa: B023
             flush(rec)
             rec.disconnect()
     else:
@@ -114,30 +145,28 @@ def view_bag(path: Path, out: Path | None, *, object_name: str = "") -> Counter[
         )
         with ends_at_once_when_interrupted():
             for topic, _, msg in bag_messages(path, skipped):
-                logger.log(topic, msg)
+                skipped.guard(topic, msg, lambda: logger.log(topic, msg))  # noqa: B023
             flush(rec)
         rec.disconnect()
-    skipped.report(path)
     return logger.logged
 
 
-def export_bag(path: Path, out: Path) -> int:
-    """Write a bag's messages in Foxglove's schemas to ``out`` (MCAP); returns messages written."""
+def export_bag(path: Path, out: Path, skipped: Decoded) -> int:
+    """Write a bag's messages in Foxglove's schemas to ``out`` (MCAP); returns messages
+    written; what it skips is counted in ``skipped``."""
     import foxglove
 
     from viz.foxglove_export import FoxgloveSink
 
     context = foxglove.Context()
     sink = FoxgloveSink(context)
-    skipped = Decoded(Counter())
     with written_whole(out) as part:
         writer = foxglove.open_mcap(part, allow_overwrite=True, context=context)
         try:
             for topic, log_time, msg in bag_messages(path, skipped):
-                sink.log(topic, msg, log_time)
+                skipped.guard(topic, msg, lambda: sink.log(topic, msg, log_time))  # noqa: B023
         finally:
             writer.close()
-    skipped.report(path)
     return sink.written
 
 
@@ -169,9 +198,10 @@ def latched() -> tuple[Any, ...]:
     )
 
 
-def export_ros2(path: Path, out: Path) -> int:
+def export_ros2(path: Path, out: Path, skipped: Decoded) -> int:
     """Write a bag as a ROS 2 bag (MCAP storage, CDR) in the folder ``out`` (new), with
-    ``viz.ros2_export``'s standard and project messages; returns the messages written."""
+    ``viz.ros2_export``'s standard and project messages; returns the messages written;
+    what it skips is counted in ``skipped``."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -181,7 +211,6 @@ def export_ros2(path: Path, out: Path) -> int:
         raise FileExistsError(f"{out}: exists; a ROS 2 bag is written to a new folder")
     store = get_typestore(Stores.ROS2_HUMBLE)
     converter = Ros2Converter(store)
-    skipped = Decoded(Counter())
     written = 0
     # The bag's files are named after its folder: it is written whole in a folder of that
     # name inside a part folder, then moved into place; a failure leaves nothing.
@@ -208,23 +237,27 @@ def export_ros2(path: Path, out: Path) -> int:
                 writer.write(connection, log_time, store.serialize_cdr(value, ros_type))
                 written += 1
 
-            for topic, log_time, msg in bag_messages(path, skipped):
+            def convert(topic: str, msg: Message, log_time: int) -> None:
+                converted = list(converter.convert(topic, msg))  # all of it, or none
                 if not connections:
                     write(*converter.static_tf(msg.header.stamp_nanos), log_time)  # type: ignore[attr-defined]
-                for ros_topic, ros_type, value in converter.convert(topic, msg):
+                for ros_topic, ros_type, value in converted:
                     write(ros_topic, ros_type, value, log_time)
+
+            for topic, log_time, msg in bag_messages(path, skipped):
+                skipped.guard(topic, msg, lambda: convert(topic, msg, log_time))  # noqa: B023
         if not written:
             raise BagError(f"{path}: no message to export")
         (part / out.name).rename(out)
     finally:
         shutil.rmtree(part, ignore_errors=True)
-    skipped.report(path)
     return written
 
 
 def video_bag(
     path: Path,
     out: Path,
+    skipped: Decoded,
     *,
     fps: float = 0.0,
     scale: int = 2,
@@ -235,28 +268,39 @@ def video_bag(
 
     A frame is drawn when a camera image with a newer stamp arrives, from everything
     received before it, so both bubbles' images of one instant are in the same frame.
-    ``fps`` 0 takes the cameras' rate from the stamps. ``stills`` (a folder) receives
-    PNG frames: the first, the first one after each grasp or task event, and the last.
+    ``fps`` 0 takes the cameras' rate from the stamps. Depth is coloured over one range
+    for the whole video (the 1st to 99th percentile of every valid depth pixel).
+    ``stills`` (a folder) receives PNG frames at moments: the first and last frame, the
+    first after each grasp or task event, and the first with the pose tracked (``ok`` or
+    ``recovered``) after it was not; each named ``STEM_FRAME_tSECONDS_MOMENT.png``, the
+    moment written on its bar too. A message that cannot be drawn (undecodable, or a NaN
+    where a number must be finite) is skipped and counted in ``skipped``.
     """
-    skipped = Decoded(Counter())
-    with BagReader(path) as reader:
-        cameras = [t for t, s in reader.topics().items() if s.type_name == ToFImage.__name__]
-        stamps = sorted({m.decode().header.stamp_nanos for m in reader.messages(cameras)})  # type: ignore[attr-defined]
+    samples = []
+    stamps_seen = set()
+    for _, _, image in bag_messages(path, Decoded()):  # counted in the pass below
+        if isinstance(image, ToFImage) and not image.nonfinite_fields():
+            stamps_seen.add(image.header.stamp_nanos)
+            depth = image.depth_m[::4, ::4]
+            samples.append(depth[np.isfinite(depth) & (depth > 0)])
+    stamps = sorted(stamps_seen)
     if not stamps:
-        raise BagError(f"{path}: no ToFImage messages: nothing to draw")
-    if fps <= 0:
-        span = (stamps[-1] - stamps[0]) * 1e-9
-        fps = (len(stamps) - 1) / span if len(stamps) > 1 and span > 0 else 30.0
-    keep = {0, len(stamps) - 1}  # frame indices to save as stills; events add theirs
-    state = MosaicState(object_name=object_name)
+        raise BagError(f"{path}: no drawable ToFImage messages: nothing to draw")
+    if fps <= 0:  # the cameras' rate: the median interval, which one wild stamp cannot move
+        gaps = np.diff(np.array(stamps, dtype=np.float64)) * 1e-9
+        fps = float(np.clip(1 / np.median(gaps), 1.0, 1000.0)) if len(gaps) else 30.0
+    moments = {0: "first", len(stamps) - 1: "last"}  # frame -> what a still shows there
+    state = MosaicState(object_name=object_name, depth_span_m=depth_range(np.concatenate(samples)))
     writer: Any = None
     frames = 0
     size = (0, 0)
     pending: int | None = None
+    tracked = False
 
     def emit() -> None:
         nonlocal writer, frames, size
-        image = state.render(scale)
+        moment = moments.get(frames, "") if stills is not None else ""
+        image = state.render(scale, moment)
         if writer is None:
             size = (image.shape[0], image.shape[1])
             writer = cv2.VideoWriter(
@@ -265,48 +309,62 @@ def video_bag(
             if not writer.isOpened():
                 raise OSError(f"{out}: OpenCV cannot write an MP4 video here")
         writer.write(image)
-        if stills is not None and frames in keep:
+        if stills is not None and moment:
             stills.mkdir(parents=True, exist_ok=True)
-            cv2.imwrite(str(stills / f"{out.stem}_{frames:05d}.png"), image)
+            t = (state.stamp_nanos - (state.first_stamp_nanos or state.stamp_nanos)) * 1e-9
+            slug = re.sub(r"[^A-Za-z0-9]+", "_", moment).strip("_")
+            cv2.imwrite(str(stills / f"{out.stem}_{frames:05d}_t{t:05.2f}s_{slug}.png"), image)
         frames += 1
 
     with written_whole(out) as part:
         try:
             for topic, _, msg in bag_messages(path, skipped):
+                if bad := msg.nonfinite_fields():
+                    skipped.skip(topic, msg, f"non-finite {', '.join(bad)}")
+                    continue
                 if isinstance(msg, ToFImage):
                     if pending is not None and msg.header.stamp_nanos > pending:
-                        emit()
+                        skipped.guard(topic, msg, emit)
                     pending = max(pending or 0, msg.header.stamp_nanos)
-                elif isinstance(msg, TaskEvent) or (isinstance(msg, GraspState) and msg.event):
-                    keep.add(frames)
-                state.update(topic, msg)
+                elif isinstance(msg, TaskEvent):
+                    moments.setdefault(frames, f"{msg.task} {msg.event}")
+                elif isinstance(msg, GraspState) and msg.event:
+                    moments.setdefault(frames, f"grasp {msg.event}")
+                elif isinstance(msg, PoseEstimate):
+                    now_tracked = msg.status in ("ok", "recovered")
+                    if now_tracked and not tracked:
+                        moments.setdefault(frames, f"pose {msg.status}")
+                    tracked = now_tracked
+                skipped.guard(topic, msg, lambda: state.update(topic, msg))  # noqa: B023
             if pending is not None:
                 emit()
         finally:
             if writer is not None:
                 writer.release()
-    skipped.report(path)
     return frames, size
 
 
 def main(args: argparse.Namespace) -> int:
-    """``launch.py bag view|export|video ARGS`` (exit code 0, or 2 on a bad bag)."""
+    """``launch.py bag view|export|video ARGS`` (exit code 0; 1 when messages were skipped,
+    counted on stderr; 2 on a bag it cannot read)."""
     command = args.bag_command
+    skipped = Decoded()
     try:
         if command == "view":
-            counts = view_bag(args.file, args.out, object_name=args.object)
+            counts = view_bag(args.file, args.out, skipped, object_name=args.object)
             where = args.out or "the Rerun viewer"
             print(f"{where}: {sum(counts.values())} messages logged ({len(counts)} types)")
         elif command == "export" and args.ros2 is not None:
-            written = export_ros2(args.file, args.ros2)
+            written = export_ros2(args.file, args.ros2, skipped)
             print(f"{args.ros2}: a ROS 2 bag of {written} messages (`ros2 bag info {args.ros2}`)")
         elif command == "export":
-            written = export_bag(args.file, args.foxglove)
+            written = export_bag(args.file, args.foxglove, skipped)
             print(f"{args.foxglove}: {written} Foxglove messages")
         else:
             frames, (height, width) = video_bag(
                 args.file,
                 args.out,
+                skipped,
                 fps=args.fps,
                 scale=args.scale,
                 stills=args.stills,
@@ -316,4 +374,5 @@ def main(args: argparse.Namespace) -> int:
     except (BagError, OSError) as err:
         print(f"bag {command}: {err}", file=sys.stderr)
         return 2
-    return 0
+    skipped.report(args.file)
+    return 1 if skipped.total else 0

@@ -6,6 +6,7 @@ python launch.py [run] GRAPH [--check] [--set NODE.PARAM=VALUE ...] [--swap NODE
                        [--view [OUT.rrd | foxglove]] [--host NAME [--keys DIR]]
                        [--emulate [--rig FILE]]
 python launch.py nodes [IMPL]                list implementations, or one's ports and params
+python launch.py graph GRAPH --draw OUT.svg  a picture of a graph file (docs/graphs.md)
 python launch.py bag info|echo|diff ...      inspect bags (see docs/bags.md)
 python launch.py bag view|export|video ...   look at bags (see docs/viewing.md)
 python launch.py replay BAG [--swap NODE[=IMPL] ...] [...]
@@ -15,7 +16,7 @@ python launch.py calibrate --out rigs/NAME.yaml [...]   calibrate a rig (docs/de
 
 ``run`` is the default command: ``launch.py GRAPH ...`` is ``launch.py run GRAPH ...``.
 The tree is declared here, whole; each command's work is its module's ``main(args)``
-(``cli.run``, ``cli.nodes``, ``cli.bag``, ``cli.bagview``, ``cli.replay``, ``cli.topic``,
+(``cli.run``, ``cli.nodes``, ``cli.graphdraw``, ``cli.bag``, ``cli.bagview``, ``cli.replay``, ``cli.topic``,
 ``cli.keys``),
 imported when that command runs: ``--help`` imports neither numpy nor ZeroMQ, ``bag
 info`` no node module, ``--check`` only those the graph names (docs/runtime.md).
@@ -34,6 +35,7 @@ from cli.options import (
     add_deprecated,
     add_keys_option,
     add_run_options,
+    add_view_option,
     positive_secs,
     shared_command_line,
 )
@@ -57,7 +59,7 @@ def parser() -> tuple[argparse.ArgumentParser, list[str]]:
         epilog="`python launch.py GRAPH ...` runs a graph (`run` is the default command).",
     )
     commands = top.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for add in (_run, _nodes, _bag, _replay, _topic, _keys, _calibrate):
+    for add in (_run, _nodes, _graph, _bag, _replay, _topic, _keys, _calibrate):
         add(commands)
     return top, list(commands.choices)
 
@@ -92,14 +94,7 @@ def _run(commands: Commands) -> None:
     add_run_options(parser, swap_metavar="NODE=IMPL", swap_help="another implementation")
     parser.add_argument("--only", default="", metavar="NODE,NODE", help="run only these nodes")
     _add_emulate(parser, "run a hardware graph against emulated devices driven by the world")
-    parser.add_argument(
-        "--view",
-        nargs="?",
-        const="spawn",
-        default=None,
-        metavar="OUT.rrd|foxglove",
-        help="add a viewer: a Rerun window, an .rrd file, or a Foxglove live server",
-    )
+    add_view_option(parser)
     add_deprecated(parser, "--topics", "--record-topics", "record_topics")
     parser.set_defaults(handler="cli.run")
 
@@ -113,6 +108,31 @@ def _nodes(commands: Commands) -> None:
     )
     parser.add_argument("impl", nargs="?", help="a registered name or module:Class")
     parser.set_defaults(handler="cli.nodes")
+
+
+def _graph(commands: Commands) -> None:
+    """``graph GRAPH --draw OUT`` (``cli.graphdraw``)."""
+    parser = commands.add_parser(
+        "graph",
+        help="draw a graph file: its nodes and topics (SVG with Graphviz, or DOT/Mermaid text)",
+        description="Draw a graph file after checking it: a box per node, an arrow per "
+        "edge labelled with its topic and type.",
+    )
+    parser.add_argument("graph", type=Path, help="the graph file (YAML)")
+    parser.add_argument(
+        "--draw",
+        type=Path,
+        required=True,
+        metavar="OUT",
+        help="OUT.svg/.png/.pdf (Graphviz's dot; without it, DOT and Mermaid text beside), "
+        "OUT.dot, OUT.mmd or OUT.md (Mermaid)",
+    )
+    parser.add_argument(
+        "--set", dest="sets", action="append", default=[], metavar="NODE.PARAM=VALUE"
+    )
+    parser.add_argument("--swap", dest="swaps", action="append", default=[], metavar="NODE=IMPL")
+    parser.add_argument("--only", default="", metavar="NODE,NODE", help="draw only these nodes")
+    parser.set_defaults(handler="cli.graphdraw")
 
 
 def _bag(commands: Commands) -> None:
@@ -213,6 +233,7 @@ def _replay(commands: Commands) -> None:
         help="drop the graph's hosts table: replay a bag recorded across hosts on this machine",
     )
     parser.add_argument("--print-graph", action="store_true", help="print the graph; run nothing")
+    add_view_option(parser)
     add_deprecated(parser, "--replace", "--swap", "swaps", append=True)
     add_deprecated(parser, "--topics", "--replay-topics", "replay_topics")
     parser.set_defaults(handler="cli.replay")

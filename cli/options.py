@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import shlex
 import sys
 from collections.abc import Sequence
@@ -100,6 +101,18 @@ def add_run_options(parser: argparse.ArgumentParser, *, swap_help: str, swap_met
     add_keys_option(parser)
 
 
+def add_view_option(parser: argparse.ArgumentParser) -> None:
+    """``--view [OUT.rrd | foxglove]``, as ``run`` and ``replay`` take it."""
+    parser.add_argument(
+        "--view",
+        nargs="?",
+        const="spawn",
+        default=None,
+        metavar="OUT.rrd|foxglove",
+        help="add a viewer: a Rerun window, an .rrd file, or a Foxglove live server",
+    )
+
+
 def positive_secs(text: str) -> float:
     """A finite number of seconds > 0 (argparse ``type``)."""
     try:
@@ -139,3 +152,12 @@ def shared_command_line(argv: Sequence[str]) -> str:
             kept.append(word)
     python = sys.executable if len(kept) == len(argv) else "python"
     return shlex.join([python, *kept])
+
+
+def same_file(a: Path, b: Path) -> bool:
+    """Whether two paths name one file (through links, or the same inode), so a command
+    never writes onto what it reads."""
+    try:
+        return a.resolve() == b.resolve() or os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet): not the same file
+        return False

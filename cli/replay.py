@@ -17,6 +17,8 @@ from collections.abc import Sequence
 
 import yaml
 
+from cli.options import same_file
+from cli.taps import add_viewer, viewer_refused
 from messages.errors import BagError, GraphError
 from runtime.bag import BagReader
 from runtime.hosts import without_hosts
@@ -37,6 +39,17 @@ def main(args: argparse.Namespace) -> int:
     """``launch.py replay ...``: build the replay graph and run it (exit code)."""
     import nodes  # noqa: F401 - the index of node implementations (no node module)
 
+    if args.record is not None and same_file(args.record, args.bag):
+        print(
+            f"replay: --record {args.record} is the bag being replayed ({args.bag}); "
+            "recording onto it would destroy it: give another file",
+            file=sys.stderr,
+        )
+        return 2
+    refused = None if args.print_graph else viewer_refused(args.view)
+    if refused:
+        print(refused, file=sys.stderr)
+        return 2
     try:
         if args.graph is not None:
             from runtime.graphfile import load_document
@@ -73,6 +86,8 @@ def main(args: argparse.Namespace) -> int:
             from runtime.graph import apply_overrides
 
             replay_graph = apply_overrides(replay_graph, sets=args.sets, source=str(args.bag))
+        if args.view is not None:
+            replay_graph = add_viewer(replay_graph, args.view, source=f"{args.bag} (replay)")
     except (BagError, GraphError, ValueError) as err:
         print(f"replay: {err}", file=sys.stderr)
         return 2

@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from cli.taps import add_recorder, add_viewer
+from cli.taps import add_recorder, add_viewer, viewer_refused
 from messages.errors import GraphError
 from runtime import graph as graphs
 from runtime.graph import Graph, check
@@ -159,14 +159,10 @@ def emulated(doc: dict[str, Any], rig_file: str | None) -> dict[str, Any]:
 
 def main(args: argparse.Namespace) -> int:
     """``launch.py [run] GRAPH ...``: check the graph, then run it or say it is OK."""
-    if args.view == "spawn" and not args.check:
-        from viz.display import NoDisplay, require_display
-
-        try:
-            require_display("use `--view FILE.rrd` (saved here) or `--view foxglove`")
-        except NoDisplay as err:
-            print(f"launch.py --view: {err}", file=sys.stderr)
-            return 2
+    refused = None if args.check else viewer_refused(args.view)
+    if refused:
+        print(refused, file=sys.stderr)
+        return 2
     import nodes  # noqa: F401 - the index of node implementations (no node module)
 
     source = str(args.graph)

@@ -78,6 +78,19 @@ def add_recorder(
     )
 
 
+def viewer_refused(target: str | None) -> str | None:
+    """Why ``--view TARGET`` cannot run here (a window without a display), or None."""
+    if target != "spawn":
+        return None
+    from viz.display import NoDisplay, require_display
+
+    try:
+        require_display("use `--view FILE.rrd` (saved here) or `--view foxglove`")
+    except NoDisplay as err:
+        return f"launch.py --view: {err}"
+    return None
+
+
 def add_viewer(doc: dict[str, Any], target: str, *, source: str = "") -> dict[str, Any]:
     """Return ``doc`` with a ``viewer.rerun`` (or ``viewer.foxglove``) node on every topic.
 

@@ -87,21 +87,19 @@ def default_backend() -> Any:
             raise DeviceError(f"${BACKEND_ENV}={named!r}: no such backend factory ({err})") from err
     try:
         import libusb_package
-    except ImportError as err:
-        raise DeviceError(
-            f"pyusb has no libusb-1.0 backend: the `libusb-package` wheel is not installed ({err})"
-        ) from err
 
-    backend = libusb_package.get_libusb1_backend()
+        backend = libusb_package.get_libusb1_backend()
+        wheel = "the `libusb-package` wheel's library did not load"
+    except ImportError:
+        backend, wheel = None, "the `libusb-package` wheel is not installed"
     if backend is None:
         import usb.backend.libusb1
 
         backend = usb.backend.libusb1.get_backend()
     if backend is None:
         raise DeviceError(
-            "pyusb has no libusb-1.0 backend: the `libusb-package` wheel's library did not"
-            " load and neither did the system's (is this a machine with a USB subsystem,"
-            " /dev/bus/usb?)"
+            f"pyusb has no libusb-1.0 backend: {wheel} and neither did the system's"
+            " libusb-1.0 (is this a machine with a USB subsystem, /dev/bus/usb?)"
         )
     return backend
 

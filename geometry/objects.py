@@ -162,21 +162,24 @@ _BUILDERS: dict[
     ),
 }
 
-NAMES: tuple[str, ...] = tuple(_BUILDERS)
+CALIBRATION_OBJECTS = ("cylinder",)
+# The objects of the tasks (classes, datasets, pose fits); ``make`` builds these and the
+# calibration objects.
+NAMES: tuple[str, ...] = tuple(n for n in _BUILDERS if n not in CALIBRATION_OBJECTS)
 
 
 def make(name: str, **overrides: Any) -> ObjectModel:
     """Build one of the simulator's objects, optionally overriding dimensions.
 
     Args:
-        name: one of :data:`NAMES`.
+        name: one of :data:`NAMES` or :data:`CALIBRATION_OBJECTS`.
         **overrides: dimension names of that object (metres), e.g. ``radius_m=0.045``.
 
     Raises:
         ValueError: an unknown name, an unknown dimension, or a non-positive one.
     """
     if name not in _BUILDERS:
-        raise ValueError(f"unknown object {name!r}; valid: {', '.join(NAMES)}")
+        raise ValueError(f"unknown object {name!r}; valid: {', '.join(_BUILDERS)}")
     label, defaults, build = _BUILDERS[name]
     unknown = sorted(set(overrides) - set(defaults))
     if unknown:

@@ -79,6 +79,9 @@ class Message(msgspec.Struct, kw_only=True):
     # pixel without a return), so only infinities break it.
     finite_fields: ClassVar[tuple[str, ...]] = ()
     nan_marks_invalid: ClassVar[frozenset[str]] = frozenset()
+    # Fields that measure the machine, not the data (a solve time): two runs of the same
+    # input differ there by nature, so ``bag diff`` does not compare them.
+    wall_clock_fields: ClassVar[tuple[str, ...]] = ()
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)

@@ -11,7 +11,8 @@ node -> launcher
     hello      {endpoint}                        bound its publisher; wants peers
     ready      {}                                set up, every subscriber connected
     heartbeat  {busy_secs, stats}                every ``HEARTBEAT_SECS``
-    counts     {published, received}             lockstep: after each handled batch
+    counts     {published, received, held}       lockstep: after each handled batch
+                                                 (held: per port, waiting for release)
     wait_idle  {}                                lockstep: reply when the graph is idle
     stop_request {reason, exit_code}             a node asks the graph to stop (exit_code:
                                                  its verdict on the run, 0 = success)
@@ -20,6 +21,9 @@ launcher -> node
     connect    {endpoints: {node: endpoint}}     where each input's publisher is
     start      {}                                every node is ready: go
     idle       {}                                answer to wait_idle
+    release    {}                                lockstep: handle the held messages
+    busy       {}                                answer to wait_idle: not idle, but the
+                                                 graph moved (the wait starts over)
     stop       {}                                stop cleanly now
 launcher <-> launcher (one per host, ``runtime.hostlink``; CURVE-encrypted tcp)
     link_hello {host, run_secret, reply, graph, argv}  this run's link secret (the tag:
@@ -31,8 +35,9 @@ launcher <-> launcher (one per host, ``runtime.hostlink``; CURVE-encrypted tcp)
                                                  nodes are ready (or running)
     link_ping  {host, t1} / link_pong {host, t1, t2, t3}   clock offset (NTP-style)
     link_stop  {host, reason, exit_code}         the graph stops
-    link_counts {host, published, received}      lockstep: its nodes' newest counts, sent
-                                                 when one changes (received: "node/port")
+    link_counts {host, published, received, held}  lockstep: its nodes' newest counts,
+                                                 sent when one changes (received and
+                                                 held: "node/port")
     link_final {host, published}                 stopping: its nodes (but for listeners fed
                                                  from other hosts) have stopped, and
                                                  published this much in all, per topic
@@ -77,6 +82,7 @@ class Heartbeat(FromNode, tag="heartbeat"):
 class Counts(FromNode, tag="counts"):
     published: dict[str, Count]
     received: dict[str, Count]
+    held: dict[str, Count]
 
 
 class WaitIdle(FromNode, tag="wait_idle"):
@@ -101,6 +107,14 @@ class Start(Control, tag="start"):
 
 
 class Idle(Control, tag="idle"):
+    pass
+
+
+class Release(Control, tag="release"):
+    pass
+
+
+class Busy(Control, tag="busy"):
     pass
 
 
@@ -143,6 +157,7 @@ class LinkStop(FromHost, tag="link_stop"):
 class LinkCounts(FromHost, tag="link_counts"):
     published: dict[str, Count]
     received: dict[str, Count]
+    held: dict[str, Count]
 
 
 class LinkFinal(FromHost, tag="link_final"):
@@ -162,6 +177,8 @@ KINDS: dict[str, type[Control]] = {
         Connect,
         Start,
         Idle,
+        Release,
+        Busy,
         Stop,
         LinkHello,
         LinkBeat,

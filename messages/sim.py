@@ -17,6 +17,7 @@ from messages.types import GripperStatus
 
 _Pose = Annotated[np.ndarray, Array("float64", (4, 4))]
 _Vec2 = Annotated[np.ndarray, Array("float64", (2,))]
+_Points = Annotated[np.ndarray, Array("float32", (None, 3))]
 
 
 def _eye() -> np.ndarray:
@@ -27,13 +28,21 @@ def _zeros2() -> np.ndarray:
     return np.zeros(2)
 
 
+def _no_points() -> np.ndarray:
+    return np.zeros((0, 3), np.float32)
+
+
 class WorldState(Message):
     """The simulated world at one instant (see ``sim.world.WorldSnapshot``).
 
     ``scene_path``, ``effects`` and ``seed`` let each sensor node load the same scene the
     world runs; ``anchor_*`` is the object's pose when that bubble's contact began
     (identity with ``has_anchor`` false while out of contact); ``shear_*_m`` is the
-    true mean membrane shift in the contact, tool (y, z), metres.
+    true mean membrane shift in the contact, tool (y, z), metres. A world that simulates
+    the membrane as a mesh (``world.mujoco``) sends each bubble's outer surface in
+    ``membrane_*_m`` (its vertices in that finger's plate frame, metres; the topology is
+    ``sim.mujoco.mesh.membrane_mesh`` at ``membrane_spacing_m``) and the cameras ray-cast
+    it; empty (0, 3) arrays, spacing 0, from a world without one.
     """
 
     header: Header
@@ -54,6 +63,9 @@ class WorldState(Message):
     anchor_right: _Pose = msgspec.field(default_factory=_eye)
     shear_left_m: _Vec2 = msgspec.field(default_factory=_zeros2)
     shear_right_m: _Vec2 = msgspec.field(default_factory=_zeros2)
+    membrane_spacing_m: float = 0.0
+    membrane_left_m: _Points = msgspec.field(default_factory=_no_points)
+    membrane_right_m: _Points = msgspec.field(default_factory=_no_points)
 
 
 class PlacementTruth(Message):

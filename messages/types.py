@@ -155,6 +155,8 @@ class PoseEstimate(Message):
     fitted_radius_m: float = 0.0
     fitted_height_m: float = 0.0
 
+    wall_clock_fields: ClassVar[tuple[str, ...]] = ("solve_secs",)
+
 
 class ShearEstimate(Message):
     """Shear of one bubble against its stable-grasp reference.

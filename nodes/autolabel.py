@@ -401,6 +401,7 @@ class AutolabelWorld(Node):
     """The simulated world, with objects placed by ``GraspRequest`` (module docstring)."""
 
     Params = AutolabelWorldParams
+    clocked = True  # one step per frame period, whatever it hears
     inputs = {"place": GraspRequest, "command": GripperCommand}
     optional_inputs = frozenset({"command"})
     outputs = {"state": WorldState, "ground_truth": GroundTruth}

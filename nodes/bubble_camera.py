@@ -33,6 +33,7 @@ from __future__ import annotations
 import queue
 import time
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -135,6 +136,7 @@ class RoyaleBubbleCamera(Node):
                 raise NodeError(f"{self.name}: calibration refused: {err}") from err
             self.mounts = CameraMounts({p.sensor: cal.finger_from_sensor})
             where = f"calibrated mount from {p.calibration}"
+            self._compare_intrinsics(cal.intrinsics)
         else:
             where = "no calibration file: the CAD camera mount (run `launch.py calibrate`)"
         self.io.log.info(
@@ -147,6 +149,20 @@ class RoyaleBubbleCamera(Node):
         self.lost_at: float | None = None
         self.next_try = 0.0
         self.io.add_timer(0.002, self.tick)
+
+    def _compare_intrinsics(self, calibrated: Mapping[str, float]) -> None:
+        """Warn when the camera's lens parameters are not those the mount was measured with
+        (another lens or camera under the same id): the mount may be off too."""
+        k = self.camera.intrinsics
+        assert k is not None
+        now = {"fx": k.fx_px, "fy": k.fy_px, "cx": k.cx_px, "cy": k.cy_px}
+        off = {n: (calibrated[n], v) for n, v in now.items() if abs(calibrated.get(n, v) - v) > 0.5}
+        if off:
+            self.io.log.warning(
+                "%s: the camera's intrinsics differ from the calibration's (%s): recalibrate",
+                self.name,
+                ", ".join(f"{n} {was:.1f} -> {v:.1f}" for n, (was, v) in off.items()),
+            )
 
     def teardown(self) -> None:
         self.camera.disconnect()

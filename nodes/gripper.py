@@ -104,6 +104,7 @@ class WSG50Gripper(Node):
     """Drives a WSG 50 over TCP (see the module docstring)."""
 
     Params = WSG50Params
+    clocked = True  # reports what the gripper streams, when it streams it
     inputs = {"command": GripperCommand, "world": WorldState}
     optional_inputs = frozenset({"world"})
     outputs = {"state": GripperState}

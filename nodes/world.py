@@ -1,4 +1,4 @@
-"""``world.sim``: the one scene clock and the shared simulated world.
+"""``world.sim`` and ``world.mujoco``: the one scene clock and the shared world.
 
 Ports:
     inputs: ``command`` (GripperCommand, optional): commands from a supervisor move
@@ -25,6 +25,17 @@ from setup on (a gripper homes before the graph starts), then with the world's s
 Only this node integrates anything (the jaws' motion, the contacts' anchors), so no two
 processes keep their own copy of the world. When the scene's trajectory ends it asks
 the graph to stop, with a one-line summary. A hardware graph drops this node.
+
+``world.mujoco`` (``--swap world=world.mujoco``) runs the same scene in MuJoCo
+(``sim.mujoco``, docs/mujoco.md): the same inputs and outputs (each ``state`` also
+carries both membranes' deformed surfaces, which the camera nodes ray-cast); its
+``wrench`` (messages.force.WrenchTruth, ``source`` ``mujoco``) comes every frame, whatever
+the scene's effects: the engine's contact wrenches on each bubble and on the object,
+each bubble's gauge pressure and the air volume between membrane and plate. Params as ``world.sim``'s plus ``mesh_spacing_m``
+(the membrane mesh's edge length). It publishes as fast as the physics runs (several
+CPU seconds per simulated second): every message keeps the scene time of its frame, so
+the graph downstream gives the answers it gives on ``world.sim`` in real time, only
+later. Scenes with a ``support`` are refused when the graph is checked.
 """
 
 from __future__ import annotations
@@ -46,7 +57,7 @@ from messages.types import GripperCommand, GroundTruth
 from runtime.node import Node
 from runtime.params import ExistingFile
 from runtime.registry import register
-from sim import World, ground_truth, load_scene, stamp_of, wrench_truth
+from sim import World, WorldSnapshot, ground_truth, load_scene, stamp_of, wrench_truth
 from sim.effects import resolve
 from sim.scene import Scene, SceneError
 from sim.wire import apply_command, to_message
@@ -101,6 +112,7 @@ class WorldNode(Node):
     """Steps the scene's world once per camera frame (see the module docstring)."""
 
     Params = WorldParams
+    clocked = True  # one step per frame period, whatever it hears
     inputs = {"command": GripperCommand}
     optional_inputs = frozenset({"command"})
     outputs = {
@@ -110,10 +122,13 @@ class WorldNode(Node):
         "wrench": WrenchTruth,
     }
 
+    def make_world(self, scene: Scene) -> World:
+        return World(scene)
+
     def setup(self) -> None:
         self.scene = self.params.load()
         self.placement_sent = False
-        self.world = World(self.scene)
+        self.world = self.make_world(self.scene)
         self.start_nanos: int | None = None
         self.max_force_n = 0.0
         self.contact_frames = 0
@@ -204,8 +219,7 @@ class WorldNode(Node):
                 snap, self.world.model.class_label, stamp, noise_seed=self.scene.seed
             )
             self.io.publish("ground_truth", truth)
-        if "wrench" in self.world.effects:
-            self.io.publish("wrench", wrench_truth(snap, stamp))
+        self.publish_wrench(snap, stamp)
         self._publish_placement(stamp)
         if self.world.done:
             contact = (
@@ -219,6 +233,11 @@ class WorldNode(Node):
                 f" {self.max_force_n:.1f} N, final width {snap.width_m * 1000:.1f} mm,"
                 f" gripper {snap.gripper_state})"
             )
+
+    def publish_wrench(self, snap: WorldSnapshot, stamp: int) -> None:
+        """The true contact wrenches, when the scene lists ``wrench``."""
+        if "wrench" in self.world.effects:
+            self.io.publish("wrench", wrench_truth(snap, stamp))
 
     def _drop_gripper(self, t_secs: float) -> None:
         """An emulated rig's scripted fault: the WSG 50 drops its clients' connections."""
@@ -251,3 +270,41 @@ class WorldNode(Node):
                 tilt_deg=placement.tilt_deg,
             ),
         )
+
+
+@dataclass(frozen=True, kw_only=True)
+class MujocoWorldParams(WorldParams):
+    """``world.sim``'s parameters plus ``mesh_spacing_m``: the membrane mesh's edge length
+    (8 mm: 169 vertices a bubble, about 7 CPU s per simulated second; 3 mm: 1,100)."""
+
+    mesh_spacing_m: float = 0.008
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        from sim.mujoco.model import ShellSpec
+
+        ShellSpec(mesh_spacing_m=self.mesh_spacing_m)
+        if not 0.003 <= self.mesh_spacing_m <= 0.02:
+            raise ValueError(
+                f"`mesh_spacing_m` must be in [0.003, 0.02], got {self.mesh_spacing_m!r}"
+            )
+        if self.load().support is not None:
+            raise ValueError(f"`scene`: {self.scene}: world.mujoco has no support surface")
+
+
+@register("world.mujoco")
+class MujocoWorldNode(WorldNode):
+    """The scene in MuJoCo (see the module docstring)."""
+
+    Params = MujocoWorldParams
+
+    def make_world(self, scene: Scene) -> World:
+        from sim.mujoco.model import ShellSpec
+        from sim.mujoco.world import MujocoWorld
+
+        self.io.log.info("%s: building and inflating the MuJoCo bubbles", self.name)
+        return MujocoWorld(scene, ShellSpec(mesh_spacing_m=self.params.mesh_spacing_m))  # type: ignore[return-value]
+
+    def publish_wrench(self, snap: WorldSnapshot, stamp: int) -> None:
+        """The engine's contact wrenches, pressures and volumes, every frame."""
+        self.io.publish("wrench", self.world.wrench_truth(stamp))  # type: ignore[attr-defined]

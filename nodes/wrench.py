@@ -6,8 +6,10 @@ Ports:
         (GripperState).
     outputs: ``wrench`` (messages.force.WrenchEstimate: per bubble and on the object,
         tool frame, N and N m, with one-sigma uncertainties), once per pair of frames
-        of one instant (stamps within ``max_skew_secs``), or per frame with one bubble
-        (from its third frame with none of the other's);
+        of one instant (stamps within ``max_skew_secs``: a frame waits for its partner
+        among the other bubble's last few; a frame whose partner was dropped makes
+        none), or per frame with one bubble (from its third frame with none of the
+        other's);
         ``contact`` (messages.force.BubbleContact: what each bubble measured, for the
         ``slip`` node), one per frame.
 
@@ -22,6 +24,7 @@ file (``python -m bench.force_data`` writes the simulated rig's; docs/force.md).
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -41,6 +44,7 @@ from runtime.params import ExistingFile
 from runtime.registry import register
 
 DEFAULT_CALIBRATION = "models/force/sim.json"
+PAIR_HISTORY = 8  # results of one bubble kept while waiting for the other's
 SINGLE_AFTER_FRAMES = 3  # frames of one bubble with none of the other: a one-bubble graph
 
 
@@ -103,6 +107,10 @@ class WrenchNode(Node):
         # The gripper at each stamp: "free" (open and still), "holding", or "" (else).
         self.gripper = StampedHistory("", 64)
         self.latest: dict[str, tuple[int, ContactFeatures, BubbleWrench]] = {}
+        # Each bubble's results waiting for the other's of the same instant.
+        self.recent: dict[str, deque[tuple[int, ContactFeatures, BubbleWrench]]] = {
+            s: deque(maxlen=PAIR_HISTORY) for s in SIDES
+        }
         self.frames = dict.fromkeys(SIDES, 0)
         self.warned: set[str] = set()
 
@@ -158,16 +166,28 @@ class WrenchNode(Node):
         self.io.publish("contact", _contact(side, msg.header, features, wrench))
         self.frames[side] += 1
         other = "right" if side == "left" else "left"
-        if other in self.latest:
-            if abs(self.latest[other][0] - stamp) / 1e9 > self.params.max_skew_secs:
-                return
-        elif self.frames[side] < SINGLE_AFTER_FRAMES:
-            return  # the other bubble's first frame may still be on its way
-        self.io.publish("wrench", self._estimate(stamp))
+        partners = [
+            r for r in self.recent[other]
+            if abs(r[0] - stamp) / 1e9 <= self.params.max_skew_secs
+        ]  # fmt: skip
+        self.recent[side].append((stamp, features, wrench))
+        if partners:
+            partner = min(partners, key=lambda r: abs(r[0] - stamp))
+            self.recent[other] = deque(
+                (r for r in self.recent[other] if r[0] > partner[0]), maxlen=PAIR_HISTORY
+            )
+            self.recent[side].clear()
+            self.io.publish(
+                "wrench", self._estimate(stamp, {side: self.latest[side], other: partner})
+            )
+        elif self.frames[other] == 0 and self.frames[side] >= SINGLE_AFTER_FRAMES:
+            self.io.publish("wrench", self._estimate(stamp, {side: self.latest[side]}))
 
-    def _estimate(self, stamp: int) -> WrenchEstimate:
+    def _estimate(
+        self, stamp: int, pair: dict[str, tuple[int, ContactFeatures, BubbleWrench]]
+    ) -> WrenchEstimate:
         zero = (0, ContactFeatures.empty(0.0, np.zeros(3)), BubbleWrench.zero())
-        rows = [self.latest.get(s, zero) for s in SIDES]
+        rows = [pair.get(s, zero) for s in SIDES]
         force = np.array([w.force_n for _, _, w in rows])
         torque = np.array([w.torque_nm for _, _, w in rows])
         fsig = np.array([w.force_sigma_n for _, _, w in rows])

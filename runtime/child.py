@@ -63,6 +63,8 @@ SERVER_NAME = "sbg-fork-server"  # what ps and /proc/PID/comm call the fork serv
 START_ENV = "SBG_NODE_START"
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 GONE_WAIT_SECS = 0.2
+DYING_WAIT_SECS = 30.0  # a launcher known to be dying (its socket closed without a word)
+_END = b"end"  # what the launcher says before it closes the fork server's socket
 SERVER_END_SECS = 0.5
 HANDOVER_WAIT_SECS = 5.0
 _PID = struct.Struct("=i")
@@ -211,6 +213,10 @@ class Starter:
     def _end_server(self) -> None:
         """Close its socket (it exits when it reads the end); kill it if it does not (a
         stopped server) within ``SERVER_END_SECS``."""
+        try:
+            self.sock.send(_END)  # a close without it says the launcher died
+        except OSError:
+            pass  # the server is gone already
         self.sock.close()
         end = time.monotonic() + SERVER_END_SECS
         while True:
@@ -247,6 +253,17 @@ def serve(sock: socket.socket, launcher: int, rundir: str) -> None:
             shutil.rmtree(rundir, ignore_errors=True)
         os._exit(0)
 
+    def launcher_dying() -> None:
+        # Its end of the socket closed without _END: the launcher is dying. The kernel
+        # closes a killed process's files before it signals its children (SIGTERM, above)
+        # or hands them on, and on a busy machine that gap has no bound a fixed wait could
+        # trust: wait for it to be gone, then remove the run folder.
+        end = time.monotonic() + DYING_WAIT_SECS
+        while not launcher_gone(launcher) and time.monotonic() < end:
+            time.sleep(0.01)
+        if launcher_gone(launcher):
+            shutil.rmtree(rundir, ignore_errors=True)
+
     signal.signal(signal.SIGTERM, launcher_died)
     _prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
     if os.getppid() != launcher:
@@ -254,10 +271,14 @@ def serve(sock: socket.socket, launcher: int, rundir: str) -> None:
     gc.freeze()  # what is imported stays shared with the nodes (no collector writes)
     while True:
         try:
-            _, fds, _, _ = socket.recv_fds(sock, 16, 2)
+            said, fds, _, _ = socket.recv_fds(sock, 16, 2)
         except OSError:
-            return
+            said, fds = b"", []
         if len(fds) != 2:
+            for fd in fds:
+                os.close(fd)
+            if said != _END:
+                launcher_dying()
             return  # the launcher closed its end
         pid_r, pid_w = os.pipe()
         middle = os.fork()

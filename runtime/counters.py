@@ -20,8 +20,6 @@ from typing import Any
 
 from runtime.protocol import INPUT_COUNTERS
 
-_COLUMNS = ("dropped", "superseded", "bad_frames", "nonfinite")
-
 
 @dataclass
 class InputCounters:
@@ -61,6 +59,14 @@ class InputCounters:
             self.last_seq = seq
         else:
             self.suspect = (seq, unseq)
+
+    def gaps(self) -> int:
+        """``dropped``, and the gap before a message still held as a suspect (the last
+        message of a run is followed by none that could confirm it)."""
+        if self.suspect is None or self.last_seq is None:
+            return self.dropped
+        wild, wild_unseq = self.suspect
+        return self.dropped + max(0, wild - self.last_seq - 1 - wild_unseq)
 
 
 def delivered(
@@ -114,46 +120,83 @@ def add_stats(base: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
     return {"published": published, "inputs": inputs}
 
 
-def topic_totals(stats: dict[str, dict[str, Any]]) -> dict[str, dict[str, int]]:
-    """Per topic: messages published and the summed counters of its subscribers (for a
-    topic no node of ``stats`` publishes, as on another host: the most any received)."""
-    topics: dict[str, dict[str, int]] = {}
+_EDGE_COLUMNS = ("delivered", "dropped", "unreceived", "superseded", "bad_frames")
+_LIVE_COLUMNS = ("messages", "dropped", "superseded", "bad_frames", "nonfinite")
 
-    def row(topic: str) -> dict[str, int]:
-        return topics.setdefault(topic, dict.fromkeys(("messages", *_COLUMNS), 0))
 
+def edge_rows(stats: dict[str, dict[str, Any]]) -> dict[str, dict[str, int]]:
+    """One row per edge (``topic -> node.port``), and per topic no node here reads.
+
+    Every message published on a topic is in exactly one column of each edge reading it:
+    ``messages`` = ``delivered`` (handed to the node) + ``dropped`` (sequence gaps: lost at
+    a high-water mark before a message the subscriber did receive) + ``unreceived``
+    (published, never taken off the subscriber's socket: still queued when the run
+    stopped, or lost at a high-water mark after its last message) + ``superseded``
+    (skipped on purpose by a ``latest`` input) + ``bad_frames`` (could not be decoded).
+    ``nonfinite`` counts delivered messages with a NaN or infinity, not a loss. A topic
+    published on another host: ``messages`` is what arrived here, so nothing is unreceived.
+    """
+    published: dict[str, int] = {}
     for node_stats in stats.values():
         for topic, count in node_stats.get("published", {}).items():
-            row(topic)["messages"] += count
-    published = {topic: r["messages"] for topic, r in topics.items()}
-    for node_stats in stats.values():
-        for inp in node_stats.get("inputs", {}).values():
-            r = row(inp["topic"])
-            dropped = inp["dropped"]
-            if inp["topic"] in published:
-                dropped = min(dropped, max(0, published[inp["topic"]] - inp["received"]))
-            r["dropped"] += dropped
-            for key in _COLUMNS[1:]:
-                r[key] += inp.get(key, 0)
-            if inp["topic"] not in published:  # published on another host: what came here
-                r["messages"] = max(r["messages"], inp["received"])
-    return topics
+            published[topic] = published.get(topic, 0) + count
+    rows: dict[str, dict[str, int]] = {}
+    read: set[str] = set()
+    for node in sorted(stats):
+        for port, inp in sorted(stats[node].get("inputs", {}).items()):
+            topic, received = inp["topic"], inp["received"]
+            read.add(topic)
+            sent = published.get(topic, received)  # elsewhere: what came here
+            sent = max(sent, received)  # a publisher whose final counts never came
+            lost = sent - received
+            dropped = min(inp["dropped"], lost)  # never more than it did not take
+            taken = inp["superseded"] + inp["bad_frames"]
+            rows[f"{topic} -> {node}.{port}"] = {
+                "messages": sent,
+                "delivered": max(0, received - taken),
+                "dropped": dropped,
+                "unreceived": lost - dropped,
+                "superseded": inp["superseded"],
+                "bad_frames": inp["bad_frames"],
+                "nonfinite": inp.get("nonfinite", 0),
+            }
+    for topic, count in published.items():
+        if topic not in read:
+            none = dict.fromkeys((*_EDGE_COLUMNS, "nonfinite"), 0)
+            rows[f"{topic} (no reader here)"] = {**none, "messages": count}
+    return rows
+
+
+def topic_totals(stats: dict[str, dict[str, Any]]) -> dict[str, dict[str, int]]:
+    """Per topic, for a live view (``runtime.status``): messages published (on another
+    host: the most any edge here received) and its edges' ``dropped``, ``superseded``,
+    ``bad_frames`` and ``nonfinite`` summed; ``unreceived`` is left out, as in a running
+    graph it is mostly in flight."""
+    out: dict[str, dict[str, int]] = {}
+    for name, row in edge_rows(stats).items():
+        total = out.setdefault(name.split(" ", 1)[0], dict.fromkeys(_LIVE_COLUMNS, 0))
+        total["messages"] = max(total["messages"], row["messages"])
+        for key in _LIVE_COLUMNS[1:]:
+            total[key] += row[key]
+    return out
 
 
 def table(
     stats: dict[str, dict[str, Any]], nodes: dict[str, dict[str, Any]], elapsed_secs: float
 ) -> str:
-    """The end-of-run table: one row per topic, then one per node."""
-    topics = topic_totals(stats)
+    """The end-of-run table: one row per edge (see :func:`edge_rows`), then one per node."""
+    rows = edge_rows(stats)
     elapsed = max(elapsed_secs, 1e-9)
+    width = max([40, *(len(name) for name in rows)])
     lines = [
-        f"{'topic':40} {'messages':>9} {'rate_hz':>9} {'dropped':>8} {'superseded':>10} "
-        f"{'bad':>5} {'nonfinite':>9}"
+        f"{'topic -> node.port':{width}} {'messages':>9} {'rate_hz':>9} {'delivered':>9} "
+        f"{'dropped':>8} {'unreceived':>10} {'superseded':>10} {'bad':>5} {'nonfinite':>9}"
     ]
-    for topic in sorted(topics):
-        r = topics[topic]
+    for name in sorted(rows):
+        r = rows[name]
         lines.append(
-            f"{topic:40} {r['messages']:9d} {r['messages'] / elapsed:9.1f} {r['dropped']:8d} "
+            f"{name:{width}} {r['messages']:9d} {r['messages'] / elapsed:9.1f} "
+            f"{r['delivered']:9d} {r['dropped']:8d} {r['unreceived']:10d} "
             f"{r['superseded']:10d} {r['bad_frames']:5d} {r['nonfinite']:9d}"
         )
     lines.append("")

@@ -29,6 +29,7 @@ where its ports and parameters are declared); it starts no process.
 from __future__ import annotations
 
 import ipaddress
+import math
 import re
 import tempfile
 from collections import defaultdict
@@ -210,6 +211,16 @@ class Graph:
         avoid = set(skip)
         return _reach(start, {n: p - avoid for n, p in self.fed_by.items() if n not in avoid})
 
+    def fan_ins(self) -> set[str]:
+        """Nodes that read the topics of two or more publishers, ``merges_in_any_order``
+        ones (the recorder) left out: in lockstep they hold what they receive until the
+        graph has settled, then handle it in a fixed order (``runtime.runner``)."""
+        return {
+            name
+            for name, spec in self.nodes.items()
+            if not spec.cls.merges_in_any_order and len(self.fed_by[name]) > 1
+        }
+
     def barrier_topics(self) -> set[str]:
         """Topics from which a message can reach a node that merges several publishers.
 
@@ -221,11 +232,7 @@ class Graph:
         topic and pipelines the others. Nodes with ``merges_in_any_order`` (the recorder)
         do not count as fan-ins.
         """
-        fan_ins = {
-            name
-            for name, spec in self.nodes.items()
-            if not spec.cls.merges_in_any_order and len(self.fed_by[name]) > 1
-        }
+        fan_ins = self.fan_ins()
         return {
             topic
             for topic in self.producers
@@ -373,10 +380,11 @@ def _check_node(
         if parsed is not None:
             inputs[str(port)] = parsed
     hang = body.get("hang_timeout_secs", 30.0)
-    if not isinstance(hang, int | float) or isinstance(hang, bool) or not 0 < hang <= MAX_SECS:
-        errors.append(
-            f"{where}.hang_timeout_secs: must be a number in (0, {MAX_SECS:g}] s, got {hang!r}"
-        )
+    if not isinstance(hang, int | float) or isinstance(hang, bool) or not 0 < hang < math.inf:
+        errors.append(f"{where}.hang_timeout_secs: must be a finite number > 0, got {hang!r}")
+        hang = 30.0
+    elif hang > MAX_SECS:
+        errors.append(f"{where}.hang_timeout_secs: must be at most {MAX_SECS:g} s, got {hang!r}")
         hang = 30.0
     required = body.get("required", True)
     if not isinstance(required, bool):

@@ -79,11 +79,16 @@ class _Peer:
     last_seen: float = 0.0
     lost: bool = False
     asked_at: float = 0.0
+    # A hello not sent yet (its ``reply`` flag): a DEALER with IMMEDIATE refuses a message
+    # until its connection is up, so it is tried again on every turn of the thread until
+    # it goes out. A hello lost to a connection still being made would leave a peer not
+    # knowing of us (or of our graph) until the next turn of asking.
+    hello_due: int | None = None
     ping_t1: int | None = None
     ping_sent_at: float = 0.0
     samples: list[tuple[float, float]] = field(default_factory=list)
     # Its nodes' newest counts (lockstep): published per topic, received per "node/port".
-    counts: tuple[dict[str, int], dict[str, int]] = ({}, {})
+    counts: tuple[dict[str, int], dict[str, int], dict[str, int]] = ({}, {}, {})
     final: dict[str, int] | None = None  # what its nodes published in all, once stopped
 
 
@@ -121,6 +126,7 @@ class HostLink:
         self.guard: Guard | None = None
         self.router = ctx.socket(zmq.ROUTER)
         self.router.setsockopt(zmq.LINGER, 0)
+        self.router.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_CONTROL_BYTES)
         if self.curve:
             assert keys is not None
             self.guard = Guard(ctx, authorized, lambda text: log(f"link: {text}"))
@@ -179,20 +185,21 @@ class HostLink:
         """Tell every other host the graph stops (sent by the link's thread)."""
         self._queue(self._pack(LinkStop, reason=reason, exit_code=exit_code))
 
-    def send_counts(self, published: dict[str, int], received: dict[str, int]) -> None:
-        """This host's nodes' newest counts (lockstep): published per topic, received per
-        ``"node/port"``; each node's pair is one snapshot, taken after a handled batch."""
-        self._queue(self._pack(LinkCounts, published=published, received=received))
+    def send_counts(
+        self, published: dict[str, int], received: dict[str, int], held: dict[str, int]
+    ) -> None:
+        """This host's nodes' newest counts (lockstep): published per topic, received and
+        held per ``"node/port"``; each node's are one snapshot, taken after a handled batch."""
+        self._queue(self._pack(LinkCounts, published=published, received=received, held=held))
 
-    def remote_counts(self) -> tuple[dict[str, int], dict[str, int]]:
+    def remote_counts(self) -> tuple[dict[str, int], dict[str, int], dict[str, int]]:
         """The other hosts' newest counts, merged (as :meth:`send_counts` takes them)."""
-        published: dict[str, int] = {}
-        received: dict[str, int] = {}
+        out: tuple[dict[str, int], dict[str, int], dict[str, int]] = ({}, {}, {})
         for peer in self.peers.values():
             theirs = peer.counts  # replaced whole by the link's thread, never changed
-            published.update(theirs[0])
-            received.update(theirs[1])
-        return published, received
+            for mine, their in zip(out, theirs, strict=True):
+                mine.update(their)
+        return out
 
     def send_final(self, published: dict[str, int]) -> None:
         """This host's nodes have stopped (but for listeners): all they published, per topic."""
@@ -240,14 +247,29 @@ class HostLink:
             argv=self.argv,
         )
 
-    def _send(self, peer: _Peer, frames: list[bytes]) -> None:
+    def _send(self, peer: _Peer, frames: list[bytes]) -> bool:
+        """Whether the message went out (False: no connection to the peer yet)."""
         try:
             peer.dealer.send_multipart(frames, zmq.NOBLOCK)
         except zmq.Again:
-            pass  # not connected (yet): the heartbeat repeats, a hello is asked for again
+            return False  # not connected (yet): the heartbeat repeats, a hello is kept due
+        return True
+
+    def _say_hello(self, peer: _Peer, reply: int) -> None:
+        """Send a hello now, or as soon as the connection to ``peer`` takes it."""
+        peer.hello_due = max(reply, peer.hello_due or 0)
+        if self._send(peer, self._hello(reply=peer.hello_due)):
+            peer.hello_due = None
+            if reply:
+                peer.asked_at = time.monotonic()
+            # A beat right after it: the peer could not check the last one (or, asked,
+            # it waits for our readiness while our nodes may already run).
+            self._beat_now.set()
 
     def _run(self) -> None:
         next_beat = 0.0
+        for peer in self.peers.values():
+            peer.hello_due = 1  # introduce ourselves: the peer learns our graph at once
         poller = zmq.Poller()
         poller.register(self.router, zmq.POLLIN)
         poller.register(self._wake_r, zmq.POLLIN)
@@ -280,7 +302,9 @@ class HostLink:
                     self._receive(frames, time.time_ns())
 
     def _tend(self, peer: _Peer, now: float) -> None:
-        """Pings for the clock, and the heartbeat timeout."""
+        """A hello still due, pings for the clock, and the heartbeat timeout."""
+        if peer.hello_due is not None:
+            self._say_hello(peer, peer.hello_due)
         if peer.secret is not None and len(peer.samples) < CLOCK_SAMPLES:
             if peer.ping_t1 is None or now - peer.ping_sent_at > PING_TIMEOUT_SECS:
                 peer.ping_t1 = time.time_ns()
@@ -296,11 +320,8 @@ class HostLink:
             self.log(f"link: refused message #{self.refused}: {why}")
 
     def _ask(self, peer: _Peer) -> None:
-        now = time.monotonic()
-        if now - peer.asked_at > WHO_EVERY_SECS:
-            peer.asked_at = now
-            self._send(peer, self._hello(reply=1))
-            self._beat_now.set()  # a beat right after it: the peer could not check the last
+        if peer.hello_due is None and time.monotonic() - peer.asked_at > WHO_EVERY_SECS:
+            self._say_hello(peer, 1)
 
     def _receive(self, frames: list[zmq.Frame], arrived_ns: int) -> None:
         if len(frames) != 3:
@@ -345,10 +366,7 @@ class HostLink:
         if isinstance(msg, LinkHello):
             secret = bytes.fromhex(msg.run_secret)
             if msg.reply:  # also to another graph: then it learns so too, and stops
-                self._send(peer, self._hello(reply=0))
-                # It could not check our last beat (it asked who we are): one more at once,
-                # or a host whose nodes are ready may wait for ours while ours run.
-                self._beat_now.set()
+                self._say_hello(peer, 0)
             if msg.graph != self.graph:  # its endpoints and nodes are not ours
                 if secret != peer.differs:
                     peer.differs = secret
@@ -360,7 +378,7 @@ class HostLink:
                 peer.ready = False
                 peer.samples = []
                 peer.ping_t1 = None
-                peer.counts = ({}, {})
+                peer.counts = ({}, {}, {})
                 peer.final = None
                 if first:
                     self._event(("joined", name))
@@ -378,7 +396,7 @@ class HostLink:
         elif isinstance(msg, LinkBeat):
             peer.ready = bool(msg.ready)
         elif isinstance(msg, LinkCounts):
-            peer.counts = (msg.published, msg.received)
+            peer.counts = (msg.published, msg.received, msg.held)
             _poke(self._note_w)
         elif isinstance(msg, LinkFinal):
             peer.final = msg.published

@@ -32,6 +32,7 @@ from typing import IO, Any
 import zmq
 
 from messages.control import (
+    Busy,
     Connect,
     Control,
     Counts,
@@ -41,6 +42,7 @@ from messages.control import (
     Hello,
     Idle,
     Ready,
+    Release,
     Start,
     Stop,
     StopRequest,
@@ -51,7 +53,18 @@ from runtime.counters import balanced, delivered
 from runtime.graph import Graph, ipc_path
 from runtime.hostlink import HostLink, judge, wait_for_finals
 from runtime.isolation import make_rundir
-from runtime.nodeprocs import Proc, counts, reap, signal_group, spawn, stop, table, totals
+from runtime.nodeprocs import (
+    Proc,
+    counts,
+    ended_by_launcher,
+    exit_reason,
+    reap,
+    signal_group,
+    spawn,
+    stop,
+    table,
+    totals,
+)
 from runtime.protocol import ControlServer
 from runtime.registry import class_path
 from runtime.security import KeyPair
@@ -59,6 +72,7 @@ from runtime.security import KeyPair
 STARTUP_TIMEOUT_SECS = 300.0
 HEARTBEAT_TIMEOUT_SECS = 5.0
 DRAIN_SECS = 3.0
+BUSY_EVERY_SECS = 1.0  # at most this often, a waiter for idle hears the graph still moves
 STOP_GRACE_SECS = 5.0
 TERM_GRACE_SECS = 2.0
 # After Ctrl-C or SIGTERM: "stop", then SIGTERM, then SIGKILL, all within 2 s.
@@ -110,10 +124,15 @@ class Launcher:
         remote = {n for t, n, _ in edges if n in local and self.providers[t] not in local}
         self.held = {n for n in remote if graph.nodes[n].cls.raw_input}
         self.barrier_topics = graph.barrier_topics() if lockstep else set()
+        self.fan_ins = graph.fan_ins() if lockstep else set()
         self.stop_reason: str | None = None
         self.exit_code = 0
         self.verdict_code = 0  # a node's verdict on the run (stop_request's exit_code)
         self.idle_waiters: list[bytes] = []
+        # What the graph had received when a waiter was last told it is busy (see _serve).
+        self.received_total = 0
+        self.received_told = -1
+        self.busy_told_at = 0.0
         self.counts_changed = False  # lockstep across hosts: to send to the other hosts
         self.started_at = 0.0
         self.stopped_at = 0.0
@@ -195,6 +214,7 @@ class Launcher:
             "parent_pid": os.getpid(),
             "lockstep": self.lockstep,
             "barrier_topics": sorted(self.barrier_topics & set(spec.topics.values())),
+            "holds": spec.name in self.fan_ins,
             "log_level": self.log_level,
         }
         if self.keys is not None:  # the host's own key pair and the publishers' keys
@@ -218,11 +238,28 @@ class Launcher:
             self._on_exit(proc, code)
 
     def _on_exit(self, proc: Proc, code: int) -> None:
-        if code == 0 or self.stop_reason is not None:
-            proc.state = "exited"
+        if code != 0 and self.stop_reason is None:
+            self._failed(proc, exit_reason(code))
             return
-        reason = f"signal {-code}" if code < 0 else f"exit code {code}"
-        self._failed(proc, reason)
+        proc.state = "exited"
+        if code != 0 and not ended_by_launcher(proc, code):
+            # Failing while the graph stops (a recorder whose disk filled) fails the run too.
+            self._ended_badly(proc, f"{exit_reason(code)} while the graph stopped")
+
+    def _ended_badly(self, proc: Proc, why: str) -> None:
+        """A node that failed where no restart can follow: the run fails if it is required."""
+        if proc.spec.required:
+            self.say(f"required node {proc.spec.name!r} failed ({why})")
+            self.exit_code = 1
+        else:
+            self.say(f"node {proc.spec.name!r} failed ({why}); not required")
+
+    def _not_back(self) -> None:
+        """Nodes that failed and had not come back when the graph stopped (a back-off
+        still to wait, a restart still setting up) end badly."""
+        for proc in self.procs.values():
+            if proc.restarts and proc.state in ("waiting_restart", "new", "hello", "ready"):
+                self._ended_badly(proc, f"not back from restart {proc.restarts} at the stop")
 
     def _failed(self, proc: Proc, reason: str) -> None:
         name = proc.spec.name
@@ -278,6 +315,8 @@ class Launcher:
         elif isinstance(msg, Counts):
             proc.counts_published = msg.published
             proc.counts_received = msg.received
+            proc.counts_held = msg.held
+            proc.released = False
             self.counts_changed = True
         elif isinstance(msg, WaitIdle):
             self.idle_waiters.append(rid)
@@ -304,11 +343,20 @@ class Launcher:
     def _graph_idle(self) -> bool:
         """Whether every edge received all published on it (other hosts' counts from the
         link: stale ones only make the graph look busy, see docs/hosts.md)."""
-        published, received = counts(self.procs)
+        published, received, held = counts(self.procs)
         if self.link is not None:
-            theirs, got = self.link.remote_counts()
-            published, received = theirs | published, got | received
-        return delivered(self.edges, published, lambda n, port: received.get(f"{n}/{port}", 0))
+            theirs, got, kept = self.link.remote_counts()
+            published, received, held = theirs | published, got | received, kept | held
+        self.received_total = sum(received.values())
+        arrived = delivered(self.edges, published, lambda n, port: received.get(f"{n}/{port}", 0))
+        if arrived and held:
+            # Everything published has arrived, and only ordered fan-ins hold messages:
+            # nothing else is on its way to them, so they may handle what they hold.
+            for proc in self.procs.values():
+                if any(proc.counts_held.values()) and not proc.released:
+                    proc.released = True  # once, until its next counts
+                    self.control.send(proc.rid, Release())
+        return arrived and not held
 
     def _serve(self, timeout_ms: int) -> None:
         # Wakes for a node's message or for the link's (an event, or another host's counts).
@@ -331,10 +379,18 @@ class Launcher:
         if self.counts_changed and self.link is not None:
             self.counts_changed = False
             self.link.send_counts(*counts(self.procs))
-        if self.idle_waiters and self._graph_idle():
+        idle = self.lockstep and self._graph_idle()  # also releases what fan-ins hold
+        if self.idle_waiters and idle:
             for rid in self.idle_waiters:
                 self.control.send(rid, Idle())
             self.idle_waiters.clear()
+        elif self.idle_waiters and time.monotonic() - self.busy_told_at > BUSY_EVERY_SECS:
+            # Slow is not stuck: a waiter's timeout counts from the graph's last progress.
+            if self.received_total != self.received_told:
+                self.received_told = self.received_total
+                self.busy_told_at = time.monotonic()
+                for rid in self.idle_waiters:
+                    self.control.send(rid, Busy())
 
     # -- run ---------------------------------------------------------------------
     def _request_stop(self, reason: str, *, echo: bool = True) -> None:
@@ -481,6 +537,7 @@ class Launcher:
                 self.started_at = time.monotonic()
                 self.say("all nodes ready; running")
                 self._supervise()
+                self._not_back()
             self.say(f"stopping: {self.stop_reason or 'start-up failed'}")
             if self.started_at and self.exit_code == 0:
                 self._drain()

@@ -47,7 +47,10 @@ class IO(Protocol):
         """Send ``msg`` on one of the node's declared outputs (the IO sets ``header.seq``)."""
 
     def add_timer(self, period_secs: float, callback: Callable[[], None]) -> None:
-        """Call ``callback`` every ``period_secs`` (on the node's own thread)."""
+        """Call ``callback`` every ``period_secs`` (on the node's own thread).
+
+        In lockstep, unless the node is ``clocked`` or has no inputs, ``callback`` runs
+        once after each message the node handles instead: bag-driven, not clock-driven."""
 
     def now_nanos(self) -> int:
         """The current time in nanoseconds (wall clock in a live graph)."""
@@ -88,6 +91,12 @@ class Node:
     # different publishers interleave (the recorder keeps each topic in its own order):
     # lockstep replay then need not wait for the graph to be idle for its sake.
     merges_in_any_order: ClassVar[bool] = False
+    # True for a node whose work follows the clock or a device rather than its inputs: a
+    # simulated world (one step per frame period), a device driver. In lockstep its timers
+    # keep the clock; every other node's timers run once after each message it handles
+    # there instead (``runtime.runner``), so what they publish depends on the bag alone.
+    # A node without inputs (a source, the replay, the recorder) keeps the clock anyway.
+    clocked: ClassVar[bool] = False
 
     def __init__(self, name: str, params: Any, io: IO) -> None:
         if not isinstance(params, self.Params):

@@ -47,6 +47,9 @@ class Proc:
     stats_base: dict[str, Any] = field(default_factory=dict)
     counts_published: dict[str, int] = field(default_factory=dict)
     counts_received: dict[str, int] = field(default_factory=dict)
+    signalled: set[int] = field(default_factory=set)  # what the launcher sent this incarnation
+    counts_held: dict[str, int] = field(default_factory=dict)  # an ordered fan-in's, per port
+    released: bool = False  # told to handle what it holds (lockstep), since its last counts
 
 
 def spawn(
@@ -65,6 +68,7 @@ def spawn(
     threading.Thread(target=_pump, args=(proc, process.stdout, say), daemon=True).start()
     proc.process = process
     proc.rid = None
+    proc.signalled = set()
     proc.state = "new"
     proc.spawned_at = proc.last_heartbeat = time.monotonic()
     proc.busy_secs = 0.0
@@ -107,18 +111,33 @@ def reap(proc: Proc) -> int | None:
 def signal_group(proc: Proc, signum: int) -> None:
     """Signal a node's process group: the node and any process it started (a compiler)."""
     if proc.process is not None and proc.process.returncode is None:
+        proc.signalled.add(int(signum))
         try:
             os.killpg(proc.process.pid, signum)
         except (ProcessLookupError, PermissionError):
             pass
 
 
-def counts(procs: Mapping[str, Proc]) -> tuple[dict[str, int], dict[str, int]]:
-    """These nodes' newest lockstep counts: published per topic, received per node/port."""
+def ended_by_launcher(proc: Proc, code: int) -> bool:
+    """Whether a non-zero exit code is a signal the launcher sent this incarnation, as the
+    kernel (-N) or the node's quiet handler before it runs (128 + N) reports it."""
+    return (-code if code < 0 else code - 128) in proc.signalled
+
+
+def exit_reason(code: int) -> str:
+    return f"signal {-code}" if code < 0 else f"exit code {code}"
+
+
+def counts(
+    procs: Mapping[str, Proc],
+) -> tuple[dict[str, int], dict[str, int], dict[str, int]]:
+    """These nodes' newest lockstep counts: published per topic, received per node/port,
+    and held (received, not handled yet) per node/port."""
     items = procs.items()
     published = {t: n for _, p in items for t, n in p.counts_published.items()}
     received = {f"{x}/{port}": n for x, p in items for port, n in p.counts_received.items()}
-    return published, received
+    held = {f"{x}/{port}": n for x, p in items for port, n in p.counts_held.items() if n}
+    return published, received, held
 
 
 def totals(procs: Mapping[str, Proc]) -> dict[str, int]:

@@ -28,6 +28,10 @@ import zmq
 from messages.control import KINDS, Control, Final, FromNode, Heartbeat
 
 HEARTBEAT_SECS = 0.5
+# The largest control message a launcher takes (ZMQ_MAXMSGSIZE, per frame): a heartbeat of a
+# node with a thousand inputs is about 100 kB. ZeroMQ reads a frame's length first and drops
+# the connection of a peer that announces more, before anything is allocated for it.
+MAX_CONTROL_BYTES = 1 << 20
 REFUSED_LOG_FIRST = 10  # a refused message is logged for the first ten, then every 100th
 REFUSED_LOG_EVERY = 100
 SECRET_BYTES = 32
@@ -128,6 +132,7 @@ class ControlServer:
         self.socket = ctx.socket(zmq.ROUTER)
         self.socket.setsockopt(zmq.LINGER, 0)
         self.socket.setsockopt(zmq.ROUTER_MANDATORY, 1)
+        self.socket.setsockopt(zmq.MAXMSGSIZE, MAX_CONTROL_BYTES)
         self.socket.bind(endpoint)
 
     def send(self, rid: bytes | None, msg: Control) -> None:

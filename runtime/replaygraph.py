@@ -162,6 +162,14 @@ def build_replay_graph(
     if not replayed:
         raise GraphError(f"{bag_path}: nothing to replay: the live nodes read no recorded topic")
 
+    if options.lockstep:
+        for name in sorted(n for n in live if checked.nodes[n].cls.clocked):
+            log.warning(
+                "replay: %s (%s) follows the clock or a device, not the bag: lockstep cannot "
+                "make its outputs, or what follows from them, the same twice",
+                name,
+                nodes[name].get("impl"),
+            )
     out_nodes = {n: nodes[n] for n in nodes if n in live}
     name = "replay"
     while name in out_nodes:

@@ -20,7 +20,10 @@ socket subscribed to all the topics it takes from it, so it handles one publishe
 messages in the order they were published, whatever the topics. After each handled
 message it reports its counts to the launcher, which tells a waiting replay when the
 graph is idle; the replay waits only before messages on ``barrier_topics`` (those that
-can reach a node merging several publishers, see ``Graph.barrier_topics``).
+can reach a node merging several publishers, see ``Graph.barrier_topics``). A node's
+timers are bag-driven there: each runs once after every message the node handles, not
+by the clock (a pose node that solves the newest patch on a timer answers every patch),
+unless the node is a source or declares itself ``clocked`` (a simulated world, a driver).
 
 Drops. Every output stamps ``header.seq``; a receiver counts sequence gaps as
 ``dropped`` (lost at a high-water mark) and, on ``latest`` inputs, skipped messages
@@ -61,7 +64,17 @@ from typing import Any
 import zmq
 
 from messages.codec import decode
-from messages.control import Connect, Control, Final, Heartbeat, Hello, Ready, Start, Stop
+from messages.control import (
+    Connect,
+    Control,
+    Final,
+    Heartbeat,
+    Hello,
+    Ready,
+    Release,
+    Start,
+    Stop,
+)
 from messages.errors import FrameDecodeError, NodeError
 from runtime import protocol
 from runtime.node import Node
@@ -89,6 +102,11 @@ class Runner:
         self.node: Node = cls(self.name, params, self.io)
         self.raw = cls.raw_input
         self.inputs_decl = inputs_decl
+        # Lockstep: timers run after each handled message instead of by the clock.
+        self.bag_driven = self.io.lockstep and bool(inputs_decl) and not cls.clocked
+        # Lockstep, a node reading several publishers: hold, then handle in a fixed order.
+        self.holds = self.io.lockstep and bool(spec.get("holds"))
+        self.port_order = {inp["port"]: k for k, inp in enumerate(spec["inputs"])}
         self.busy_since = 0.0
         self.set_up = False  # teardown runs only for a node whose setup ran
         self.sources: list[Source] = []
@@ -210,17 +228,16 @@ class Runner:
         by_socket = {source.socket: source for source in self.sources}
         while not io.stop_requested:
             timeout_ms = 200
-            if io.timers:
+            if io.timers and not self.bag_driven:
                 due = min(t.due_nanos for t in io.timers)
                 # Round up: rounding down would poll(0) through the last millisecond
                 # before every timer, a busy spin that steals the CPU from peers.
                 timeout_ms = max(0, min(timeout_ms, math.ceil((due - time.monotonic_ns()) / 1e6)))
             events = dict(poller.poll(timeout_ms))
-            if io.control in events:
-                self._on_control()
+            released = io.control in events and self._on_control()
             if io.pub in events:
                 self._drain_subscriptions()
-            handled = False
+            handled = released and self._release()
             for sock, source in by_socket.items():
                 if sock in events and not io.stop_requested:
                     handled |= self._service(source)
@@ -228,13 +245,36 @@ class Runner:
             if handled and io.lockstep:
                 io.send_counts()
 
-    def _on_control(self) -> None:
+    def _on_control(self) -> bool:
+        """Serve the launcher's messages; True when one released the held messages."""
+        released = False
         while self.io.control.poll(0):
             msg = self.io.hear()
             if isinstance(msg, Stop):
                 self.io.stop_requested = True
+            released |= isinstance(msg, Release)
+        return released
+
+    def _release(self) -> bool:
+        """Handle the held messages (lockstep, an ordered fan-in): by stamp, then by input
+        in the graph's order, then as received. The launcher releases them once everything
+        published has arrived, so what is held, and this order, depend on the bag alone."""
+        held, self.io.held = self.io.held, []
+
+        def key(item: tuple[int, tuple[Input, Any]]) -> tuple[int, int, int]:
+            arrival, (inp, msg) = item
+            header = getattr(msg, "header", None)
+            stamp = header.stamp_nanos if header is not None else 0
+            return (stamp, self.port_order[inp.port], arrival)
+
+        for _, (inp, msg) in sorted(enumerate(held), key=key):
+            if not self.io.stop_requested:
+                self._handle(inp, msg)
+        return bool(held)
 
     def _run_timers(self) -> None:
+        if self.bag_driven:
+            return  # they run after each message (_deliver)
         now = time.monotonic_ns()
         for timer in self.io.timers:
             if timer.due_nanos <= now and not self.io.stop_requested:
@@ -303,7 +343,17 @@ class Runner:
                     ", ".join(bad),
                     type(msg).__name__,
                 )
+        if self.holds:
+            self.io.held.append((inp, msg))
+        else:
+            self._handle(inp, msg)
+
+    def _handle(self, inp: Input, msg: Any) -> None:
         self._call(self.node.handle, inp.port, msg)
+        if self.bag_driven:
+            for timer in self.io.timers:
+                if not self.io.stop_requested:
+                    self._call(timer.callback)
 
     def _call(self, fn: Callable[..., None], *args: Any) -> None:
         """``fn(*args)``, timed as busy for the heartbeat (no closure per message)."""
@@ -324,7 +374,8 @@ class Runner:
                 if os.getppid() != parent:
                     os.kill(os.getpid(), signal.SIGTERM)
                     return
-                busy = time.monotonic() - self.busy_since if self.busy_since else 0.0
+                since = self.busy_since
+                busy = time.monotonic() - since if since and not self.io.waiting else 0.0
                 self.io.tell(Heartbeat, sock, busy_secs=busy, stats=self.io.stats())
         finally:
             sock.close()

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, cast
@@ -19,7 +19,7 @@ import zmq
 
 from messages.base import Message
 from messages.codec import encode
-from messages.control import Control, Counts, FromNode, Idle, Stop, StopRequest, WaitIdle
+from messages.control import Busy, Control, Counts, FromNode, Idle, Stop, StopRequest, WaitIdle
 from runtime import protocol
 from runtime.counters import InputCounters
 from runtime.params import timer_period_nanos
@@ -120,7 +120,11 @@ class ZmqIO:
         self.published: dict[str, int] = defaultdict(int)
         self.timers: list[Timer] = []
         self.stop_requested = False
+        self.waiting = False  # in wait_idle
+        # Lockstep, an ordered fan-in: what it received and has not handled yet, in order.
+        self.held: list[tuple[Input, Message]] = []
         self.barrier_topics = frozenset(spec.get("barrier_topics", ()))
+        self.source_in_lockstep = self.lockstep and not spec.get("inputs")
         self.subscriptions: dict[bytes, int] = defaultdict(int)
 
     def _bind(self, endpoint: str) -> str:
@@ -144,14 +148,24 @@ class ZmqIO:
         header = getattr(msg, "header", None)
         if header is not None:
             header.seq = self.published[topic]
-        send_parts(self.pub, encode(topic, msg))
-        self.published[topic] += 1
+        frames = encode(topic, msg)
+        self._count_ahead(topic)
+        send_parts(self.pub, frames)
 
     def publish_raw(self, topic: str, frames: list[Any]) -> None:
         if topic not in self.topics.values():
             raise KeyError(f"{self.name}: {topic!r} is not one of its output topics")
+        self._count_ahead(topic)
         send_parts(self.pub, [topic.encode(), *frames[1:]])
+
+    def _count_ahead(self, topic: str) -> None:
+        """Count a message about to go out. A source (the replay) tells the launcher first
+        when the topic can reach an ordered fan-in (a barrier topic): having no inputs, its
+        counts are the only sign of the message, and a receiver's count arriving first
+        would make the edge look delivered and the fan-ins be released too early."""
         self.published[topic] += 1
+        if self.source_in_lockstep and topic in self.barrier_topics:
+            self.send_counts()
 
     def add_timer(self, period_secs: float, callback: Callable[[], None]) -> None:
         try:
@@ -188,19 +202,25 @@ class ZmqIO:
             return True
         self.send_counts()
         self.tell(WaitIdle)
-        deadline = time.monotonic() + timeout_secs
-        while (left := deadline - time.monotonic()) > 0:
-            if not self.control.poll(int(left * 1000) + 1):
-                break
-            msg = self.hear()
-            if msg is None:
-                continue
-            if isinstance(msg, Idle):
-                return True
-            if isinstance(msg, Stop):
-                self.stop_requested = True
-                return False
-        return False
+        self.waiting = True  # not busy in a handler: waiting for others (the heartbeat)
+        try:
+            deadline = time.monotonic() + timeout_secs
+            while (left := deadline - time.monotonic()) > 0:
+                if not self.control.poll(int(left * 1000) + 1):
+                    break
+                msg = self.hear()
+                if msg is None:
+                    continue
+                if isinstance(msg, Idle):
+                    return True
+                if isinstance(msg, Busy):  # slow, not stuck: the timeout starts over
+                    deadline = time.monotonic() + timeout_secs
+                if isinstance(msg, Stop):
+                    self.stop_requested = True
+                    return False
+            return False
+        finally:
+            self.waiting = False
 
     def lockstep_barrier(self, topic: str) -> bool:
         return self.lockstep and topic in self.barrier_topics
@@ -216,7 +236,7 @@ class ZmqIO:
                 i.port: {
                     "topic": i.topic,
                     "received": i.counters.received,
-                    "dropped": i.counters.dropped,
+                    "dropped": i.counters.gaps(),
                     "superseded": i.counters.superseded,
                     "bad_frames": i.counters.bad_frames,
                     "nonfinite": i.counters.nonfinite,
@@ -231,4 +251,5 @@ class ZmqIO:
             Counts,
             published=dict(self.published),
             received={i.port: i.counters.received for i in self.inputs},
+            held=dict(Counter(inp.port for inp, _ in self.held)),
         )

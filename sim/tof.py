@@ -155,6 +155,7 @@ class BubbleRenderer:
         self._lr_rest_points = self._lr_rest[:, None] * self._lr_unit
         self._lr_cos_rest = _rest_cos(bubble, self._o_f, dirs_lr_f, rest_lr).ravel()
 
+        self._mesh_views: dict[float, Any] = {}
         self._membrane_cache: tuple[tuple[bytes, float], dict[str, np.ndarray]] | None = None
         self.membrane_cache_hits = 0
         self._texture: np.ndarray | None = None
@@ -177,6 +178,9 @@ class BubbleRenderer:
         return self.geometry.tool_from_finger(self.side, width_m) @ self.finger_from_sensor
 
     def _membrane(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
+        if snap.membranes_f is not None:
+            frame.update(self._mesh_membrane(snap))
+            return
         # The membrane is a pure function of the object's pose and the opening: a held,
         # unmoving object (most of a grasp) reuses the last frame's result.
         key = (np.asarray(snap.tool_from_object, np.float64).tobytes(), float(snap.width_m))
@@ -246,6 +250,35 @@ class BubbleRenderer:
             array.setflags(write=False)
         self._membrane_cache = (key, result)
 
+    def _mesh_membrane(self, snap: WorldSnapshot) -> dict[str, np.ndarray]:
+        """A world's simulated membrane mesh, ray-cast (``sim.mujoco.render``): its dots
+        are the latex's own material points, so it adds ``material_shift_m`` too."""
+        from sim.mujoco.mesh import CONTACT_TOLERANCE_M, membrane_mesh
+        from sim.mujoco.render import MeshView
+
+        assert snap.membranes_f is not None
+        spacing = float(snap.membrane_spacing_m)
+        view = self._mesh_views.get(spacing)
+        if view is None:
+            view = MeshView(
+                membrane_mesh(self.geometry.bubble, spacing),
+                self.unit,
+                fx_px=self.camera.fx_px,
+                fy_px=self.camera.fy_px,
+                cx_px=self.camera.cx_px,
+                cy_px=self.camera.cy_px,
+                finger_from_sensor=self.geometry.finger_from_sensor(),
+                rest_range_m=self.rest_range,
+            )
+            self._mesh_views[spacing] = view
+        surface = np.asarray(snap.membranes_f[self.side], np.float64)
+        object_from_finger = invert(snap.tool_from_object) @ self.geometry.tool_from_finger(
+            self.side, snap.width_m
+        )
+        local = surface @ object_from_finger[:3, :3].T + object_from_finger[:3, 3]
+        touching = self.field.value(local) < CONTACT_TOLERANCE_M
+        return view.render(surface, touching)
+
     def _depth(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
         frame["depth_m"] = frame["range_m"] * self.unit_z
 
@@ -256,6 +289,8 @@ class BubbleRenderer:
         frame["amplitude"] = frame["cos_incidence"] * self._illum32 / (r * r)
 
     def _shear(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:
+        if snap.membranes_f is not None:
+            return  # the mesh's material points already carry the latex's motion
         h, w = self.camera.shape
         anchor = snap.anchors.get(self.side)
         contact = frame["contact"]

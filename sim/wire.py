@@ -54,7 +54,18 @@ def to_message(snap: WorldSnapshot, scene: Scene, stamp_nanos: int) -> WorldStat
         anchor_right=np.eye(4) if anchors[1] is None else np.asarray(anchors[1], np.float64),
         shear_left_m=np.asarray(snap.shear_in_tool_m["left"], np.float64),
         shear_right_m=np.asarray(snap.shear_in_tool_m["right"], np.float64),
+        **_membranes(snap),
     )
+
+
+def _membranes(snap: WorldSnapshot) -> dict[str, object]:
+    if snap.membranes_f is None:
+        return {}
+    return {
+        "membrane_spacing_m": float(snap.membrane_spacing_m),
+        "membrane_left_m": np.asarray(snap.membranes_f["left"], np.float32),
+        "membrane_right_m": np.asarray(snap.membranes_f["right"], np.float32),
+    }
 
 
 def from_message(msg: WorldState) -> WorldSnapshot:
@@ -78,6 +89,12 @@ def from_message(msg: WorldState) -> WorldSnapshot:
             "left": np.asarray(msg.shear_left_m),
             "right": np.asarray(msg.shear_right_m),
         },
+        membranes_f=(
+            {"left": np.asarray(msg.membrane_left_m), "right": np.asarray(msg.membrane_right_m)}
+            if msg.membrane_spacing_m > 0
+            else None
+        ),
+        membrane_spacing_m=msg.membrane_spacing_m,
     )
 
 

@@ -41,6 +41,7 @@ class WorldSnapshot:
 
     ``anchors`` and ``shear_in_tool_m`` are keyed by side; an anchor is None while that
     bubble is out of contact. Pressures are gauge pascals. Speed is a magnitude.
+    ``membranes_f`` (when a world simulates the membrane) is keyed by side too.
     """
 
     frame_index: int
@@ -56,6 +57,11 @@ class WorldSnapshot:
     shear_in_tool_m: dict[str, np.ndarray] = field(
         default_factory=lambda: {s: np.zeros(2) for s in SIDES}
     )
+    # A world that simulates the membrane as a mesh (``sim.mujoco``) gives each bubble's
+    # outer surface, (N, 3) in its finger frame F, and the mesh's edge length; the
+    # cameras then ray-cast it (``sim.mujoco.render``) instead of the geometric model.
+    membranes_f: dict[str, np.ndarray] | None = None
+    membrane_spacing_m: float = 0.0
     # With ``wrench``: each bubble's true wrench and enclosed air volume.
     wrench: dict[str, BubbleWrench] = field(default_factory=dict)
     volume_m3: dict[str, float] = field(default_factory=dict)

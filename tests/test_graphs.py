@@ -50,3 +50,17 @@ def test_sort_task_classifies_and_routes_the_bottle() -> None:
     assert proc.returncode == 0, proc.stdout[-3000:]
     assert "sort: classified pet_bottle" in proc.stdout
     assert "placed in recycling" in proc.stdout
+
+
+def test_default_graph_runs_the_handover_on_the_mujoco_world() -> None:
+    # A coarse membrane (12 mm edges) keeps this near half a minute on two cores.
+    proc = launch(
+        "graph.yaml", "--swap", "world=world.mujoco", "--set", "world.mesh_spacing_m=0.012"
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    out = proc.stdout
+    assert "handover: stable" in out
+    assert "handover: release" in out
+    for topic in ("world/wrench", "left_camera/image", "contact_patch/patch", "pose/pose"):
+        row = next(line for line in out.splitlines() if line.startswith(f"[launch] {topic} "))
+        assert int(row.split()[2]) > 0, row

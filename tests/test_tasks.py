@@ -143,7 +143,11 @@ def without_pose(events: list[tuple[str, str]]) -> list[tuple[str, str]]:
             ("--set", "supervisor.objects=2"),
         ),
         ("graphs/antagonism.yaml", "grasp_monitor/grasp|pose/pose|world/ground_truth", ()),
-        ("graph.yaml", "grasp_monitor/grasp|shear/shear|pose/pose", ()),
+        (
+            "graph.yaml",
+            "grasp_monitor/grasp|shear/shear|pose/pose|wrench/wrench|slip/slip",
+            (),
+        ),
     ],
     ids=["stacking", "dish_loading", "antagonism", "handover"],
 )

@@ -1,11 +1,14 @@
 """The video mosaic: what both bubbles sensed at one instant, drawn with OpenCV.
 
-Two columns (left and right bubble), three rows: the depth image (colour-mapped, invalid
-pixels black), the IR image with the mean shear arrow and the estimated object's outline
-projected into that camera (green; the true one from ground truth in grey), and the
-contact mask (the contact-patch estimate filled, the simulator's true mask, published on a
-``contact_mask`` output, as a grey contour). A bar on top gives the time, the grasp and task state and the classifier's
-best class with its probability.
+Two columns (left and right bubble), three rows: the depth image (colour-mapped over one
+range for the whole video, invalid pixels black), the IR image with the mean shear arrow
+and the estimated object's outline projected into that camera (green; the true one from
+ground truth in grey), and the contact mask (the contact-patch estimate filled, the
+simulator's true mask, published on a ``contact_mask`` output, as a grey contour). Each
+panel is labelled with its bubble and what it shows; a legend on the right gives the
+depth colour bar in millimetres and what the colours of the other rows mean. A bar on
+top gives the time, the grasp and task state, the classifier's best class with its
+probability, the pose status, and the moment a still was taken at.
 
 :class:`MosaicState` keeps the latest message of each kind; :meth:`MosaicState.render`
 draws it. ``cli.bagview`` renders one frame per camera instant of a bag.
@@ -36,24 +39,74 @@ from viz.rerun_log import mask_centroid
 from viz.shapes import camera_pose, object_mesh, sensor_from_object
 
 SIDES = ("left", "right")
+ROWS = ("depth", "IR", "contact mask")
 BAR_PX = 44
+LEGEND_PX = 76
+FONT = cv2.FONT_HERSHEY_SIMPLEX
 ESTIMATE_BGR = (80, 220, 80)
 TRUTH_BGR = (190, 190, 190)
 ARROW_BGR = (40, 40, 255)
 
 
-def depth_to_bgr(depth_m: np.ndarray) -> np.ndarray:
-    """Colour-map a depth image over its valid range; NaN and non-positive pixels black."""
+def depth_range(depth_m: np.ndarray) -> tuple[float, float]:
+    """The 1st and 99th percentiles of the valid pixels (metres); (0, 0) when none."""
+    valid = depth_m[np.isfinite(depth_m) & (depth_m > 0)]
+    if not valid.size:
+        return 0.0, 0.0
+    lo, hi = np.percentile(valid, [1, 99])
+    return float(lo), float(hi)
+
+
+def depth_to_bgr(depth_m: np.ndarray, span_m: tuple[float, float] | None = None) -> np.ndarray:
+    """Colour-map a depth image over ``span_m`` (near red, far blue; default: this image's
+    :func:`depth_range`); NaN and non-positive pixels black."""
     valid = np.isfinite(depth_m) & (depth_m > 0)
     out = np.zeros((*depth_m.shape, 3), np.uint8)
     if not valid.any():
         return out
-    lo, hi = np.percentile(depth_m[valid], [1, 99])
+    lo, hi = span_m if span_m is not None else depth_range(depth_m)
     scaled = np.clip((depth_m - lo) / max(hi - lo, 1e-6), 0, 1)
     gray = np.where(valid, 255 * (1 - scaled), 0).astype(np.uint8)
     colored = cv2.applyColorMap(gray, cv2.COLORMAP_TURBO)
     out[valid] = colored[valid]
     return out
+
+
+def put_label(image: np.ndarray, text: str, origin: tuple[int, int], scale: float = 0.4) -> None:
+    """White text on a dark box at ``origin`` (its top-left corner)."""
+    (w, h), base = cv2.getTextSize(text, FONT, scale, 1)
+    x, y = origin
+    cv2.rectangle(image, (x, y), (x + w + 4, y + h + base + 4), (20, 20, 20), -1)
+    cv2.putText(image, text, (x + 2, y + h + 2), FONT, scale, (255, 255, 255), 1, cv2.LINE_AA)
+
+
+def depth_legend(height: int, span_m: tuple[float, float]) -> np.ndarray:
+    """The depth colour bar (``LEGEND_PX`` wide): the colour map from near (top) to far,
+    ticked in millimetres."""
+    panel = np.full((height, LEGEND_PX, 3), 32, np.uint8)
+    top, bottom = 22, height - 8
+    if bottom - top < 10:
+        return panel
+    lo, hi = span_m
+    ramp = np.linspace(lo, hi, bottom - top, dtype=np.float32)[:, None].repeat(14, axis=1)
+    panel[top:bottom, 6:20] = depth_to_bgr(ramp, span_m)
+    cv2.putText(panel, "depth mm", (4, 14), FONT, 0.35, (255, 255, 255), 1, cv2.LINE_AA)
+    for frac in (0.0, 0.5, 1.0):
+        y = int(round(top + frac * (bottom - top - 1)))
+        cv2.line(panel, (20, y), (24, y), (255, 255, 255), 1)
+        label = f"{(lo + frac * (hi - lo)) * 1000:.1f}"
+        cv2.putText(panel, label, (26, y + 4), FONT, 0.35, (255, 255, 255), 1, cv2.LINE_AA)
+    return panel
+
+
+def text_legend(height: int, lines: list[tuple[str, tuple[int, int, int]]]) -> np.ndarray:
+    """A legend panel (``LEGEND_PX`` wide) of coloured lines of text."""
+    panel = np.full((height, LEGEND_PX, 3), 32, np.uint8)
+    for row, (text, color) in enumerate(lines):
+        y = 16 + 14 * row
+        if y < height:
+            cv2.putText(panel, text, (4, y), FONT, 0.35, color, 1, cv2.LINE_AA)
+    return panel
 
 
 def ir_to_bgr(ir: np.ndarray) -> np.ndarray:
@@ -82,6 +135,7 @@ class MosaicState:
     """The latest message of each kind a frame shows (fed in arrival order)."""
 
     object_name: str = ""
+    depth_span_m: tuple[float, float] | None = None  # one colour range for a whole video
     images: dict[str, ToFImage] = field(default_factory=dict)
     masks: dict[str, np.ndarray] = field(default_factory=dict)
     true_masks: dict[str, np.ndarray] = field(default_factory=dict)
@@ -155,7 +209,8 @@ class MosaicState:
         image = self.images.get(side)
         if image is None:
             return [blank, blank.copy(), blank.copy()]
-        depth = depth_to_bgr(image.depth_m) if image.depth_m.shape == (height, width) else blank
+        shape_ok = image.depth_m.shape == (height, width)
+        depth = depth_to_bgr(image.depth_m, self.span(image.depth_m)) if shape_ok else blank
         ir = ir_to_bgr(image.ir) if image.ir.shape == (height, width) else blank.copy()
         camera = PinholeCamera.from_frame(image)
         if camera.shape == (height, width):
@@ -185,6 +240,14 @@ class MosaicState:
             cv2.drawContours(mask_bgr, contours, -1, TRUTH_BGR, 1)
         return [depth, ir, mask_bgr]
 
+    def span(self, depth_m: np.ndarray | None = None) -> tuple[float, float]:
+        """The depth colour range: the video's, or else this image's (or the first one's)."""
+        if self.depth_span_m is not None:
+            return self.depth_span_m
+        if depth_m is None:
+            depth_m = next((i.depth_m for i in self.images.values() if i.depth_m.size), None)
+        return depth_range(depth_m) if depth_m is not None else (0.0, 0.0)
+
     def status_lines(self) -> tuple[str, str]:
         """The bar's two lines: time, grasp and task; the classifier's best class."""
         t = (self.stamp_nanos - (self.first_stamp_nanos or self.stamp_nanos)) * 1e-9
@@ -201,8 +264,9 @@ class MosaicState:
             second += f"  pose {self.pose.status} rms {self.pose.residual_rms_m * 1e3:.2f} mm"
         return first, second
 
-    def render(self, scale: int = 2) -> np.ndarray:
-        """The mosaic as a BGR uint8 image: ``(BAR_PX + 3 * H * scale, 2 * W * scale, 3)``."""
+    def render(self, scale: int = 2, moment: str = "") -> np.ndarray:
+        """The mosaic as a BGR uint8 image, :meth:`size` of it; ``moment``: what a still
+        shows (an event), written on the bar."""
         height, width = self.panel_size()
         columns = []
         for side in SIDES:
@@ -211,16 +275,35 @@ class MosaicState:
         grid = np.hstack(columns)
         if scale != 1:
             grid = cv2.resize(grid, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+        ph, pw = height * scale, width * scale
+        for col, side in enumerate(SIDES):
+            for row, what in enumerate(ROWS):
+                put_label(grid, f"{side} {what}", (col * pw + 3, row * ph + 3))
+        legend = np.vstack(
+            [
+                depth_legend(ph, self.span()),
+                text_legend(
+                    ph,
+                    [
+                        ("shear x5", ARROW_BGR),
+                        ("estimate", ESTIMATE_BGR),
+                        ("true", TRUTH_BGR),
+                    ],
+                ),
+                text_legend(ph, [("estimate", (255, 255, 255)), ("true", TRUTH_BGR)]),
+            ]
+        )
+        grid = np.hstack([grid, legend])
         bar = np.full((BAR_PX, grid.shape[1], 3), 32, np.uint8)
         for row, text in enumerate(self.status_lines()):
-            cv2.putText(
-                bar,
-                text,
-                (6, 18 + 20 * row),
-                cv2.FONT_HERSHEY_SIMPLEX,
-                0.5,
-                (255, 255, 255),
-                1,
-                cv2.LINE_AA,
-            )
+            cv2.putText(bar, text, (6, 18 + 20 * row), FONT, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+        if moment:
+            (w, _), _ = cv2.getTextSize(moment, FONT, 0.5, 1)
+            x = grid.shape[1] - w - 6
+            cv2.putText(bar, moment, (x, 38), FONT, 0.5, (0, 220, 255), 1, cv2.LINE_AA)
         return np.vstack([bar, grid])
+
+    def size(self, scale: int = 2) -> tuple[int, int]:
+        """``(height, width)`` of :meth:`render`'s image."""
+        height, width = self.panel_size()
+        return BAR_PX + 3 * height * scale, 2 * width * scale + LEGEND_PX

@@ -3,7 +3,8 @@
 Closes the gripper on the object, waits for the grasp monitor's stable grasp, then
 decides, for as long as it holds the object, between letting go and holding on:
 
-* **Release on a pull.** With the ``wrench`` input wired: when the bubbles' force on
+* **Release on a pull.** With the ``wrench`` input wired (and ``release_on: force``,
+  the default; ``shear`` keeps the paper's rule below): when the bubbles' force on
   the object has changed since the stable grasp by ``release_force_n`` or more, in a
   direction other than straight up against ``gravity_in_tool`` (a person pulls), for
   ``force_confirm_frames`` estimates (``perception.force.reflex.PullWatch``). Without
@@ -27,6 +28,7 @@ Ports:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -39,8 +41,10 @@ from runtime.registry import register
 
 @dataclass(frozen=True, kw_only=True)
 class HandoverParams(TaskParams):
-    """The release rules (shear, or force with ``wrench`` wired) and the slip reflex."""
+    """The release rule (``release_on``: force, with ``wrench`` wired, or shear) and the
+    slip reflex."""
 
+    release_on: Literal["force", "shear"] = "force"
     release_shear_px: float = 1.5
     confirm_frames: int = 3
     release_force_n: float = 0.6
@@ -130,8 +134,10 @@ class HandoverSupervisor(SingleGraspTask):
             self.release(f"pull {describe_shear(msg)}")
 
     def on_wrench(self, msg: WrenchEstimate) -> None:
-        self.uses_force = True
         self.object_force_n = msg.object_force_n
+        if self.params.release_on != "force":
+            return
+        self.uses_force = True
         if self.state != "holding":
             return
         if self.pull.reference is None:

@@ -7,10 +7,12 @@ object's bound: a wine glass breaks where a bottle does not), and not again with
 ``cooldown_secs`` (the jaws need a few frames to squeeze).
 
 :class:`PullWatch` tells a person's pull from a load that grows under gravity (a glass
-being filled): the bubbles' force on the object changes, since the stable grasp, by at
+being filled): the bubbles' force on the object changes, from its baseline, by at
 least ``release_force_n`` and not along ``-gravity`` (the bubbles hold up a heavier
-object by pushing it up; they resist a pull by pushing against it). A pull straight
-down reads as a heavier object: what the force cannot tell apart.
+object by pushing it up; they resist a pull by pushing against it). The baseline is the
+stable grasp's load, following slow drifts over about ``baseline_frames`` estimates
+while no pull builds (a pull is fast; a slow one is missed). A pull straight down reads
+as a heavier object: what the force cannot tell apart.
 """
 
 from __future__ import annotations
@@ -84,6 +86,7 @@ class PullWatch:
         confirm_frames: int,
         gravity_in_tool: tuple[float, float, float] = (0.0, -1.0, 0.0),
         max_cos_up: float = 0.8,
+        baseline_frames: int = 30,
     ) -> None:
         self.release_force_n = release_force_n
         self.confirm_frames = confirm_frames
@@ -91,6 +94,7 @@ class PullWatch:
         norm = float(np.linalg.norm(up))
         self.up = up / norm if norm > 0 else up
         self.max_cos_up = max_cos_up
+        self.baseline_frames = max(1, baseline_frames)
         self.reference: np.ndarray | None = None
         self.count = 0
         self.change_n = np.zeros(3)
@@ -110,4 +114,12 @@ class PullWatch:
         size = float(np.linalg.norm(change))
         pull = size >= self.release_force_n and float(change @ self.up) < self.max_cos_up * size
         self.count = self.count + 1 if pull else 0
+        if not pull:
+            # Follow slow drifts (the patch settling, the estimate's own drift): a pull
+            # is a change within a few frames, not over seconds.
+            self.reference = (
+                self.reference
+                + (np.asarray(object_force_n, dtype=np.float64) - self.reference)
+                / self.baseline_frames
+            )
         return self.count >= self.confirm_frames

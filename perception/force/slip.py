@@ -9,7 +9,8 @@ Two observations, both from what the bubble measures (docs/force.md):
   core's, divided by the core's (``edge_follow``), drops from its stick value.
 * **The load nears the friction cone.** The tangential force over the normal force,
   divided by the rig's friction coefficient (``use``; from the wrench estimate and the
-  calibration), rises towards 1; the whole patch slips at 1.
+  calibration), rises towards 1; the whole patch slips at 1 (``patch_use`` is lower:
+  the estimate reads large shifts short).
 
 ``state`` is ``stick``, ``edge`` (incipient: the edge slips, the core holds) or
 ``patch`` (the whole patch slides). Onsets are reported once per episode; an episode
@@ -47,16 +48,24 @@ class SlipParams:
             frames) slips.
         min_core_shift_m: the core must move at least this over ``window`` frames for
             the edge's lag to mean anything (noise otherwise).
+        edge_min_use: ... and the load must fill at least this share of the cone (the
+            edge cannot slip under a light load; a patch that grows or settles moves
+            its edge for other reasons).
+        squeeze_change: a change of the normal force by more than this fraction within
+            ``window`` frames (the grip was raised or eased) restarts the window: the
+            patch changes shape, which is no slip.
         window: frames over which the edge's lag is measured.
         release_use: an episode ends when ``use`` falls under this ...
         settle_frames: ... for this many frames.
         min_normal_n: under this normal force there is no grip to slip from.
     """
 
-    edge_use: float = 0.75
-    patch_use: float = 0.95
-    edge_follow: float = 0.6
+    edge_use: float = 0.65
+    patch_use: float = 0.8
+    edge_follow: float = 0.5
     min_core_shift_m: float = 0.00025
+    edge_min_use: float = 0.5
+    squeeze_change: float = 0.15
     window: int = 4
     release_use: float = 0.6
     settle_frames: int = 5
@@ -98,7 +107,7 @@ class SlipDetector:
         self.params = params or SlipParams()
         self.friction = friction
         self.phase: SlipPhase = "stick"
-        self._history: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = deque(
+        self._history: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray, float]] = deque(
             maxlen=self.params.window + 1
         )
         self._calm = 0
@@ -130,19 +139,22 @@ class SlipDetector:
         if not (self._referenced and features.in_contact and features.tracked):
             self._history.clear()
             return SlipReport("stick", "", use, 1.0, 0.0)
+        if self._history and abs(normal - self._history[0][4]) > p.squeeze_change * normal:
+            self._history.clear()
         self._history.append(
             (
                 stamp_secs,
                 features.core_shift_m,
                 features.edge_shift_m,
                 features.centroid_in_tool[1:],
+                normal,
             )
         )
         follow = self._edge_follow()
         phase: SlipPhase = "stick"
         if use >= p.patch_use:
             phase = "patch"
-        elif use >= p.edge_use or follow < p.edge_follow:
+        elif use >= p.edge_use or (follow < p.edge_follow and use >= p.edge_min_use):
             phase = "edge"
         onset = ""
         if phase == "stick" and self.phase != "stick":
@@ -163,8 +175,8 @@ class SlipDetector:
     def _edge_follow(self) -> float:
         if len(self._history) < 2:
             return 1.0
-        _, core0, edge0, _ = self._history[0]
-        _, core1, edge1, _ = self._history[-1]
+        _, core0, edge0, _, _ = self._history[0]
+        _, core1, edge1, _, _ = self._history[-1]
         dcore, dedge = core1 - core0, edge1 - edge0
         moved = float(np.hypot(*dcore))
         if moved < self.params.min_core_shift_m:
@@ -174,8 +186,8 @@ class SlipDetector:
     def _speed(self) -> float:
         if len(self._history) < 2:
             return 0.0
-        t0, core0, _, c0 = self._history[0]
-        t1, core1, _, c1 = self._history[-1]
+        t0, core0, _, c0, _ = self._history[0]
+        t1, core1, _, c1, _ = self._history[-1]
         if t1 <= t0:
             return 0.0
         return float(np.hypot(*((c1 - c0) - (core1 - core0)))) / (t1 - t0)

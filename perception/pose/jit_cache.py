@@ -11,9 +11,11 @@ and only loads it.
 - Directory: ``cache_dir`` when given, else ``$XDG_CACHE_HOME/softbubble/casadi``, else
   ``~/.cache/softbubble/casadi``.
 - Atomic: the source is compiled in a private temporary directory inside the cache
-  directory, and the library is moved into place with ``os.replace``; concurrent
-  processes compiling the same key both succeed, and the last rename wins with an
-  identical file. The temporary directory is removed whatever happens.
+  directory (``.build-PID-*``), and the library is moved into place with
+  ``os.replace``; concurrent processes compiling the same key both succeed, and the last
+  rename wins with an identical file. The temporary directory is removed whatever
+  happens, and when the process is killed during a compile (SIGKILL, a stopped graph),
+  the next compile removes the build folders of processes that are gone.
 - No compiler (or a broken one): :func:`compiler_id` is ``None`` and callers fall back to
   CasADi's virtual machine (same answer, slower).
 """
@@ -86,7 +88,8 @@ def library(
     if path.is_file():
         return path
     directory.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=directory, prefix=".build-") as tmp:
+    remove_stale_builds(directory)
+    with tempfile.TemporaryDirectory(dir=directory, prefix=f"{BUILD_PREFIX}{os.getpid()}-") as tmp:
         src = Path(tmp) / f"{name}.c"
         src.write_text(source)
         out = Path(tmp) / f"{name}.so"
@@ -96,6 +99,32 @@ def library(
             raise RuntimeError(f"{' '.join(cmd)} failed: {done.stderr.strip()[-2000:]}")
         os.replace(out, path)
     return path
+
+
+BUILD_PREFIX = ".build-"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # another user's process
+    return True
+
+
+def remove_stale_builds(directory: Path) -> list[Path]:
+    """Remove the build folders of processes that are gone (killed during a compile);
+    returns them. A folder without a process id (an older layout) counts as gone."""
+    removed = []
+    for folder in directory.glob(f"{BUILD_PREFIX}*"):
+        pid = folder.name.removeprefix(BUILD_PREFIX).partition("-")[0]
+        if pid.isdigit() and _alive(int(pid)):
+            continue
+        shutil.rmtree(folder, ignore_errors=True)
+        removed.append(folder)
+    return removed
 
 
 @functools.cache

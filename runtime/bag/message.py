@@ -40,7 +40,15 @@ class BagMessage:
         return f"{self.path}: topic {self.topic}: message at {self.position()}"
 
     def frames(self) -> list[Any]:
-        """``[header, *buffers]`` as on the wire (no topic frame); buffers are views."""
+        """``[header, *buffers]`` as on the wire (no topic frame); buffers are views.
+
+        Raises:
+            BagError: the message cannot be unpacked, or its channel's schema was refused
+                (its text does not match its fingerprint).
+        """
+        refused = self.channel.schema.refused
+        if refused:
+            raise BagError(f"{self.where()}: {refused}")
         try:
             return unpack(self.payload, self.channel.schema.packing)
         except FrameDecodeError as err:
@@ -79,6 +87,9 @@ class BagMessage:
             raise BagError(
                 f"{self.where()}: header lists {len(arrays)} arrays, payload has {len(frames) - 1}"
             )
+        wrong = self.channel.schema.field_mismatch(fields)
+        if wrong is not None:
+            raise BagError(f"{self.where()}: {wrong}")
         declared = self.channel.schema.array_names()
         out: dict[str, Any] = dict(fields)
         for (name, dtype_str, shape), buf in zip(arrays, frames[1:], strict=True):

@@ -132,16 +132,21 @@ class BagReader:
             schema = TopicSchema.from_json(
                 data.get("schema_data", ""), data.get("schema_name", ""), data.get("packing", "")
             )
-            self.channels.setdefault(
-                channel_id,
-                ChannelInfo(
-                    channel_id,
-                    data.get("topic", ""),
-                    schema,
-                    data.get("message_encoding", ""),
-                    offset,
-                ),
-            )
+            if channel_id not in self.channels:
+                self._add_channel(
+                    ChannelInfo(
+                        channel_id,
+                        data.get("topic", ""),
+                        schema,
+                        data.get("message_encoding", ""),
+                        offset,
+                    )
+                )
+
+    def _add_channel(self, info: ChannelInfo) -> None:
+        self.channels[info.channel_id] = info
+        if info.schema.refused:
+            self._warn(f"{self.path}: topic {info.topic}: {info.schema.refused}")
 
     def _resolve_channels(self) -> None:
         for channel_id, (channel, offset) in list(self._pending.items()):
@@ -156,8 +161,8 @@ class BagReader:
                 schema = TopicSchema(
                     schema.type_name, meta["fingerprint"], schema.description, schema.packing
                 )
-            self.channels[channel_id] = ChannelInfo(
-                channel_id, channel.topic, schema, channel.message_encoding, offset
+            self._add_channel(
+                ChannelInfo(channel_id, channel.topic, schema, channel.message_encoding, offset)
             )
         self._pending.clear()
 

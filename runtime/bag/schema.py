@@ -15,13 +15,14 @@ Each channel's MCAP schema (encoding ``softbubble.description+json``) is a JSON 
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from messages.base import Message
+from messages.base import Message, fingerprint_of
 from messages.errors import SchemaChangeError
 from messages.evolution import check_stored
 from messages.meaning import JS_INT, POSE_NOTE, meaning
@@ -139,6 +140,27 @@ class TopicSchema:
             packing=packing or str(obj.get("packing") or PACKING),
         )
 
+    @functools.cached_property
+    def refused(self) -> str:
+        """Why this schema cannot be trusted ("" when it can): a stored description whose
+        fingerprint is not the one stored with it was edited after the recording."""
+        if self.description is None or not self.fingerprint:
+            return ""
+        if fingerprint_of(self.description) != self.fingerprint:
+            return (
+                f"the stored schema of {self.type_name} does not match its fingerprint "
+                f"{self.fingerprint} (edited after recording?): its messages are refused"
+            )
+        return ""
+
+    def field_mismatch(self, fields: dict[str, Any]) -> str | None:
+        """The first scalar field of a decoded message whose value does not fit its stored
+        type (``'value': expected float, got 'abc'``), or None (also when unknown)."""
+        described = (self.description or {}).get("fields")
+        if not isinstance(described, list):
+            return None
+        return _mismatch(fields, described, "")
+
     def array_names(self) -> set[str] | None:
         """Names of the array fields per the stored description (``None`` if unknown)."""
         if not self.description:
@@ -168,6 +190,62 @@ class TopicSchema:
             raise SchemaChangeError(f"{self.type_name} is not declared today")
         check_stored(cls, self.fingerprint, self.description)
         return cls
+
+
+_SCALARS: dict[str, tuple[type, ...]] = {
+    "int": (int,),
+    "float": (int, float),
+    "str": (str,),
+    "bool": (bool,),
+    "NoneType": (type(None),),
+    "bytes": (bytes,),
+}
+
+
+def _fits(value: Any, desc: Any) -> bool:
+    """Whether a plain decoded value fits a described type (unknown kinds fit)."""
+    if isinstance(desc, str):
+        kinds = _SCALARS.get(desc)
+        if kinds is None:
+            return True  # an enum or a type no plain value can be checked against
+        return isinstance(value, kinds) and (desc == "bool" or not isinstance(value, bool))
+    if not isinstance(desc, dict):
+        return True
+    if "struct" in desc:
+        return isinstance(value, dict) and _mismatch(value, desc.get("fields") or [], "") is None
+    generic, args = desc.get("generic"), desc.get("args") or []
+    if generic in ("Union", "UnionType", "Optional"):
+        return any(_fits(value, a) for a in args)
+    if generic in ("tuple", "list"):
+        if not isinstance(value, list | tuple):
+            return False
+        if generic == "tuple" and args and "ellipsis" not in args and len(args) != len(value):
+            return False
+        each = args[:1] * len(value) if generic == "list" or "ellipsis" in args else args
+        return all(_fits(v, a) for v, a in zip(value, each, strict=False))
+    if generic == "dict":
+        return isinstance(value, dict)
+    return True
+
+
+def _mismatch(fields: dict[str, Any], described: list[Any], prefix: str) -> str | None:
+    for item in described:
+        if not (isinstance(item, list) and len(item) == 2 and isinstance(item[0], str)):
+            continue
+        name, desc = item
+        if name not in fields or (isinstance(desc, dict) and "array" in desc):
+            continue
+        if not _fits(fields[name], desc):
+            return f"field {prefix}{name!r}: expected {_spelled(desc)}, got {fields[name]!r:.60}"
+    return None
+
+
+def _spelled(desc: Any) -> str:
+    if isinstance(desc, dict) and "struct" in desc:
+        return f"struct {desc['struct']}"
+    if isinstance(desc, dict) and "generic" in desc:
+        return f"{desc['generic']}[{', '.join(_spelled(a) for a in desc.get('args') or [])}]"
+    return str(desc)
 
 
 def schema_for(type_name: str, fingerprint: str) -> TopicSchema:

@@ -112,6 +112,31 @@ def test_page_plots_error_against_time_and_finds_the_defaults(tmp_path: Path) ->
     assert "This sweep failed in this run: exit code 1: boom" in page
     assert "toy dataset" in page
     assert "**99.50%**" in page and "200 grasps" in page
+    # Toy accuracies mean nothing: no plot or front beside the held-out headline.
+    classifier = page.split("## classifier")[1].split("\n## ")[0]
+    assert "classifier_pareto.png" not in page and "Pareto front" not in classifier
+    assert not (out.parent / "img" / "performance" / "classifier_pareto.png").exists()
+
+
+def test_classifier_on_real_data_gets_its_plot(tmp_path: Path) -> None:
+    rows = [
+        {
+            "data": "autolabel",
+            "modality": m,
+            "input_px": 64,
+            "width": 0.25,
+            "accuracy": a,
+            "infer_ms_median": t,
+        }
+        for m, a, t in [("depth", 0.9, 1.0), ("both", 0.97, 2.0)]
+    ]
+    out = tmp_path / "docs" / "performance.md"
+    sweeps = [report.Sweep(name="classifier", command="python -m bench.classifier", rows=rows)]
+    page = render(
+        sweeps, None, machine={"cpu_count": 2}, quick=False, total_secs=9.0, out=out, root=ROOT
+    )
+    assert (out.parent / "img" / "performance" / "classifier_pareto.png").stat().st_size > 1000
+    assert "toy dataset" not in page and "Pareto front" in page
 
 
 def test_pareto_front_skips_dominated_and_nan_points() -> None:

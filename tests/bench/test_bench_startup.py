@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from bench.startup import run
 
 
@@ -27,4 +29,9 @@ def test_quick_rows_cover_start_and_stop() -> None:
         assert math.isfinite(row["median_s"]) and row["median_s"] > 0
     compared = [r for r in rows if math.isfinite(r["vs_fork"])]
     assert [r["what"] for r in compared] == [r["what"] for r in rows[3:5]]
-    assert compared[0]["vs_fork"] == 1.0 and compared[1]["vs_fork"] > 0
+    fork, spawn = compared
+    # The forked start is the baseline; the spawned one's ratio is of the two medians
+    # measured side by side (no goal on it: the machine running the tests is loaded).
+    assert fork["what"].endswith("ready") and fork["vs_fork"] == 1.0
+    assert spawn["vs_fork"] == pytest.approx(spawn["median_s"] / fork["median_s"], rel=1e-12)
+    assert spawn["median_s"] != fork["median_s"]  # two measurements, not one row twice

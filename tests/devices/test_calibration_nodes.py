@@ -131,16 +131,24 @@ def test_a_calibration_made_for_another_bridge_is_refused(
         make_node(UsbPressure, {"sensor": "left", "calibration": str(calibration)}, name="left")
 
 
+@pytest.mark.parametrize("wheel", ["not installed", "its library does not load"])
 def test_without_a_libusb_backend_the_pressure_node_says_so_in_one_line(
-    monkeypatch: pytest.MonkeyPatch,
+    monkeypatch: pytest.MonkeyPatch, wheel: str
 ) -> None:
-    import libusb_package
+    import types
+
     import usb.backend.libusb1
 
     monkeypatch.delenv(mcp2221.BACKEND_ENV, raising=False)
-    monkeypatch.setattr(libusb_package, "get_libusb1_backend", lambda: None)
+    if wheel == "not installed":
+        monkeypatch.setitem(sys.modules, "libusb_package", None)  # import fails
+    else:
+        stub = types.ModuleType("libusb_package")
+        stub.get_libusb1_backend = lambda: None  # type: ignore[attr-defined]
+        monkeypatch.setitem(sys.modules, "libusb_package", stub)
     monkeypatch.setattr(usb.backend.libusb1, "get_backend", lambda: None)
     with pytest.raises(NodeError) as err:
         make_node(UsbPressure, {"sensor": "left"}, name="left_pressure")
     text = str(err.value)
     assert text.startswith("left_pressure: pyusb has no libusb-1.0 backend") and "\n" not in text
+    assert "neither did the system's libusb-1.0" in text

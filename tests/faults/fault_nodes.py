@@ -23,6 +23,7 @@ class TickerParams:
     crash_marker: str = ""
     restarted_init_secs: float = 0.0  # the restarted incarnation's start-up time
     exit_message: str = ""  # sys.exit(this) in setup: a node that ends itself as Python does
+    disk_full_at_stop: bool = False  # teardown fails as a recorder's does when the disk is full
 
 
 class Ticker(Node):
@@ -43,6 +44,10 @@ class Ticker(Node):
             sys.exit(self.params.exit_message)
         self.sent = 0
         self.io.add_timer(1.0 / self.params.rate_hz, self.tick)
+
+    def teardown(self) -> None:
+        if self.params.disk_full_at_stop:
+            raise OSError(28, "No space left on device")
 
     def tick(self) -> None:
         self.io.publish("tick", Tick(header=Header(stamp_nanos=self.io.now_nanos())))

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import msgpack
 import zmq
 
+from runtime.protocol import MAX_CONTROL_BYTES
 from tests.faults.conftest import sink, ticker
 
 
@@ -77,4 +79,25 @@ def test_a_non_loopback_host_is_refused_without_encryption(run) -> None:
     assert code == 2, r.log
     assert "'0.0.0.0'" in r.log and "loopback" in r.log, r.log
     assert "starting" not in r.log
+    assert r.leftovers() == ([], []), r.log
+
+
+def peak_rss_kb(pid: int) -> int:
+    status = Path(f"/proc/{pid}/status").read_text()
+    return int(next(ln for ln in status.splitlines() if ln.startswith("VmHWM:")).split()[1])
+
+
+def test_an_oversized_frame_is_refused_before_it_is_read(run) -> None:
+    r = run({"a": ticker(rate_hz=50.0), "b": sink("a/tick")}, "--duration", "4")
+    endpoint = control_endpoint(r.tmpdir)
+    r.wait_for("all nodes ready")
+    before = peak_rss_kb(r.proc.pid)
+    big = MAX_CONTROL_BYTES * 64  # 64 MiB: read whole, the launcher would hold it all
+    forge(endpoint, b"a#big", b"\0" * big, b"tag")
+    time.sleep(1.0)
+    grew = peak_rss_kb(r.proc.pid) - before
+    code = r.finish(timeout=60)
+    assert code == 0, r.log
+    assert grew < big // 1024 // 4, f"the launcher's peak memory grew by {grew} kB\n{r.log}"
+    assert "stopping: duration of 4 s reached" in r.log
     assert r.leftovers() == ([], []), r.log

@@ -73,7 +73,10 @@ def signed(**body: object) -> list[bytes]:
             signed(kind="final", node="a", stats={"inputs": {"p": {"topic": "t", "received": -1}}}),
             "stats",
         ),
-        (signed(kind="counts", node="a", published={"t": "many"}, received={}), "published"),
+        (
+            signed(kind="counts", node="a", published={"t": "many"}, received={}, held={}),
+            "published",
+        ),
         (signed(kind="connect", endpoints={"a": 5}), r"\$\.endpoints"),
     ],
 )

@@ -139,3 +139,20 @@ def test_a_stale_run_folder_is_swept_by_the_next_launcher(tmp_path, monkeypatch)
     live.mkdir()
     fresh = isolation.make_rundir()
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([live.name, fresh.name])
+
+
+@pytest.mark.parametrize("after_secs", [0.0, 0.3, 1.0])
+def test_three_quick_ctrl_cs_end_with_130(run, after_secs: float) -> None:
+    # Whichever phase the first meets, the later ones may arrive while Python shuts down,
+    # where a signal would take its default action again (death by SIGINT: -2).
+    r = run({"a": ticker(), "b": sink("a/tick")})
+    r.wait_for_handlers()
+    time.sleep(after_secs)
+    r.note_kids()
+    for _ in range(3):
+        r.proc.send_signal(signal.SIGINT)
+        time.sleep(0.001)
+    code = r.finish(timeout=30)
+    assert code == 130, r.log
+    assert "Traceback" not in r.log and "KeyboardInterrupt" not in r.log, r.log
+    assert r.leftovers() == ([], []), r.log

@@ -16,7 +16,7 @@ from runtime import launcher as launcher_module
 from runtime.graph import check
 from runtime.launcher import Launcher
 from tests.faults.conftest import FAULTS, sink, ticker
-from tests.runtime.conftest import comm
+from tests.runtime.conftest import comm, table_row
 
 
 def launcher_for(nodes_doc: dict, **kwargs) -> tuple[Launcher, io.StringIO]:
@@ -72,13 +72,6 @@ def test_frozen_node_is_killed_by_the_heartbeat_rule_and_restarted(
     assert "node 'a' is back" in log
 
 
-def table_row(log: str, topic: str) -> dict[str, int]:
-    header = next(line for line in log.splitlines() if line.startswith("[launch] topic"))
-    names = header.split()[2:]
-    row = next(line for line in log.splitlines() if line.startswith(f"[launch] {topic} "))
-    return dict(zip(names, (float(v) for v in row.split()[2:]), strict=True))  # type: ignore[misc]
-
-
 def test_corrupted_seqs_and_bad_frames_are_not_counted_as_dropped() -> None:
     launcher, out = launcher_for(
         {
@@ -89,7 +82,7 @@ def test_corrupted_seqs_and_bad_frames_are_not_counted_as_dropped() -> None:
     code = launcher.run()
     log = out.getvalue()
     assert code == 0, log
-    row = table_row(log, "src/tick")
+    row = table_row(log, "src/tick -> sink.tick")
     assert row["messages"] == 126  # 120 ticks and 6 undecodable frames
     assert row["bad"] == 6
     assert row["dropped"] == 0
@@ -105,7 +98,7 @@ def test_non_finite_inputs_are_counted_and_warned_about_once() -> None:
     code = launcher.run()
     log = out.getvalue()
     assert code == 0, log
-    row = table_row(log, "p/pressure")
+    row = table_row(log, "p/pressure -> s.pressure")
     assert row["messages"] == 40
     assert row["nonfinite"] == 20
     warnings = [line for line in log.splitlines() if "non-finite" in line and "[s]" in line]

@@ -145,12 +145,24 @@ def test_the_link_joins_measures_refuses_forgeries_passes_stops_and_sees_a_loss(
 
 def test_link_counts_are_checked_field_by_field() -> None:
     secret = protocol.new_secret()
-    good = protocol.pack(secret, LinkCounts(host="b", published={"a/t": 3}, received={"n/p": 3}))
+    good = protocol.pack(
+        secret, LinkCounts(host="b", published={"a/t": 3}, received={"n/p": 3}, held={})
+    )
     msg = protocol.unpack(secret, good, from_node=False)
     assert isinstance(msg, LinkCounts) and msg.received == {"n/p": 3}
     for bad, why in (
-        ({"published": {"a/t": -1}, "received": {}}, r">= 0 - at `\$\.published\[\.\.\.\]`"),
-        ({"published": {}, "received": {"n/p": "3"}}, r"`int`, got `str` - at `\$\.received"),
+        (
+            {"published": {"a/t": -1}, "received": {}, "held": {}},
+            r">= 0 - at `\$\.published\[\.\.\.\]`",
+        ),
+        (
+            {"published": {}, "received": {"n/p": "3"}, "held": {}},
+            r"`int`, got `str` - at `\$\.received",
+        ),
+        (
+            {"published": {}, "received": {}, "held": {"n/p": -1}},
+            r">= 0 - at `\$\.held\[\.\.\.\]`",
+        ),
         ({"published": {}}, "link_counts: Object missing required field `received`"),
     ):
         payload = msgpack.packb({"kind": "link_counts", "host": "b", **bad})

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cli.bag import diff_bags
 from runtime.bag import BagReader
+from runtime.bag.diff import diff_bags
 from tests.hosts.conftest import SYNTHETIC, Launched, write_graph
 
 GRAPH = {

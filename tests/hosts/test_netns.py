@@ -10,8 +10,8 @@ import sys
 import time
 from pathlib import Path
 
-from cli.bag import diff_bags
 from runtime.bag import BagReader
+from runtime.bag.diff import diff_bags
 from runtime.graph import load_document
 from runtime.hosts import check_hosts
 from tests.hosts.conftest import ROOT, Launched, host_table, two_host_graph, write_graph

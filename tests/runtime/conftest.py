@@ -62,6 +62,15 @@ def sink(out: Path, topic: str) -> dict:
     return {"impl": "synthetic.sink", "params": {"out_path": str(out)}, "inputs": {"tick": topic}}
 
 
+def table_row(log: str, edge: str) -> dict[str, int]:
+    """The end-of-run table's row of ``edge`` (``topic -> node.port``), by column name."""
+    header = next(line for line in log.splitlines() if line.startswith("[launch] topic -> "))
+    names = header.split()[4:]
+    row = next(line for line in log.splitlines() if line.startswith(f"[launch] {edge} "))
+    values = row.removeprefix(f"[launch] {edge} ").split()
+    return dict(zip(names, (int(v) if v.isdigit() else float(v) for v in values), strict=True))
+
+
 def children_of(pid: int) -> list[int]:
     """Direct children of ``pid`` (Linux /proc)."""
     kids: list[int] = []

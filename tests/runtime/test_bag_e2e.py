@@ -18,10 +18,10 @@ import yaml
 import nodes.recorder  # noqa: F401  (registers the implementations the graphs name)
 import nodes.replay  # noqa: F401
 import tests.synthetic_nodes  # noqa: F401  (registers the synthetic nodes)
-from cli.bag import diff_bags
 from cli.run import launch
 from messages import Header, Tick
 from runtime.bag import BagReader
+from runtime.bag.diff import diff_bags
 from runtime.graph import check
 from runtime.node import Node
 from runtime.replaygraph import ReplayOptions, build_replay_graph

@@ -114,8 +114,8 @@ def test_recover_turns_an_old_bag_into_todays_packing(tmp_path: Path) -> None:
     from cli.bag import recover
 
     out = tmp_path / "v2.mcap"
-    copied, problems = recover(V1_BAG, out)
-    assert copied == 12 and problems == []
+    copied, skipped, problems = recover(V1_BAG, out)
+    assert copied == 12 and skipped == [] and problems == []
     with BagReader(V1_BAG) as old, BagReader(out) as new:
         assert {s.packing for s in new.topics().values()} == {PACKING}
         for a, b in zip(old.messages(), new.messages(), strict=True):

@@ -11,12 +11,12 @@ import yaml
 import nodes.recorder  # noqa: F401  (registers the implementations the graphs name)
 import nodes.replay  # noqa: F401
 import tests.synthetic_nodes  # noqa: F401  (registers the synthetic nodes)
-from cli.bag import compare_values, diff_bags
 from cli.main import main as cli_main
 from messages.base import Header
 from messages.errors import GraphError
-from messages.types import Tick, ToFImage
+from messages.types import PoseEstimate, Tick, ToFImage
 from runtime.bag import BagWriter
+from runtime.bag.diff import compare_values, diff_bags
 from runtime.node import Node
 from runtime.replaygraph import ReplayOptions, build_replay_graph, exact_topics
 from tests.runtime.bad_bags import bag_with_undecodable
@@ -248,6 +248,59 @@ def test_diff_counts_and_arrays(tmp_path: Path) -> None:
         == []
     )
     assert compare_values([True], [False], rtol=1, atol=1) == [("[0]", "True vs False")]
+
+
+def pose_bag(path: Path, stamps: list[int], *, solve_secs: float = 0.01, x_m: float = 0.0) -> Path:
+    """Poses answering patches of these stamps (a pose carries its patch's stamp)."""
+    with BagWriter(path) as w:
+        for seq, stamp in enumerate(stamps):
+            pose = np.eye(4)
+            pose[0, 3] = x_m if stamp == 3_000 else 0.0
+            msg = PoseEstimate(
+                header=Header(stamp_nanos=stamp, seq=seq),
+                tool_from_object=pose,
+                residual_rms_m=0.001,
+                cost=0.0,
+                iterations=3,
+                status="ok",
+                solve_secs=solve_secs,
+                points_used=100,
+            )
+            w.write_message("pose/pose", msg, log_time_nanos=stamp)
+    return path
+
+
+def test_diff_pairs_by_stamp_and_reports_one_dropped_message_once(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    stamps = [1_000 * k for k in range(1, 11)]
+    full = pose_bag(tmp_path / "full.mcap", stamps)
+    # Another replay that dropped the 5th pose, one that solved slower (a wall-clock
+    # field) and one whose pose for the 3rd patch moved.
+    dropped = pose_bag(tmp_path / "dropped.mcap", stamps[:4] + stamps[5:])
+    slower = pose_bag(tmp_path / "slower.mcap", stamps, solve_secs=0.5)
+    moved = pose_bag(tmp_path / "moved.mcap", stamps, x_m=0.01)
+    diffs = diff_bags(full, dropped)
+    assert [(d.field, d.index, d.stamp) for d in diffs] == [
+        ("(count)", -1, None),
+        ("(only in A)", 4, 5_000),
+    ]
+    assert cli_main(["bag", "diff", str(full), str(dropped)]) == 1
+    out = capsys.readouterr().out.splitlines()
+    assert out == [
+        "pose/pose (count): 10 vs 9 messages",
+        "pose/pose #4 stamp 5000 (only in A): PoseEstimate seq 4",
+        "1 message(s) only in A",
+    ]
+    assert cli_main(["bag", "diff", str(dropped), str(full)]) == 1
+    assert "1 message(s) only in B" in capsys.readouterr().out
+    assert diff_bags(full, slower) == []  # PoseEstimate.wall_clock_fields
+    assert [(d.index, d.field) for d in diff_bags(full, moved)] == [(2, "tool_from_object")]
+    assert [(d.index, d.field) for d in diff_bags(dropped, moved)] == [
+        (-1, "(count)"),
+        (2, "tool_from_object"),
+        (4, "(only in B)"),
+    ]
 
 
 class PlainRelay(Node):

@@ -100,11 +100,9 @@ def test_a_fifo_is_not_opened_as_a_graph(tmp_path: Path) -> None:
     refused(check(fifo), "not a regular file")
 
 
-def test_a_scene_that_is_a_device_is_refused(tmp_path: Path) -> None:
-    from sim.scene import SceneError, load_scene
-
-    with pytest.raises(SceneError, match="/dev/zero: cannot read scene: not a regular file"):
-        load_scene("/dev/zero")
+def test_a_scene_that_is_a_device_is_refused() -> None:
+    result = check(ROOT / "graph.yaml", "--set", "world.scene=/dev/zero")
+    refused(result, "node 'world'.params.scene", "/dev/zero: cannot read scene: not a regular file")
 
 
 def test_a_graph_over_the_size_limit_is_refused(tmp_path: Path) -> None:

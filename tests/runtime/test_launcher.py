@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.runtime.conftest import GraphRun, alive, children_of, nodes_of, sink
+from tests.runtime.conftest import GraphRun, alive, children_of, nodes_of, sink, table_row
 
 FUZZER = "tests.runtime.nodes_for_tests:Fuzzer"
 
@@ -96,9 +96,10 @@ def test_latest_policy_never_works_through_a_backlog(graph_run: GraphRun, tmp_pa
     assert len(values) < 100
     assert values == sorted(values) and len(set(values)) == len(values)
     assert values[-1] == 399.0  # the newest one is always the one handled
-    superseded = [line for line in log.splitlines() if line.startswith("[launch] src/tick")]
-    assert superseded and int(superseded[0].split()[5]) > 0
-    assert int(superseded[0].split()[4]) == 0  # skipped on purpose is not "dropped"
+    row = table_row(log, "src/tick -> sink.tick")
+    assert row["superseded"] > 0
+    assert row["dropped"] == 0  # skipped on purpose is not "dropped"
+    assert row["delivered"] == len(values)
 
 
 def test_killed_node_restarts_by_policy(graph_run: GraphRun, tmp_path: Path) -> None:

@@ -15,9 +15,10 @@ from rosbags.highlevel import AnyReader
 
 import launch
 from geometry.gripper import DEFAULT_GRIPPER, SIDES, tool_from_sensor
-from geometry.se3 import matrix_from_quat
+from geometry.se3 import make_pose, matrix_from_quat, rotation_about
+from messages.base import Header
 from messages.types import PoseEstimate
-from runtime.bag import BagReader
+from runtime.bag import BagReader, BagWriter
 from viz.ros2_export import msg_definitions
 
 STANDARD = {
@@ -42,26 +43,37 @@ def exported(run: tuple[Path, Path], tmp_path_factory: pytest.TempPathFactory) -
     return out
 
 
-def read_all(out: Path) -> dict[str, list[tuple[int, Any]]]:
-    """Every message of the ROS 2 bag, decoded by rosbags from the bag's own definitions."""
+def read_all(out: Path, expected: dict[str, str]) -> dict[str, list[tuple[int, Any]]]:
+    """Every message of the ROS 2 bag, decoded by rosbags from the bag's own definitions;
+    the ``expected`` topics carry their types."""
     got: dict[str, list[tuple[int, Any]]] = defaultdict(list)
     with AnyReader([out]) as reader:
         for connection, stamp, raw in reader.messages():
             got[connection.topic].append((stamp, reader.deserialize(raw, connection.msgtype)))
         types = {c.topic: c.msgtype for c in reader.connections}
-    for topic, ros_type in STANDARD.items():
+    for topic, ros_type in expected.items():
         assert types.get(topic) == ros_type, topic
     return got
+
+
+def pose_of(ros: Any) -> np.ndarray:
+    q, p = ros.pose.orientation, ros.pose.position
+    pose = np.eye(4)
+    pose[:3, :3] = matrix_from_quat(np.array([q.w, q.x, q.y, q.z]))
+    pose[:3, 3] = (p.x, p.y, p.z)
+    return pose
 
 
 def test_every_message_decodes_with_rosbags_and_matches_the_source(
     run: tuple[Path, Path], exported: Path
 ) -> None:
-    got = read_all(exported)
     with BagReader(run[0]) as reader:
         images = [m.decode() for m in reader.messages(["left_camera/image"])]
         poses = [m.decode() for m in reader.messages(["pose/pose"])]
         pressures = [m.decode() for m in reader.messages(["left_pressure/pressure"])]
+    tracked = [p for p in poses if p.status in ("ok", "recovered")]
+    expected = {t: k for t, k in STANDARD.items() if tracked or t != "/pose/pose"}
+    got = read_all(exported, expected)
     depth = got["/left_camera/image/depth"]
     assert len(depth) == len(images) and len(got["/left_camera/image/ir"]) == len(images)
     for (_, ros), ours in zip(depth, images, strict=True):
@@ -74,18 +86,11 @@ def test_every_message_decodes_with_rosbags_and_matches_the_source(
         assert np.array_equal(ros.data.view("<u2").reshape(ours.ir.shape), ours.ir)
     info = got["/left_camera/image/camera_info"][0][1]
     assert info.k[0] == images[0].fx_px and info.k[2] == images[0].cx_px
-    tracked = [p for p in poses if p.status in ("ok", "recovered")]
-    assert tracked, "the default graph tracks the mug for a while"
     assert len(got["/pose/pose"]) == len(tracked)
     assert len(got["/pose/pose/full"]) == len(poses)
     for (_, ros), ours in zip(got["/pose/pose"], tracked, strict=True):
-        q = ros.pose.orientation
-        pose = np.eye(4)
-        pose[:3, :3] = matrix_from_quat(np.array([q.w, q.x, q.y, q.z]))
-        p = ros.pose.position
-        pose[:3, 3] = (p.x, p.y, p.z)
         assert ros.header.frame_id == "tool"
-        np.testing.assert_allclose(pose, ours.tool_from_object, atol=1e-12)
+        np.testing.assert_allclose(pose_of(ros), ours.tool_from_object, atol=1e-12)
     for (_, ros), ours in zip(got["/pose/pose/full"], poses, strict=True):
         assert isinstance(ours, PoseEstimate)
         assert ros.status == ours.status and ros.residual_rms_m == ours.residual_rms_m
@@ -98,8 +103,38 @@ def test_every_message_decodes_with_rosbags_and_matches_the_source(
     assert [f.name for f in patch.fields] == ["x", "y", "z", "bubble"]
 
 
+def test_tracked_poses_become_pose_stamped_and_tf(tmp_path: Path) -> None:
+    rotation = make_pose(rotation_about(np.array([0.3, 0.2, 0.9]), 0.7), [0.01, -0.02, 0.05])
+    statuses = ["no_patch", "ok", "suspect", "recovered"]
+    bag, out = tmp_path / "poses.mcap", tmp_path / "poses_ros2"
+    with BagWriter(bag) as writer:
+        for i, status in enumerate(statuses):
+            pose = PoseEstimate(
+                header=Header(stamp_nanos=(i + 1) * 10**8, seq=i, frame_id="tool"),
+                tool_from_object=rotation,
+                residual_rms_m=1e-4 * i,
+                cost=0.0,
+                iterations=3,
+                status=status,
+                solve_secs=0.01,
+                points_used=100,
+            )
+            writer.write_message("pose/pose", pose, (i + 1) * 10**8)
+    assert launch.main(["bag", "export", str(bag), "--ros2", str(out)]) == 0
+    got = read_all(
+        out, {"/pose/pose": "geometry_msgs/msg/PoseStamped", "/tf": "tf2_msgs/msg/TFMessage"}
+    )
+    stamped = [m for _, m in got["/pose/pose"]]
+    assert len(stamped) == 2  # ok and recovered
+    for ros in stamped:
+        np.testing.assert_allclose(pose_of(ros), rotation, atol=1e-12)
+    children = [t.child_frame_id for _, m in got["/tf"] for t in m.transforms]
+    assert children == ["object_estimate", "object_estimate"]
+    assert [m.status for _, m in got["/pose/pose/full"]] == statuses
+
+
 def test_the_tf_tree_puts_the_cameras_where_the_images_say(exported: Path) -> None:
-    got = read_all(exported)
+    got = read_all(exported, {"/tf": "tf2_msgs/msg/TFMessage"})
     (static,) = [m for _, m in got["/tf_static"]]
     mounts = {t.child_frame_id: t for t in static.transforms}
     assert set(mounts) == {"left_sensor", "right_sensor"}

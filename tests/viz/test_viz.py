@@ -8,6 +8,10 @@ viewer node and the bag commands see the same messages.
 from __future__ import annotations
 
 import json
+import os
+import re
+import subprocess
+import sys
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -32,7 +36,7 @@ from messages.types import ContactPatch, GraspState, PoseEstimate, ToFImage
 from runtime.bag import BagReader, BagWriter
 from runtime.graph import check, load_document
 from viz.foxglove_export import convert, json_schema, to_json
-from viz.mosaic import BAR_PX, MosaicState, outline_px
+from viz.mosaic import BAR_PX, LEGEND_PX, SIDES, MosaicState, depth_to_bgr, outline_px
 from viz.shapes import object_mesh
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -183,16 +187,23 @@ def test_video_has_one_frame_per_camera_instant(run: tuple[Path, Path], tmp_path
         ok, frame = video.read()
         if not ok:
             break
-        assert frame.shape == (BAR_PX + 3 * height, 2 * width, 3)
+        assert frame.shape == (BAR_PX + 3 * height, 2 * width + LEGEND_PX, 3)
         frames += 1
     video.release()
     assert frames == len(stamps)
     with BagReader(bag) as reader:
         events = sum(1 for _ in reader.messages(["supervisor/event"]))
     pngs = sorted(stills.glob("*.png"))
-    assert 2 <= len(pngs) <= 2 + events + 2  # first, last, one per task or grasp event
+    # first, last, one per task or grasp event, one each time the pose is tracked again
+    assert 2 <= len(pngs) <= frames
+    names = [re.fullmatch(r"run_(\d{5})_t(\d\d\.\d\d)s_(\w+)\.png", p.name) for p in pngs]
+    assert all(names), [p.name for p in pngs]
+    moments = [m.group(3) for m in names if m]
+    assert moments[0] == "first" and moments[-1] == "last"
+    assert "handover_release" in moments and "grasp_stable" in moments
+    assert sum(m.startswith("handover_") for m in moments) <= events
     for png in pngs:
-        assert cv2.imread(str(png)).shape == (BAR_PX + 3 * height, 2 * width, 3)
+        assert cv2.imread(str(png)).shape == (BAR_PX + 3 * height, 2 * width + LEGEND_PX, 3)
 
 
 def test_bag_commands_name_a_bad_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -236,7 +247,7 @@ def test_outline_of_points_behind_the_camera_is_none() -> None:
 
 def test_mosaic_draws_without_messages_and_with_nan_depth() -> None:
     state = MosaicState()
-    assert state.render(scale=1).shape == (BAR_PX + 3 * 172, 2 * 224, 3)
+    assert state.render(scale=1).shape == (BAR_PX + 3 * 172, 2 * 224 + LEGEND_PX, 3)
     depth = np.full((4, 6), np.nan, np.float32)
     image = ToFImage(
         header=Header(stamp_nanos=5),
@@ -250,7 +261,50 @@ def test_mosaic_draws_without_messages_and_with_nan_depth() -> None:
     )
     state.update("left_camera/image", image)
     frame = state.render(scale=1)
-    assert frame.shape == (BAR_PX + 12, 12, 3) and np.isfinite(frame).all()
+    assert frame.shape == (BAR_PX + 12, 12 + LEGEND_PX, 3) and np.isfinite(frame).all()
+    assert frame.shape[:2] == state.size(scale=1)
+
+
+def tof(depth_m: np.ndarray, side: str = "left") -> ToFImage:
+    return ToFImage(
+        header=Header(stamp_nanos=5, frame_id=f"{side}_sensor"),
+        sensor=side,
+        depth_m=depth_m.astype(np.float32),
+        ir=np.zeros(depth_m.shape, np.uint16),
+        fx_px=50.0,
+        fy_px=50.0,
+        cx_px=depth_m.shape[1] / 2,
+        cy_px=depth_m.shape[0] / 2,
+    )
+
+
+def test_depth_colours_hold_one_range_for_a_whole_video() -> None:
+    near = np.linspace(0.020, 0.030, 40 * 60).reshape(40, 60)
+    far = near + 0.004  # a later frame: everything 4 mm further
+    span = (0.020, 0.040)
+    a, b = depth_to_bgr(near, span), depth_to_bgr(far, span)
+    # The same depth (25 mm) has one colour in both frames...
+    i = np.argmin(np.abs(near - 0.025))
+    j = np.argmin(np.abs(far - 0.025))
+    assert np.abs(a.reshape(-1, 3)[i].astype(int) - b.reshape(-1, 3)[j]).max() <= 12
+    # ... where each frame's own range would have stretched both over the whole map.
+    assert not np.array_equal(depth_to_bgr(near)[0, 0], a[-1, -1])
+
+
+def test_mosaic_panels_are_labelled_and_the_legend_has_the_depth_bar() -> None:
+    state = MosaicState(depth_span_m=(0.02, 0.04))
+    depth = np.linspace(0.02, 0.04, 172 * 224).reshape(172, 224)
+    for side in SIDES:
+        state.update(f"{side}_camera/image", tof(depth, side))
+    frame = state.render(scale=1, moment="grasp stable")
+    for col in range(2):
+        for row in range(3):
+            y, x = BAR_PX + row * 172 + 4, col * 224 + 4
+            assert (frame[y : y + 8, x : x + 30] == 20).all(axis=2).any()  # the label's box
+    legend = frame[BAR_PX : BAR_PX + 172, 2 * 224 :]
+    bar = legend[30:160, 8:18].astype(int)
+    assert np.abs(bar[0] - bar[-1]).max() > 100  # the colour map runs down the bar
+    assert (frame[:BAR_PX, -120:] != 32).any()  # the moment, on the bar's right
 
 
 def test_foxglove_conversion_of_plain_messages() -> None:
@@ -305,3 +359,22 @@ def test_foxglove_json_of_a_pose_fits_its_schema() -> None:
     jsonschema.validate(value, schema)
     assert schema["properties"]["residual_rms_m"]["description"].startswith("unit: m")
     assert "ok" in schema["properties"]["status"]["enum"]
+
+
+def test_replay_shows_what_it_plays(run: tuple[Path, Path], tmp_path: Path) -> None:
+    bag, _ = run
+    out = tmp_path / "replay.rrd"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.run(
+        [sys.executable, "launch.py", "replay", str(bag), "--fast", "--view", str(out)],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    rows = rrd_rows(out)
+    counts = bag_counts(bag)
+    assert rows["/tool/left_sensor/depth"] == counts["left_camera/image"]
+    assert rows["/pressure/left"] == counts["left_pressure/pressure"]

@@ -1,0 +1,396 @@
+"""Held out on physics no one here tuned: the same grasps on ``world.sim`` and MuJoCo.
+
+Every perception figure the project publishes is measured on its own simulator. This
+bench makes a fixed, seeded set of grasps on both worlds and scores the same perception
+on each, side by side:
+
+- grasps: the four objects in turn (mug, PET bottle, square bottle, wine glass), each
+  held with its axis along tool y at a random offset (up to 4 mm along tool y and z) and
+  roll about the grasp axis (up to 8 degrees), seed :data:`SEED`, by its middle (the wine
+  glass by its bowl); the gripper grasps at 12 N from 0.05 s; from :data:`HOLD_SECS` the hand slides the object
+  :data:`SLIDE_M` along tool z (the pull of a handover); the scene ends at
+  :data:`END_SECS`. Each grasp is a scene file written next to its recording.
+- the MuJoCo run of a grasp is recorded once to an MCAP bag
+  (``<workdir>/grasp_<k>_<digest>.mcap``, the digest of the scene and the mesh:
+  ``world/state``, with both membranes' surfaces, and
+  ``world/wrench`` per frame, the messages the ``world.mujoco`` node publishes) and the
+  evaluation replays the bag (the cameras render its states); a bag already there is
+  reused, so the physics runs once per grasp and mesh. ``world.sim`` is cheap and runs
+  live.
+- scores, per world: ``contact_iou``: the contact filter's patch (``perception.contact``
+  against the first, untouched frame) against the world's true contact, intersection
+  over union, at the last held frame; ``lm_*``/``ipopt_*``: the pose estimator
+  (``perception.pose``, each solver, cold start, the whole object's field) on that
+  frame's grasp cloud against the world's object pose: axis error (degrees, up to the
+  axis's sign), off-axis error (mm), and ``silent_wrong``: answers off by more than 2
+  degrees or 2 mm whose status was ``ok`` or ``recovered``; ``shear_*``: the shear
+  tracker (``perception.shear``, default settings), referenced at the last held frame,
+  at the end of the slide, against the world's own shear truth (direction error in
+  degrees, magnitude error in mm, both bubbles); ``stable_*``: the grasp monitor
+  (``perception.grasp``) on the world's pressures and finger speed: detected, and its
+  delay after the jaws hold; ``classifier_right``: the committed classifier
+  (``models/tactile_resnet18.pt``, trained on ``world.sim`` only), majority of the held
+  frames; ``world_cpu_s_per_sim_s``: the world's stepping, CPU seconds per simulated
+  second (one process; the MuJoCo figure is the recording's).
+- cost rows (``mujoco (cost)``): MuJoCo's CPU seconds per simulated second against the
+  membrane mesh (12, 8, 5 and 3 mm edges; 12 mm only with ``--quick``) while the jaws
+  hold the mug.
+
+    python -m bench.worlds [--quick] [--json]
+
+``--quick``: one grasp, a 12 mm membrane mesh, in a temporary folder. The full run: 8
+grasps, an 8 mm mesh, recordings in ``out/worlds`` (``WORLDS_DIR`` overrides).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from bench.common import Row, main, median, progress
+from bench.shear import angle_error_deg
+from geometry.camera import PinholeCamera
+from geometry.gripper import SIDES
+from perception.classify.checkpoint import Classifier
+from perception.contact import ContactParams, ContactPatcher, contact_mask
+from perception.grasp import GraspMonitor
+from perception.pose import common
+from perception.pose.estimator import PoseEstimator
+from perception.pose.ipopt import IpoptParams, IpoptSolver
+from perception.pose.lm import LMSolver
+from perception.shear import ShearTracker, tool_basis
+from sim import Instant, Simulator, load_scene
+from sim.world import World
+
+SEED = 29
+OBJECTS = ("mug", "pet_bottle", "square_bottle", "wine_glass")
+HOLD_SECS = 1.2
+SLIDE_M = 0.004
+END_SECS = 1.7
+# Where along its axis each object is grasped (object z, m): the middle, but the wine
+# glass by its bowl (its middle is the thin stem).
+GRASP_AT_M = {"wine_glass": 0.0375}
+COST_FROM_SECS = 0.6
+COST_SECS = 0.3
+AXIS_OK_DEG = 2.0
+OFFAXIS_OK_M = 0.002
+MODEL = Path("models/tactile_resnet18.pt")
+EFFECTS = ["membrane", "depth", "tof_noise", "ir", "dot_pattern", "shear", "pressure"]
+EFFECTS += ["gripper", "ground_truth"]
+
+
+def grasp_scene(k: int, rng: np.random.Generator) -> dict[str, Any]:
+    """The ``k``-th grasp as a scene document."""
+    from sim.scene import rotation_from_rpy_deg
+
+    dy, dz = rng.uniform(-0.004, 0.004, 2)
+    roll = float(rng.uniform(-8.0, 8.0))
+    name = OBJECTS[k % len(OBJECTS)]
+    # The held frame's position that puts the grasped point of the axis at the target.
+    rot = rotation_from_rpy_deg((roll, 0.0, 0.0)) @ rotation_from_rpy_deg((0.0, -90.0, -90.0))
+    grasped = rot @ np.array([0.0, 0.0, GRASP_AT_M.get(name, 0.0)])
+    start = [float(v) for v in np.array([0.0, dy, 0.005 + dz]) - grasped]
+    end = [start[0], start[1], start[2] + SLIDE_M]
+    return {
+        "name": f"worlds_grasp_{k}",
+        "seed": SEED * 100 + k,
+        "duration_secs": END_SECS,
+        "effects": EFFECTS,
+        "object": {"name": name},
+        "mount_rpy_deg": [0, -90, -90],
+        "gripper": {
+            "commands": [
+                {
+                    "t_secs": 0.05,
+                    "command": "grasp",
+                    "width_m": 0.07,
+                    "speed_m_per_s": 0.1,
+                    "force_n": 12.0,
+                }
+            ]
+        },
+        "trajectory": [
+            {"t_secs": 0.0, "xyz_m": start, "rpy_deg": [roll, 0, 0]},
+            {"t_secs": HOLD_SECS, "xyz_m": start, "rpy_deg": [roll, 0, 0]},
+            {"t_secs": END_SECS, "xyz_m": end, "rpy_deg": [roll, 0, 0]},
+        ],
+    }
+
+
+def record_mujoco(scene_path: Path, bag: Path, mesh_spacing_m: float) -> float:
+    """Run a scene in MuJoCo and record what ``world.mujoco`` publishes; CPU s per sim s."""
+    from runtime.bag import BagWriter
+    from sim import stamp_of
+    from sim.mujoco.model import ShellSpec
+    from sim.mujoco.world import MujocoWorld
+    from sim.wire import to_message
+
+    scene = load_scene(scene_path)
+    start = time.process_time()
+    world = MujocoWorld(scene, ShellSpec(mesh_spacing_m=mesh_spacing_m))
+    part = bag.with_suffix(".part")
+    with BagWriter(part) as writer:
+        writer.add_run_info(
+            graph_text="", command_line=f"python -m bench.worlds (mesh {mesh_spacing_m} m)"
+        )
+        while not world.done:
+            snap = world.step()
+            stamp = stamp_of(snap)
+            writer.write_message("world/state", to_message(snap, scene, stamp), stamp)
+            writer.write_message("world/wrench", world.wrench_truth(stamp), stamp)
+    cpu = (time.process_time() - start) / scene.duration_secs
+    part.replace(bag)
+    bag.with_suffix(".json").write_text(json.dumps({"cpu_s_per_sim_s": cpu}))
+    return cpu
+
+
+def recorded_grasp(
+    k: int, rng: np.random.Generator, spacing_m: float, workdir: Path
+) -> tuple[Path, Path, float]:
+    """The ``k``-th grasp's scene file and its MuJoCo bag in ``workdir`` (recorded now if
+    missing), and the recording's CPU seconds per simulated second.
+
+    Both are named by the digest of the scene and the mesh: a changed grasp or mesh is
+    recorded again, an unchanged one reused (by this bench and ``bench.force``).
+    """
+    text = yaml.safe_dump(grasp_scene(k, rng), sort_keys=False)
+    key = hashlib.sha256(f"{text}{spacing_m}".encode()).hexdigest()[:10]
+    scene_path = workdir / f"grasp_{k}_{key}.yaml"
+    scene_path.write_text(text)
+    bag = scene_path.with_suffix(".mcap")
+    if bag.exists() and bag.with_suffix(".json").exists():
+        cpu = json.loads(bag.with_suffix(".json").read_text())["cpu_s_per_sim_s"]
+    else:
+        cpu = record_mujoco(scene_path, bag, spacing_m)
+    return scene_path, bag, float(cpu)
+
+
+def replay_mujoco(scene_path: Path, bag: Path) -> list[Instant]:
+    """Render every recorded state of a MuJoCo bag, as the camera nodes would."""
+    from runtime.bag import BagReader
+    from sim.wire import from_message
+
+    simulator = Simulator(load_scene(scene_path))
+    with BagReader(bag) as reader:
+        states = [m.decode() for m in reader.messages(["world/state"])]
+    return [simulator.render_snapshot(from_message(s)) for s in states]  # type: ignore[arg-type]
+
+
+def run_sim(scene_path: Path) -> tuple[list[Instant], float]:
+    """Step and render a scene on ``world.sim``; CPU s per simulated second of the world."""
+    scene = load_scene(scene_path)
+    simulator = Simulator(scene)
+    world: World = simulator.world
+    cpu = 0.0
+    out = []
+    while not world.done:
+        start = time.process_time()
+        snap = world.step()
+        cpu += time.process_time() - start
+        out.append(simulator.render_snapshot(snap))
+    return out, cpu / scene.duration_secs
+
+
+def _frame(inst: Instant, side: str) -> tuple[np.ndarray, PinholeCamera, np.ndarray]:
+    img = inst.images[side]
+    return img.depth_m, PinholeCamera.from_frame(img), img.tool_from_sensor
+
+
+def score(frames: list[Instant], classifier: Classifier) -> dict[str, Any]:
+    """Every perception figure on one grasp's frames (see the module docstring)."""
+    scene_period = frames[1].snapshot.time_secs - frames[0].snapshot.time_secs
+    hold = min(int(round(HOLD_SECS / scene_period)), len(frames) - 1)
+    first, held, last = frames[0], frames[hold], frames[-1]
+    truth = held.snapshot.tool_from_object
+    assert held.ground_truth is not None
+    name = held.ground_truth.object_class
+    out: dict[str, Any] = {"object": name}
+    # Contact patch against the true contact.
+    params = ContactParams()
+    ious = []
+    for side in SIDES:
+        est = contact_mask(held.images[side].depth_m, first.images[side].depth_m, params)
+        true = held.masks[side].mask > 0
+        union = (est | true).sum()
+        ious.append(float((est & true).sum() / union) if union else 1.0)
+    out["contact_iou"] = float(np.mean(ious))
+    # Pose, cold, both solvers.
+    patcher = ContactPatcher(ContactParams(max_points=3000))
+    for side in SIDES:
+        patcher.update_reference(side, first.images[side].depth_m)
+    cloud = patcher.extract({s: _frame(held, s) for s in SIDES})
+    from geometry import objects
+
+    model = objects.make(name)
+    for solver_name, solver in (
+        ("lm", LMSolver(model.field)),
+        ("ipopt", IpoptSolver(model.field, IpoptParams(jit="off"))),
+    ):
+        estimator = PoseEstimator(solver, symmetric_about_z=model.symmetric_about_z)
+        result = estimator.estimate(cloud.points_in_tool.astype(np.float64), cloud.bubble)
+        axis = common.axis_error_deg(result.tool_from_object, truth, flip_symmetric=True)
+        off = common.offaxis_error_m(result.tool_from_object, truth)
+        right = axis < AXIS_OK_DEG and off < OFFAXIS_OK_M
+        out[f"{solver_name}_axis_deg"] = axis
+        out[f"{solver_name}_offaxis_mm"] = off * 1000.0
+        out[f"{solver_name}_silent_wrong"] = int(result.status in ("ok", "recovered") and not right)
+    # Shear over the slide, against the world's own truth.
+    dirs, mags = [], []
+    for side in SIDES:
+        ref = held.images[side]
+        tracker = ShearTracker()
+        tracker.set_reference(
+            ref.ir, ref.depth_m, PinholeCamera.from_frame(ref), tool_basis(ref.tool_from_sensor)
+        )
+        result = tracker.update(last.images[side].ir, last.images[side].depth_m)
+        true_m = last.snapshot.shear_in_tool_m[side] - held.snapshot.shear_in_tool_m[side]
+        est_m = np.asarray(result.shear_m, np.float64)
+        ok = result.direction_defined and result.metric_defined
+        dirs.append(angle_error_deg(est_m, true_m) if ok else 180.0)
+        mags.append(float(np.hypot(*(est_m - true_m))) * 1000.0)
+        out[f"shear_true_mm_{side}"] = float(np.hypot(*true_m)) * 1000.0
+    out["shear_dir_deg"] = float(np.mean(dirs))
+    out["shear_err_mm"] = float(np.mean(mags))
+    # Stable-grasp detection on the world's pressures and finger motion.
+    monitor = GraspMonitor()
+    stable_at = holding_at = None
+    for inst in frames:
+        t = inst.snapshot.time_secs
+        stamp = inst.stamp_nanos
+        g = inst.gripper
+        status = monitor.update_gripper(g.speed_m_per_s, g.width_m, stamp)
+        for side in SIDES:
+            status = monitor.update_pressure(side, inst.pressures[side].pressure_pa, stamp)
+        if holding_at is None and g.state == "holding":
+            holding_at = t
+        if stable_at is None and status.stable:
+            stable_at = t
+    out["stable_detected"] = int(stable_at is not None and stable_at <= HOLD_SECS)
+    out["stable_delay_s"] = (
+        stable_at - holding_at if stable_at is not None and holding_at is not None else float("nan")
+    )
+    # The committed classifier, majority over the held frames.
+    votes = []
+    for inst in frames[(holding_at and int(round(holding_at / scene_period))) or hold : hold + 1]:
+        p = classifier.classify(
+            depth_left_m=inst.images["left"].depth_m,
+            depth_right_m=inst.images["right"].depth_m,
+            ir_left=inst.images["left"].ir,
+            ir_right=inst.images["right"].ir,
+        )
+        votes.append(classifier.meta.classes[int(np.argmax(p))])
+    said = max(set(votes), key=votes.count) if votes else ""
+    out["classifier_said"] = said
+    out["classifier_right"] = int(said == name)
+    return out
+
+
+def _summary(world: str, scores: list[dict[str, Any]], cpu: list[float]) -> Row:
+    def med(key: str) -> float:
+        return median([s[key] for s in scores if np.isfinite(s[key])] or [float("nan")])
+
+    n = len(scores)
+    return {
+        "world": world,
+        "grasps": n,
+        "contact_iou_median": med("contact_iou"),
+        "lm_axis_deg_median": med("lm_axis_deg"),
+        "lm_offaxis_mm_median": med("lm_offaxis_mm"),
+        "ipopt_axis_deg_median": med("ipopt_axis_deg"),
+        "ipopt_offaxis_mm_median": med("ipopt_offaxis_mm"),
+        "pose_silent_wrong": sum(s["lm_silent_wrong"] + s["ipopt_silent_wrong"] for s in scores),
+        "shear_dir_deg_median": med("shear_dir_deg"),
+        "shear_err_mm_median": med("shear_err_mm"),
+        "stable_detected_fraction": sum(s["stable_detected"] for s in scores) / n,
+        "stable_delay_s_median": med("stable_delay_s"),
+        "classifier_right_fraction": sum(s["classifier_right"] for s in scores) / n,
+        "classifier_wrong": " ".join(
+            f"{s['object']}->{s['classifier_said']}" for s in scores if not s["classifier_right"]
+        ),
+        "world_cpu_s_per_sim_s": median(cpu),
+    }
+
+
+def cost_rows(spacings_m: tuple[float, ...]) -> list[Row]:
+    """MuJoCo's CPU seconds per simulated second against the membrane mesh, in contact.
+
+    The first grasp (the mug) runs to :data:`COST_FROM_SECS` (the jaws hold it), then
+    :data:`COST_SECS` more of holding are timed (process CPU time of the stepping, not
+    the model's construction and inflation).
+    """
+    from sim.mujoco.model import ShellSpec
+    from sim.mujoco.world import MujocoWorld
+    from sim.scene import scene_from_dict
+
+    scene = scene_from_dict(grasp_scene(0, np.random.default_rng(SEED)))
+    rows = []
+    for spacing in spacings_m:
+        world = MujocoWorld(scene, ShellSpec(mesh_spacing_m=spacing))
+        while world.frame_index * scene.frame_period_secs < COST_FROM_SECS:
+            world.step()
+        start, t0 = time.process_time(), world.frame_index * scene.frame_period_secs
+        while world.frame_index * scene.frame_period_secs < COST_FROM_SECS + COST_SECS:
+            world.step()
+        sim_secs = world.frame_index * scene.frame_period_secs - t0
+        rows.append(
+            {
+                "world": "mujoco (cost)",
+                "mesh_mm": spacing * 1000.0,
+                "vertices_per_bubble": len(world.physics.mesh.rest_m),
+                "world_cpu_s_per_sim_s": (time.process_time() - start) / sim_secs,
+            }
+        )
+    return rows
+
+
+def _vertices(spacing_m: float) -> int:
+    from geometry.gripper import BubbleGeometry
+    from sim.mujoco.mesh import membrane_mesh
+
+    return len(membrane_mesh(BubbleGeometry(), spacing_m).rest_m)
+
+
+def run(quick: bool) -> list[Row]:
+    grasps = 1 if quick else 8
+    spacing = 0.012 if quick else 0.008
+    tmp = tempfile.TemporaryDirectory() if quick else None
+    workdir = Path(tmp.name) if tmp else Path(os.environ.get("WORLDS_DIR", "out/worlds"))
+    workdir.mkdir(parents=True, exist_ok=True)
+    classifier = Classifier.load(MODEL)
+    rng = np.random.default_rng(SEED)
+    results: dict[str, tuple[list[dict[str, Any]], list[float]]] = {
+        "sim": ([], []),
+        "mujoco": ([], []),
+    }
+    try:
+        for k in progress(range(grasps), "bench.worlds", label=lambda k: f"grasp {k}"):
+            scene_path, bag, mujoco_cpu = recorded_grasp(k, rng, spacing, workdir)
+            frames, cpu = run_sim(scene_path)
+            results["sim"][0].append(score(frames, classifier))
+            results["sim"][1].append(cpu)
+            results["mujoco"][0].append(score(replay_mujoco(scene_path, bag), classifier))
+            results["mujoco"][1].append(mujoco_cpu)
+    finally:
+        if tmp is not None:
+            tmp.cleanup()
+    rows = [
+        _summary(w, s, c)
+        | {
+            "mesh_mm": spacing * 1000 if w == "mujoco" else None,
+            "vertices_per_bubble": _vertices(spacing) if w == "mujoco" else None,
+        }
+        for w, (s, c) in results.items()
+    ]
+    return rows + cost_rows((0.012,) if quick else (0.012, 0.008, 0.005, 0.003))
+
+
+if __name__ == "__main__":
+    main("worlds", run)

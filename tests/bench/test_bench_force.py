@@ -1,0 +1,39 @@
+"""Smoke test of ``python -m bench.force --quick``: every sweep gives its rows with
+finite figures where the quick size has data; no figure is judged beyond its range."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from tests.bench import run_quick
+
+
+@pytest.mark.timeout(600)
+def test_quick_json_has_every_sweep() -> None:
+    report, _ = run_quick("force", timeout=580)
+    rows = report["rows"]
+    sweeps = {r["sweep"] for r in rows}
+    assert sweeps == {"wrench", "slip", "reflex", "handover"}
+    wrench = [r for r in rows if r["sweep"] == "wrench"]
+    assert {(r["world"], r["setting"], r["method"]) for r in wrench} == {
+        (w, s, m)
+        for w in ("sim", "mujoco")
+        for s in ("fb_half", "fb_quarter", "dis_half")
+        for m in ("physics", "ridge")
+    }
+    for r in wrench:
+        assert r["samples"] > 0
+        for key in ("force_err_n_median", "torque_err_nm_median", "ms_per_frame", "rate_hz"):
+            assert math.isfinite(r[key]) and r[key] >= 0, (key, r)
+        assert 0.0 <= r["within_goal_fraction"] <= 1.0
+    reflex = {r["setting"]: r for r in rows if r["sweep"] == "reflex"}
+    assert set(reflex) == {"off", "on"}
+    assert all(r["kept"] + r["dropped"] == r["samples"] for r in reflex.values())
+    handover = {r["method"]: r for r in rows if r["sweep"] == "handover"}
+    assert set(handover) == {"shear", "force"}
+    assert all(0.0 <= r["false_release_rate"] <= 1.0 for r in handover.values())
+    slip = [r for r in rows if r["sweep"] == "slip"]
+    assert {r["method"] for r in slip} == {"onset_edge", "onset_patch"}
+    assert all(r["still_secs"] > 0 for r in slip)

@@ -1,0 +1,29 @@
+"""``python -m bench.worlds --quick``: one grasp on both worlds, every figure present."""
+
+from __future__ import annotations
+
+import math
+
+from tests.bench import run_quick
+
+
+def test_worlds_quick_scores_one_grasp_on_both_worlds() -> None:
+    report, _ = run_quick("worlds", "--no-plot", timeout=600)
+    rows = {r["world"]: r for r in report["rows"]}
+    assert set(rows) == {"sim", "mujoco"}
+    for row in rows.values():
+        assert row["grasps"] == 1
+        for key in (
+            "contact_iou_median",
+            "lm_axis_deg_median",
+            "ipopt_axis_deg_median",
+            "shear_dir_deg_median",
+            "world_cpu_s_per_sim_s",
+        ):
+            assert math.isfinite(row[key]), (row["world"], key)
+        assert 0.0 <= row["contact_iou_median"] <= 1.0
+        assert row["stable_detected_fraction"] in (0.0, 1.0)
+    # The engine costs what it costs: far more than the geometric world, but finite.
+    assert rows["mujoco"]["world_cpu_s_per_sim_s"] > rows["sim"]["world_cpu_s_per_sim_s"]
+    # A mug grasped in the middle is seen as a contact patch on both worlds.
+    assert rows["mujoco"]["contact_iou_median"] > 0.3
