@@ -154,7 +154,7 @@ class WorldNode(Node):
                 daemon=True,
             )
             self.prestart_thread.start()
-        self.feed: zmq.Socket | None = None
+        self.feed: zmq.Socket[bytes] | None = None
         self.gripper_faults: list[Any] = []  # sim.emulated_rig.Fault
         if self.params.rig_feed:
             from sim.emulated_rig import SESSION_ENV, session

@@ -48,23 +48,12 @@ from messages.control import (
     StopRequest,
     WaitIdle,
 )
-from runtime import child, protocol, status
+from runtime import child, nodeprocs, protocol, status
 from runtime.counters import balanced, delivered
 from runtime.graph import Graph, ipc_path
 from runtime.hostlink import HostLink, judge, wait_for_finals
 from runtime.isolation import make_rundir
-from runtime.nodeprocs import (
-    Proc,
-    counts,
-    ended_by_launcher,
-    exit_reason,
-    reap,
-    signal_group,
-    spawn,
-    stop,
-    table,
-    totals,
-)
+from runtime.nodeprocs import Proc, counts, reap, signal_group, spawn, stop, table, totals
 from runtime.protocol import ControlServer
 from runtime.registry import class_path
 from runtime.security import KeyPair
@@ -239,12 +228,12 @@ class Launcher:
 
     def _on_exit(self, proc: Proc, code: int) -> None:
         if code != 0 and self.stop_reason is None:
-            self._failed(proc, exit_reason(code))
+            self._failed(proc, nodeprocs.exit_reason(code))
             return
         proc.state = "exited"
-        if code != 0 and not ended_by_launcher(proc, code):
+        if code != 0 and not nodeprocs.ended_by_launcher(proc, code):
             # Failing while the graph stops (a recorder whose disk filled) fails the run too.
-            self._ended_badly(proc, f"{exit_reason(code)} while the graph stopped")
+            self._ended_badly(proc, f"{nodeprocs.exit_reason(code)} while the graph stopped")
 
     def _ended_badly(self, proc: Proc, why: str) -> None:
         """A node that failed where no restart can follow: the run fails if it is required."""
@@ -253,13 +242,6 @@ class Launcher:
             self.exit_code = 1
         else:
             self.say(f"node {proc.spec.name!r} failed ({why}); not required")
-
-    def _not_back(self) -> None:
-        """Nodes that failed and had not come back when the graph stopped (a back-off
-        still to wait, a restart still setting up) end badly."""
-        for proc in self.procs.values():
-            if proc.restarts and proc.state in ("waiting_restart", "new", "hello", "ready"):
-                self._ended_badly(proc, f"not back from restart {proc.restarts} at the stop")
 
     def _failed(self, proc: Proc, reason: str) -> None:
         name = proc.spec.name
@@ -537,7 +519,8 @@ class Launcher:
                 self.started_at = time.monotonic()
                 self.say("all nodes ready; running")
                 self._supervise()
-                self._not_back()
+                for proc in nodeprocs.not_back(self.procs.values()):
+                    self._ended_badly(proc, f"not back from restart {proc.restarts} at the stop")
             self.say(f"stopping: {self.stop_reason or 'start-up failed'}")
             if self.started_at and self.exit_code == 0:
                 self._drain()

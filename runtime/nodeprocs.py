@@ -15,7 +15,7 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import IO, Any, Literal
 
@@ -122,6 +122,14 @@ def ended_by_launcher(proc: Proc, code: int) -> bool:
     """Whether a non-zero exit code is a signal the launcher sent this incarnation, as the
     kernel (-N) or the node's quiet handler before it runs (128 + N) reports it."""
     return (-code if code < 0 else code - 128) in proc.signalled
+
+
+def not_back(procs: Iterable[Proc]) -> list[Proc]:
+    """Nodes that failed and have not come back: a back-off still to wait, or a restart
+    not ready yet (hung in ``setup()``)."""
+    return [
+        p for p in procs if p.restarts and p.state in ("waiting_restart", "new", "hello", "ready")
+    ]
 
 
 def exit_reason(code: int) -> str:

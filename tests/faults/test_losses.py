@@ -42,7 +42,7 @@ def test_a_flood_into_slow_subscribers_is_accounted_for_to_the_message(tmp_path:
         assert row["messages"] == sum(row[column] for column in LOSSES), (node, row, log)
         # delivered: exactly what the node was handed
         assert row["delivered"] == len(handled.read_text().splitlines()), (node, row, log)
-        assert row["messages"] > 5 * row["delivered"], (node, row, log)  # it was a flood
+        assert row["messages"] > 2 * row["delivered"], (node, row, log)  # it was a flood
     queue = table_row(log, "src/tick -> queue.tick")
     assert queue["dropped"] + queue["unreceived"] > 0 and queue["superseded"] == 0, log
     latest = table_row(log, "src/tick -> latest.tick")

@@ -66,7 +66,7 @@ def run_on_hosts(
 
 def end_count(text: str, topic: str) -> int:
     row = next(line for line in text.splitlines() if line.startswith(f"[launch] {topic} "))
-    return int(row.split()[2])
+    return int(next(t for t in row.split()[2:] if t.isdigit()))
 
 
 def values(path: Path, topic: str) -> list[float]:

@@ -41,7 +41,7 @@ for curve in (False, True):
 
 def topic_count(text: str, topic: str) -> int:
     row = next(line for line in text.splitlines() if line.startswith(f"[launch] {topic} "))
-    return int(row.split()[2])
+    return int(next(t for t in row.split()[2:] if t.isdigit()))
 
 
 def tcp_sockets(ns_command: list[str]) -> list[tuple[str, str, str]]:
