@@ -257,17 +257,17 @@ def stacking(seed: int, tmp: Path) -> list[dict[str, Any]]:
         "graphs/stacking.yaml", tmp / "stack.mcap", "--set", f"world.scene={scene}"
     )
     placement = topics.get("world/placement", [])
-    truth = json.loads(placement[0][2].detail) if placement else {}
-    touched = truth.get("touch_secs") is not None
+    truth = placement[0][2] if placement else None
+    touched = truth is not None and truth.touch_secs is not None
     return [
         {
-            "success": code == 0 and bool(placement) and placement[0][2].event == "placed",
-            "release_latency_ms": [(truth["t_secs"] - truth["touch_secs"]) * 1000]
-            if touched
+            "success": code == 0 and truth is not None and truth.placed,
+            "release_latency_ms": [(truth.t_secs - truth.touch_secs) * 1000]
+            if truth is not None and truth.touch_secs is not None
             else [],
-            "push_mm": [truth["push_mm"]] if truth else [],
-            "gap_mm": [truth["gap_mm"]] if truth else [],
-            "tilt_deg": [truth["tilt_deg"]] if truth else [],
+            "push_mm": [truth.push_m * 1000] if truth else [],
+            "gap_mm": [truth.gap_m * 1000] if truth else [],
+            "tilt_deg": [truth.tilt_deg] if truth else [],
             "false_release": bool(placement) and not touched,
             "shear_latency_ms": latencies_ms(topics, "shear/shear"),
             "wall_secs": wall,
