@@ -29,6 +29,7 @@ import dataclasses
 import math
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -66,7 +67,7 @@ def as_built_rig(path: Path, deg: float = 2.0, mm: float = 2.0) -> Path:
     # degree of that rotation vector (the rows report the angle of the rotation made).
     axes = {"left": np.array([1.0, -1.0, 1.0]), "right": np.array([-1.0, 1.0, 0.5])}
     offsets = {"left": np.array([1.0, 1.0, -1.0]), "right": np.array([-0.5, 1.0, 1.0])}
-    doc: dict = {"rig": f"asbuilt-{deg:g}deg-{mm:g}mm", "cameras": {}, "pressure": {}}
+    doc: dict[str, Any] = {"rig": f"asbuilt-{deg:g}deg-{mm:g}mm", "cameras": {}, "pressure": {}}
     lens = {"left": (189.2, 205.9, 113.1, 84.2), "right": (184.7, 209.3, 110.2, 86.9)}
     for side in SIDES:
         rpy = axes[side] / np.linalg.norm(axes[side]) * deg

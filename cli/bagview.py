@@ -126,7 +126,7 @@ def view_bag(
     type; what it skips is counted in ``skipped``."""
     import rerun as rr
 
-    from viz.rerun_log import RerunLogger, flush, spawn_viewer
+    from viz.rerun_log import RerunLogger, check_viewer, flush, spawn_viewer
 
     rec = rr.RecordingStream("softbubble", recording_id=path.stem)
     logger = RerunLogger(rec, object_name=object_name)
@@ -138,15 +138,20 @@ def view_bag(
             flush(rec)
             rec.disconnect()
     else:
-        spawn_viewer(
+        viewer = spawn_viewer(
             rec,
             instead=f"save a file with `bag view {path} --out FILE.rrd` (open it with "
             f"`rerun FILE.rrd` where there is one), or `bag export {path} --foxglove OUT.mcap`",
         )
         with ends_at_once_when_interrupted():
-            for topic, _, msg in bag_messages(path, skipped):
-                skipped.guard(topic, msg, lambda: logger.log(topic, msg))  # noqa: B023
-            flush(rec)
+            try:
+                for topic, _, msg in bag_messages(path, skipped):
+                    check_viewer(viewer)
+                    skipped.guard(topic, msg, lambda: logger.log(topic, msg))  # noqa: B023
+                flush(rec, viewer=viewer)
+            except OSError:
+                rr.unregister_shutdown()  # its exit handler would wait for the viewer again
+                raise
         rec.disconnect()
     return logger.logged
 

@@ -52,6 +52,7 @@ def main(args: argparse.Namespace) -> int:
     if not 3 <= args.grasps <= 6:
         args.parser.error("--grasps must be 3 to 6")
     lab: Any
+    poses: list[tuple[np.ndarray | None, float]]
     if args.emulate:
         from sim.emulated_lab import CALIBRATION_POSES, EmulatedLab
 
@@ -65,7 +66,7 @@ def main(args: argparse.Namespace) -> int:
         address = (args.address, args.port)
         ids = {"left": args.left_camera, "right": args.right_camera}
         serials = {"left": args.left_bridge, "right": args.right_bridge}
-        poses = [(None, f) for f in FORCES_N[: args.grasps]]
+        poses = [(None, f) for f in FORCES_N[: args.grasps]]  # the person picks each pose
     try:
         rig = connect(bridges=serials, cameras=ids, address=address, use_case=args.use_case)
         try:

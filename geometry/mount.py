@@ -60,11 +60,15 @@ class CameraMounts:
     def mount(self, side: str) -> np.ndarray:
         """``side``'s camera in its finger frame."""
         pose = self.finger_from_sensor.get(side)
-        return np.array(self.geometry.finger_from_sensor() if pose is None else pose, float)
+        out: np.ndarray = np.array(
+            self.geometry.finger_from_sensor() if pose is None else pose, dtype=np.float64
+        )
+        return out
 
     def tool_from_sensor(self, side: str, width_m: float) -> np.ndarray:
         """``side``'s camera in the tool frame at opening ``width_m``."""
-        return self.geometry.tool_from_finger(side, width_m) @ self.mount(side)
+        pose: np.ndarray = self.geometry.tool_from_finger(side, width_m) @ self.mount(side)
+        return pose
 
 
 CAD_MOUNTS = CameraMounts()

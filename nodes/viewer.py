@@ -95,8 +95,9 @@ class RerunViewer(_DecodingViewer):
 
         super().setup()
         self.rec = rr.RecordingStream("softbubble", recording_id=self.name)
+        self.viewer = None
         if self.params.target == "spawn":
-            spawn_viewer(
+            self.viewer = spawn_viewer(
                 self.rec, instead="use `--view FILE.rrd` (saved here) or `--view foxglove`"
             )
         else:
@@ -110,7 +111,12 @@ class RerunViewer(_DecodingViewer):
     def teardown(self) -> None:
         from viz.rerun_log import flush
 
-        if not flush(self.rec, deadline_secs=TEARDOWN_FLUSH_SECS):
+        try:
+            flushed = flush(self.rec, deadline_secs=TEARDOWN_FLUSH_SECS, viewer=self.viewer)
+        except OSError as err:
+            self.io.log.warning("%s: %s", self.name, err)
+            flushed = True
+        if not flushed:
             self.io.log.warning(
                 "%s: the Rerun viewer took no data for %g s; the rest is dropped",
                 self.name,

@@ -8,6 +8,7 @@ copy of the document; :func:`runtime.graph.check` then checks the result.
 from __future__ import annotations
 
 import copy
+import inspect
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -45,8 +46,10 @@ def anchor_paths(doc: dict[str, Any], path: Path) -> dict[str, Any]:
     """``doc`` (read from ``path``) with the relative file paths of its nodes' parameters
     found from the graph file: in its folder or the nearest folder above it that has them
     (``graphs/sort.yaml`` names ``scenes/sort_task.yaml`` of the folder above), so a graph
-    runs from any working directory. A node whose implementation or parameters are not
-    valid is left as it is: the check reports it."""
+    runs from any working directory. A relative default of a node class (a shipped model
+    or calibration) is found from the class's own folder and above when the working
+    directory lacks it. A node whose implementation or parameters are not valid is left
+    as it is: the check reports it."""
     from runtime.params import anchor_files
     from runtime.registry import resolve
 
@@ -56,13 +59,19 @@ def anchor_paths(doc: dict[str, Any], path: Path) -> dict[str, Any]:
     folder = path.resolve().parent
     folders = [folder, *folder.parents]
     for body in nodes.values():
-        if not isinstance(body, dict) or not isinstance(body.get("params"), dict):
+        params = body.get("params") if isinstance(body, dict) else None
+        if params is None and isinstance(body, dict):
+            params = {}  # its defaults may still need finding
+        if not isinstance(params, dict):
             continue
         try:
             cls = resolve(str(body.get("impl")))
-            body["params"] = anchor_files(cls.Params, body["params"], folders)
+            shipped = Path(inspect.getfile(cls)).resolve().parents
+            anchored = anchor_files(cls.Params, params, folders, shipped)
         except (KeyError, TypeError, ImportError):
             continue
+        if anchored != params or "params" in body:
+            body["params"] = anchored
     return doc
 
 

@@ -191,20 +191,35 @@ def _check_fields(cls: type[Any], built: Any, prefix: str) -> None:
 
 
 def anchor_files(
-    cls: type[Any], values: Mapping[str, Any], folders: Sequence[Path]
+    cls: type[Any],
+    values: Mapping[str, Any],
+    folders: Sequence[Path],
+    default_folders: Sequence[Path] = (),
 ) -> dict[str, Any]:
     """``values`` with each relative :data:`ExistingFile` path (nested ones too) found in
     the first of ``folders`` that has it, made absolute; a path none has stays as it is
-    (it is then read from the working directory, and the check names it if missing)."""
+    (it is then read from the working directory, and the check names it if missing). A
+    relative default that the working directory lacks is looked for in ``default_folders``
+    (where the class ships its files) and, found there, written into the result."""
     hints = field_hints(cls)
     out = dict(values)
     for f in dataclasses.fields(cls):
         value = out.get(f.name)
         if _must_exist(hints[f.name]) and isinstance(value, str) and value:
             out[f.name] = _anchor(value, folders)
+        default = _default(f)
+        if (
+            f.name not in out
+            and _must_exist(hints[f.name])
+            and isinstance(default, str)
+            and default
+        ):
+            found = _anchor(default, default_folders)
+            if found != default:
+                out[f.name] = found
         nested = _dataclass_of(hints[f.name])
         if nested is not None and isinstance(value, Mapping):
-            out[f.name] = anchor_files(nested, value, folders)
+            out[f.name] = anchor_files(nested, value, folders, default_folders)
     return out
 
 

@@ -65,7 +65,7 @@ class EmulatedLab:
         self.world = World(self.scene)
         self.world.place(AWAY)
         self.server = WSG50Server(self.world.dynamics, port=0).start()
-        self.socket = zmq.Context.instance().socket(zmq.PUB)
+        self.socket: zmq.Socket[bytes] = zmq.Context.instance().socket(zmq.PUB)
         self.socket.setsockopt(zmq.LINGER, 0)
         self.socket.bind(feed)
         self.vented = False

@@ -93,7 +93,8 @@ def rpy_matrix(rpy_deg: Any) -> np.ndarray:
     rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
     ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
     rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
-    return rz @ ry @ rx
+    rot: np.ndarray = rz @ ry @ rx
+    return rot
 
 
 @dataclass(frozen=True)
@@ -282,7 +283,7 @@ class WorldFeed:
     """The world's states, as the world node publishes them on the feed (newest kept)."""
 
     def __init__(self, endpoint: str) -> None:
-        self.socket = zmq.Context.instance().socket(zmq.SUB)
+        self.socket: zmq.Socket[bytes] = zmq.Context.instance().socket(zmq.SUB)
         self.socket.setsockopt(zmq.LINGER, 0)
         self.socket.setsockopt(zmq.SUBSCRIBE, b"")
         self.socket.connect(endpoint)
@@ -411,8 +412,8 @@ class WorldBridge(EmulatedBridge):
     """An MCP2221A whose ABP sensor reads the world's bubble pressure (as built)."""
 
     def __init__(self, side: str, spec: AsBuiltSensor, device: str, *, pmax_pa: float) -> None:
-        super().__init__(serial=spec.serial)
-        self.side, self.spec, self.device, self.pmax_pa = side, spec, device, pmax_pa
+        super().__init__(serial=spec.serial, device=device)
+        self.side, self.spec, self.pmax_pa = side, spec, pmax_pa
         self.rng = np.random.default_rng(list(spec.serial.encode()))
         # Before the world's first state the bubble is inflated and free.
         self.rest_pa = load_scene(session().scene).bubble.inflation_pa

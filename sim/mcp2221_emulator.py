@@ -37,6 +37,7 @@ class EmulatedBridge:
     """One MCP2221A and its sensor: ``sensor_bytes`` is what the next read returns."""
 
     serial: str
+    device: str = ""  # its name on an emulated rig (``sim.emulated_rig``: its plug)
     sensor_address: int = 0x28
     sensor_bytes: bytes = b"\x06\x66"  # 1638 counts: Pmin
     plugged: bool = True

@@ -91,8 +91,13 @@ def activate(rig_file: str | None, scene: str = DEFAULT_SCENE) -> tuple[AsBuiltR
     """
     rig = load_rig(rig_file) if rig_file else NOMINAL
     folder = Path(tempfile.mkdtemp(prefix="softbubble-rig-"))
-    owner = os.getpid()  # forks (the nodes) inherit the handler: only this process removes it
-    atexit.register(lambda: os.getpid() == owner and shutil.rmtree(folder, ignore_errors=True))
+    owner = os.getpid()
+
+    def remove() -> None:  # forks (the nodes) inherit the handler: only this process removes it
+        if os.getpid() == owner:
+            shutil.rmtree(folder, ignore_errors=True)
+
+    atexit.register(remove)
     forget_session()
     (folder / "unplugged").mkdir()
     feed = f"ipc://{folder / 'feed'}"

@@ -14,7 +14,11 @@ Entity tree (one recording; the timeline ``stamp`` is each message's header stam
   and the object's ``Mesh3D`` (logged once, static, when the object is known).
 * ``pressure/{side}``, ``gripper/width_m``, ``gripper/force_n``, ``shear/{side}/magnitude_px``,
   ``pose/residual_rms_m``, ``pose/solve_secs``, ``classifier/{class}``: ``Scalars``.
-* ``events/grasp``, ``events/task``, ``events/pose``, ``events/classifier``: ``TextLog``.
+* ``events/grasp``, ``events/task``, ``events/pose``, ``events/classifier``,
+  ``events/slip``: ``TextLog``.
+* ``wrench/object_force_n/{x,y,z}``, ``wrench/object_torque_nm/{x,y,z}``,
+  ``contact/{side}/area_m2``, ``contact/{side}/pressure_rise_pa``, ``slip/{side}/use``:
+  ``Scalars``; ``tool/object_force``: the object force as an ``Arrows3D`` (1 cm per N).
 
 Message types the logger does not draw (the simulator's ``WorldState``, commands) are
 counted in :attr:`RerunLogger.skipped`.
@@ -22,7 +26,13 @@ counted in :attr:`RerunLogger.skipped`.
 
 from __future__ import annotations
 
+import os
+import re
+import shutil
+import socket
+import subprocess
 import sys
+import tempfile
 import time
 from collections import Counter
 from pathlib import Path
@@ -31,6 +41,8 @@ import numpy as np
 import rerun as rr
 
 from messages.base import Message
+from messages.force import BubbleContact, SlipState, WrenchEstimate
+from messages.sim import PlacementTruth
 from messages.types import (
     ClassProbabilities,
     ContactPatch,
@@ -53,6 +65,8 @@ TIMELINE = "stamp"
 BUBBLE_COLORS = np.array([[66, 135, 245], [245, 130, 48]], dtype=np.uint8)  # left, right
 ESTIMATE_COLOR = (80, 200, 120, 160)
 TRUTH_COLOR = (200, 200, 200, 90)
+FORCE_ARROW_M_PER_N = 0.01  # the object force drawn 1 cm per newton from the tool origin
+FORCE_RGB = (230, 60, 200)
 WIDTH_STEP_M = 1e-4  # re-log the camera poses when the opening moves more than this
 
 
@@ -64,32 +78,86 @@ def mask_centroid(mask: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray
     return np.array([(shape[1] - 1) / 2.0, (shape[0] - 1) / 2.0])
 
 
-def spawn_viewer(rec: rr.RecordingStream, *, instead: str) -> None:
-    """Start a Rerun viewer and stream ``rec`` to it.
+VIEWER_PORT = 9876  # Rerun's own default: a viewer already open there is reused
+
+
+def spawn_viewer(rec: rr.RecordingStream, *, instead: str) -> subprocess.Popen[bytes] | None:
+    """Stream ``rec`` to a Rerun viewer: the one already listening on ``VIEWER_PORT``
+    (returns None), or a new one started here (returns its process, which outlives this
+    one unless Ctrl-C reaches both). Started directly rather than with ``rr.spawn``, whose
+    wait for the viewer's port holds the interpreter (no Ctrl-C, no SIGTERM) for seconds,
+    so that :func:`flush` can tell when the window is gone.
 
     The viewer is the ``rerun`` executable installed next to this Python (``rerun-sdk``
-    puts it there), so it is found without an activated virtual environment.
+    puts it there), so it is found without an activated virtual environment; what it
+    prints goes to a temporary file, shown when it fails.
 
     Raises:
         viz.display.NoDisplay: there is no display; the message ends with ``instead``.
+        OSError: no ``rerun`` executable.
     """
     require_display(instead)
+    url = f"rerun+http://127.0.0.1:{VIEWER_PORT}/proxy"
+    with socket.socket() as probe:
+        if probe.connect_ex(("127.0.0.1", VIEWER_PORT)) == 0:
+            rec.connect_grpc(url)
+            return None
     beside = Path(sys.executable).with_name("rerun")
-    rr.spawn(executable_path=str(beside) if beside.is_file() else None, recording=rec)
+    exe = str(beside) if beside.is_file() else shutil.which("rerun")
+    if exe is None:
+        raise OSError("no Rerun viewer here: `rerun` (from rerun-sdk) is not installed")
+    log = tempfile.TemporaryFile()
+    viewer = subprocess.Popen(
+        [exe, f"--port={VIEWER_PORT}", "--memory-limit=75%", "--expect-data-soon"],
+        stdout=log,
+        stderr=log,
+        env=dict(os.environ, RERUN_APP_ONLY="true"),
+    )
+    viewer.log = log  # type: ignore[attr-defined]
+    rec.connect_grpc(url)
+    return viewer
 
 
-def flush(rec: rr.RecordingStream, deadline_secs: float | None = None) -> bool:
+def flush(
+    rec: rr.RecordingStream,
+    deadline_secs: float | None = None,
+    viewer: subprocess.Popen[bytes] | None = None,
+) -> bool:
     """Flush ``rec`` in short waits, so that Ctrl-C and SIGTERM are handled between them
     (one long wait inside Rerun holds the interpreter: a viewer that went away made it
-    wait for good). Returns False when ``deadline_secs`` passed first."""
+    wait for good). Returns False when ``deadline_secs`` passed first.
+
+    Raises:
+        OSError: ``viewer`` (from :func:`spawn_viewer`) exited before it took the data;
+            the message ends with the last line it printed.
+    """
     start = time.monotonic()
     while True:
         try:
             rec.flush(timeout_sec=0.25)
             return True
         except RuntimeError:  # timed out; signals run now
+            check_viewer(viewer)
             if deadline_secs is not None and time.monotonic() - start > deadline_secs:
                 return False
+
+
+def check_viewer(viewer: subprocess.Popen[bytes] | None) -> None:
+    """Raise ``OSError`` (with the last line it printed) if ``viewer`` has exited."""
+    if viewer is not None and viewer.poll() is not None:
+        raise OSError(
+            f"the Rerun viewer exited (code {viewer.returncode}) before it took the data: "
+            f"{_last_line(viewer)}"
+        )
+
+
+def _last_line(viewer: subprocess.Popen[bytes]) -> str:
+    log = getattr(viewer, "log", None)
+    if log is None:
+        return "(no output)"
+    log.seek(0)
+    lines = [ln for ln in log.read().decode(errors="replace").splitlines() if ln.strip()]
+    return re.sub(r"\x1b\[[0-9;]*m", "", lines[-1]).strip() if lines else "(no output)"
 
 
 def _owned(array: np.ndarray) -> np.ndarray:
@@ -262,6 +330,14 @@ class RerunLogger:
         text = f"{msg.task}: {msg.event}" + (f" ({msg.detail})" if msg.detail else "")
         self.rec.log("events/task", rr.TextLog(text))
 
+    def _log_PlacementTruth(self, topic: str, msg: PlacementTruth) -> None:
+        outcome = "placed" if msg.placed else "dropped"
+        text = (
+            f"world: {outcome} (gap {msg.gap_m * 1000:.1f} mm, pushed {msg.push_m * 1000:.1f} mm"
+            f" past contact, tilt {msg.tilt_deg:.1f} deg)"
+        )
+        self.rec.log("events/task", rr.TextLog(text))
+
     def _log_ClassProbabilities(self, topic: str, msg: ClassProbabilities) -> None:
         for name, p in zip(msg.classes, msg.probabilities.tolist(), strict=True):
             self.rec.log(f"classifier/{name}", rr.Scalars([p]))
@@ -271,4 +347,33 @@ class RerunLogger:
             self.rec.log(
                 "events/classifier",
                 rr.TextLog(f"{label} p={float(msg.probabilities[best]):.3f}"),
+            )
+
+    # -- force and slip ------------------------------------------------------------------------
+
+    def _log_WrenchEstimate(self, topic: str, msg: WrenchEstimate) -> None:
+        force = np.asarray(msg.object_force_n, dtype=np.float64)
+        for axis, value in zip("xyz", force.tolist(), strict=True):
+            self.rec.log(f"wrench/object_force_n/{axis}", rr.Scalars([value]))
+        for axis, value in zip("xyz", np.asarray(msg.object_torque_nm).tolist(), strict=True):
+            self.rec.log(f"wrench/object_torque_nm/{axis}", rr.Scalars([value]))
+        self.rec.log(
+            "tool/object_force",
+            rr.Arrows3D(
+                origins=[[0.0, 0.0, 0.0]], vectors=[force * FORCE_ARROW_M_PER_N], colors=[FORCE_RGB]
+            ),
+        )
+
+    def _log_BubbleContact(self, topic: str, msg: BubbleContact) -> None:
+        side = _sensor(msg.sensor, msg.header.frame_id)
+        self.rec.log(f"contact/{side}/area_m2", rr.Scalars([msg.area_m2]))
+        self.rec.log(f"contact/{side}/pressure_rise_pa", rr.Scalars([msg.pressure_rise_pa]))
+
+    def _log_SlipState(self, topic: str, msg: SlipState) -> None:
+        side = _sensor(msg.sensor, msg.header.frame_id)
+        self.rec.log(f"slip/{side}/use", rr.Scalars([msg.use]))
+        if msg.onset:
+            self.rec.log(
+                "events/slip",
+                rr.TextLog(f"{side} bubble slips ({msg.onset})", level=rr.TextLogLevel.WARN),
             )

@@ -71,7 +71,8 @@ def _ellipsoid_distance(points_f: np.ndarray, geometry: GripperGeometry) -> np.n
     scaled = centred / axes
     s = np.linalg.norm(scaled, axis=1)
     grad = centred / axes**2 / np.maximum(s, 1e-12)[:, None]
-    return (s - 1.0) / np.maximum(np.linalg.norm(grad, axis=1), 1e-12)
+    distance: np.ndarray = (s - 1.0) / np.maximum(np.linalg.norm(grad, axis=1), 1e-12)
+    return distance
 
 
 def _initial_axis(points_tool: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

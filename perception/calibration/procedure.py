@@ -101,7 +101,8 @@ def nanmean(stack: np.ndarray) -> np.ndarray:
     """The per-pixel mean over frames of the valid values (NaN where none is)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # a pixel NaN in every frame
-        return np.nanmean(stack, axis=0)
+        mean: np.ndarray = np.nanmean(stack, axis=0)
+        return mean
 
 
 def _subsample(points: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -133,27 +134,36 @@ def contact_points(
 
 
 def fresh_depths(
-    frames: queue.Queue[Any], count: int, *, timeout_secs: float = 10.0
-) -> list[np.ndarray]:
-    """``count`` depth images from a camera's frame queue, taken from now on: what was
-    queued is dropped, and so is the next frame (it may have been exposed before now)."""
-    after_nanos = _drain(frames)
-    out: list[np.ndarray] = []
-    skip = 1
+    cameras: Mapping[str, Any], count: int, *, timeout_secs: float = 10.0
+) -> dict[str, list[np.ndarray]]:
+    """``count`` depth images from each camera's frame queue (``camera.frames``), taken
+    from now on, from all cameras at once: what was queued is dropped, and so is each
+    camera's next frame (it may have been exposed before now)."""
+    after = {side: _drain(cam.frames) for side, cam in cameras.items()}
+    skip = dict.fromkeys(cameras, 1)
+    out: dict[str, list[np.ndarray]] = {side: [] for side in cameras}
     end = time.monotonic() + timeout_secs
-    while len(out) < count:
-        try:
-            frame = frames.get(timeout=max(0.0, end - time.monotonic()))
-        except queue.Empty as err:
-            raise TimeoutError(
-                f"calibration: {len(out)} of {count} frames in {timeout_secs} s"
-            ) from err
-        if frame.stamp_nanos <= after_nanos:
-            continue
-        if skip:
-            skip -= 1
-            continue
-        out.append(frame.depth_m)
+    while any(len(d) < count for d in out.values()):
+        if time.monotonic() > end:
+            got = ", ".join(f"{side} {len(d)}" for side, d in out.items())
+            raise TimeoutError(f"calibration: {got} of {count} frames in {timeout_secs} s")
+        waiting = False
+        for side, cam in cameras.items():
+            if len(out[side]) >= count:
+                continue
+            try:
+                frame = cam.frames.get_nowait()
+            except queue.Empty:
+                waiting = True
+                continue
+            if frame.stamp_nanos <= after[side]:
+                continue
+            if skip[side]:
+                skip[side] -= 1
+                continue
+            out[side].append(frame.depth_m)
+        if waiting:
+            time.sleep(0.005)
     return out
 
 
@@ -190,7 +200,7 @@ def calibrate(
     time.sleep(0.3)
     pressure: dict[str, PressureCalibration] = {}
     for side in SIDES:
-        readings = []
+        readings: list[float] = []
         while len(readings) < plan.zero_readings:
             reading = sensors[side].read()
             if reading.status == 0:
@@ -209,9 +219,10 @@ def calibrate(
     free_depth: dict[str, np.ndarray] = {}
     stats: dict[str, dict[str, float]] = {}
     lenses: dict[str, PinholeCamera] = {}
+    free_frames = fresh_depths(cameras, plan.free_frames, timeout_secs=60.0)
     for side in SIDES:
         cam = cameras[side]
-        depths = fresh_depths(cam.frames, plan.free_frames, timeout_secs=60.0)
+        depths = free_frames[side]
         free_depth[side], stats[side] = reference_stats(depths)
         k = cam.intrinsics
         h, w = depths[0].shape
@@ -242,10 +253,10 @@ def calibrate(
         time.sleep(0.2)
         width = gripper.opening_m()
         points = {}
+        seen = fresh_depths(cameras, plan.grasp_frames, timeout_secs=30.0)
         for side in SIDES:
-            depths = fresh_depths(cameras[side].frames, plan.grasp_frames, timeout_secs=30.0)
             points[side] = contact_points(
-                nanmean(np.stack(depths)),
+                nanmean(np.stack(seen[side])),
                 free_depth[side],
                 lenses[side],
                 min_indent_m=plan.min_indent_m,

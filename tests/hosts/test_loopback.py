@@ -14,7 +14,7 @@ import yaml
 
 from runtime.bag import BagReader
 from runtime.bag.diff import diff_bags
-from tests.hosts.conftest import SYNTHETIC, Launched, write_graph
+from tests.hosts.conftest import SYNTHETIC, Launched, end_count, write_graph
 
 GRAPH = {
     "hosts": {
@@ -62,11 +62,6 @@ def run_on_hosts(
         for item in started:
             item.kill()
     return started
-
-
-def end_count(text: str, topic: str) -> int:
-    row = next(line for line in text.splitlines() if line.startswith(f"[launch] {topic} "))
-    return int(next(t for t in row.split()[2:] if t.isdigit()))
 
 
 def values(path: Path, topic: str) -> list[float]:

@@ -3,6 +3,7 @@ graph's own end-of-run table."""
 
 from __future__ import annotations
 
+import os
 import re
 import time
 from pathlib import Path
@@ -38,7 +39,7 @@ def echoed_seqs(out: str) -> list[int]:
 
 
 def table_rate(log: str, topic: str) -> float:
-    match = re.search(rf"\[launch\] {re.escape(topic)} -> \S+\s+(\d+)\s+([\d.]+)", log)
+    match = re.search(rf"\[launch\] {re.escape(topic)}(?: -> \S+)?\s+(\d+)\s+([\d.]+)", log)
     assert match, log
     return float(match.group(2))
 
@@ -52,7 +53,7 @@ def test_topic_tools_against_a_running_graph(
             "src": {"impl": "synthetic.source", "params": {"rate_hz": RATE_HZ, "count": COUNT}},
             "sink": sink(out, "src/tick"),
         },
-        name="ticks.yaml",
+        name=f"ticks_{os.getpid()}.yaml",  # a name no other run on this machine has
     )
     proc = graph_run.start(graph)
     try:
@@ -66,7 +67,8 @@ def test_topic_tools_against_a_running_graph(
         assert cells[1] == "Tick" and row.endswith("src -> sink.tick")
         listed_rate = float(cells[2])
 
-        assert launch.main(["topic", "nodes", "--run", "ticks"]) == 0  # by the graph's name
+        by_name = ["topic", "nodes", "--run", f"ticks_{os.getpid()}"]  # the graph's name
+        assert launch.main(by_name) == 0
         nodes = capsys.readouterr().out
         assert re.search(r"^src\s+running\s+0\s", nodes, re.M), nodes
         assert re.search(r"^sink\s+running\s+0\s", nodes, re.M), nodes

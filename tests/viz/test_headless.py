@@ -151,3 +151,24 @@ def test_a_flush_into_a_gone_viewer_ends_on_a_signal(signum: int) -> None:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+@pytest.mark.skipif(
+    sys.platform != "linux" or Path("/tmp/.X11-unix/X99").exists(),
+    reason="needs Linux and no X server on display :99",
+)
+def test_bag_view_whose_viewer_cannot_open_says_so_and_exits(tmp_path: Path) -> None:
+    """A display that is named but cannot be opened: the viewer exits, and bag view says
+    so with the viewer's own last line instead of waiting for it for good."""
+    bag = small_bag(tmp_path / "run.mcap")
+    env = dict(headless_env(), DISPLAY=":99")
+    proc = subprocess.run(
+        [sys.executable, "launch.py", "bag", "view", str(bag)],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "the Rerun viewer exited (code" in proc.stderr

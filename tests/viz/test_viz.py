@@ -54,6 +54,9 @@ ENTITY_OF = {
     "ShearEstimate": "/tool/left_sensor/shear",
     "OverlayImage": "/overlay/left",
     "TaskEvent": "/events/task",
+    "WrenchEstimate": "/wrench/object_force_n/z",
+    "BubbleContact": "/contact/left/area_m2",
+    "SlipState": "/slip/left/use",
 }
 NOT_DRAWN = {"WorldState", "GripperCommand"}
 
