@@ -5,6 +5,7 @@ that does not depend on how many processes made it."""
 
 from __future__ import annotations
 
+import functools
 import json
 import subprocess
 import sys
@@ -17,16 +18,13 @@ from perception.classify.dataset import DatasetError, load_samples, merge_datase
 from perception.classify.preprocess import InputSpec
 from perception.classify.synthetic import write_toy_dataset
 from runtime.bag.diff import diff_bags
+from tests.launching import launch_py
 
 ROOT = Path(__file__).resolve().parents[2]
-LAUNCH = [sys.executable, str(ROOT / "launch.py")]
 SWAP = ["--swap", "pose=pose_estimator.lm", "--lockstep"]
 
 
-def _run(*args: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [*LAUNCH, *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout
-    )
+_run = functools.partial(launch_py, timeout=600)
 
 
 @pytest.fixture(scope="module")

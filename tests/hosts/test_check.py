@@ -3,9 +3,8 @@ needed: nothing here binds a namespace's address)."""
 
 from __future__ import annotations
 
+import functools
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -16,18 +15,10 @@ from messages.errors import GraphError
 from runtime.graph import check
 from runtime.hosts import without_hosts
 from runtime.security import load_key, make_key
-from tests.hosts.conftest import ROOT, two_host_graph, write_graph
+from tests.hosts.conftest import two_host_graph, write_graph
+from tests.launching import launch_py
 
-
-def launch(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "launch.py", *map(str, args)],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env=dict(os.environ, PYTHONPATH=str(ROOT)),
-    )
+launch = functools.partial(launch_py, timeout=120)
 
 
 def errors_of(doc: dict) -> str:

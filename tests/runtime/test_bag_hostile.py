@@ -4,9 +4,9 @@ the bag it reads."""
 
 from __future__ import annotations
 
+import functools
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -17,22 +17,14 @@ from messages.base import Header
 from messages.errors import BagError
 from messages.types import Pressure, Tick, ToFImage
 from runtime.bag import BagReader, BagWriter, TopicSchema
+from tests.launching import launch_py
 from tests.runtime.bad_bags import MS, bag_with_undecodable
 from tests.synthetic_nodes import IMPLS
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def launch(*args: str | Path, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run(
-        [sys.executable, str(ROOT / "launch.py"), *map(str, args)],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
+launch = functools.partial(launch_py, timeout=120)
 
 
 def no_traceback(result: subprocess.CompletedProcess[str]) -> None:

@@ -21,10 +21,8 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import logging
-import os
-import subprocess
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -39,20 +37,12 @@ from runtime.bag.diff import diff_bags
 from runtime.graph import check
 from runtime.registry import known, resolve
 from runtime.replaygraph import ReplayOptions, build_replay_graph
+from tests import launching
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def launch_py(*args: str | Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run(
-        [sys.executable, str(ROOT / "launch.py"), *map(str, args)],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
+launch_py = functools.partial(launching.launch_py, timeout=300)
 
 
 def replay_twice(bag: Path, out: Path, *swaps: str) -> tuple[Path, Path]:
