@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import glob
 import json
+import logging
 import os
 import shutil
 import sys
@@ -82,12 +83,12 @@ def run_tasks(
             "batch: Ray is not installed (pip install 'ray==2.60.0'), or use --no-ray"
         ) from None
     if address:
-        ray.init(address=address, logging_level="WARNING", log_to_driver=False)
+        ray.init(address=address, logging_level=logging.WARNING, log_to_driver=False)
     else:
         ray.init(
             num_cpus=workers or os.cpu_count() or 1,
             include_dashboard=False,
-            logging_level="WARNING",
+            logging_level=logging.WARNING,
             log_to_driver=False,
             # Rows are small; the recordings move as files, never through the store.
             object_store_memory=80 * 1024 * 1024,
