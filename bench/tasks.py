@@ -15,9 +15,9 @@ run's seed (the seeds are in the table):
   and the latency from a camera frame to its pose estimate (median, p99).
 * ``handover``: ``graph.yaml`` on a scene whose pull starts at a random time, and the
   same scene held still. Success: released after the pull started, within 1 s. The
-  supervisor releases on the pull it sees in the bubbles' force (``wrench``);
-  ``handover_shear`` runs the same scenes with the paper's shear rule
-  (``supervisor.release_on=shear``), side by side.
+  graph's supervisor releases by the paper's shear rule; ``handover_force`` runs the
+  same scenes releasing on the pull the bubbles' force shows
+  (``supervisor.release_on=force``, ``docs/force.md``), side by side.
   Release latency (pull start to the release command's frame), false-release rate
   (releases during the still hold), camera frame to shear estimate latency.
 * ``stacking``: ``graphs/stacking.yaml`` lowering a mug or a square bottle onto a
@@ -54,8 +54,8 @@ import yaml
 from bench.common import Row, main, median, percentile, progress
 
 ROOT = Path(__file__).resolve().parents[1]
-TASKS = ("dish_loading", "antagonism", "handover", "handover_shear", "stacking")
-RUNS = {"dish_loading": 2, "antagonism": 2, "handover": 3, "handover_shear": 3, "stacking": 4}
+TASKS = ("dish_loading", "antagonism", "handover", "handover_force", "stacking")
+RUNS = {"dish_loading": 2, "antagonism": 2, "handover": 3, "handover_force": 3, "stacking": 4}
 TOPICS = (
     "^(supervisor/event|world/state|world/ground_truth|world/placement|pose/pose|shear/shear"
     "|classifier/probabilities)$"
@@ -257,17 +257,17 @@ def stacking(seed: int, tmp: Path) -> list[dict[str, Any]]:
         "graphs/stacking.yaml", tmp / "stack.mcap", "--set", f"world.scene={scene}"
     )
     placement = topics.get("world/placement", [])
-    truth = json.loads(placement[0][2].detail) if placement else {}
-    touched = truth.get("touch_secs") is not None
+    truth = placement[0][2] if placement else None
+    touched = truth is not None and truth.touch_secs is not None
     return [
         {
-            "success": code == 0 and bool(placement) and placement[0][2].event == "placed",
-            "release_latency_ms": [(truth["t_secs"] - truth["touch_secs"]) * 1000]
-            if touched
+            "success": code == 0 and truth is not None and truth.placed,
+            "release_latency_ms": [(truth.t_secs - truth.touch_secs) * 1000]
+            if truth is not None and truth.touch_secs is not None
             else [],
-            "push_mm": [truth["push_mm"]] if truth else [],
-            "gap_mm": [truth["gap_mm"]] if truth else [],
-            "tilt_deg": [truth["tilt_deg"]] if truth else [],
+            "push_mm": [truth.push_m * 1000] if truth else [],
+            "gap_mm": [truth.gap_m * 1000] if truth else [],
+            "tilt_deg": [truth.tilt_deg] if truth else [],
             "false_release": bool(placement) and not touched,
             "shear_latency_ms": latencies_ms(topics, "shear/shear"),
             "wall_secs": wall,
@@ -279,7 +279,7 @@ RUNNERS = {
     "dish_loading": dish_loading,
     "antagonism": antagonism,
     "handover": handover,
-    "handover_shear": lambda seed, tmp: handover(seed, tmp, "--set", "supervisor.release_on=shear"),
+    "handover_force": lambda seed, tmp: handover(seed, tmp, "--set", "supervisor.release_on=force"),
     "stacking": stacking,
 }
 

@@ -13,6 +13,7 @@ python launch.py replay BAG [--swap NODE[=IMPL] ...] [...]
 python launch.py topic list|echo|hz|nodes ...  look into a running graph (docs/runtime.md)
 python launch.py keys make HOST | list [--keys DIR]   CURVE keys of hosts (docs/hosts.md)
 python launch.py calibrate --out rigs/NAME.yaml [...]   calibrate a rig (docs/devices.md)
+python launch.py batch replay|autolabel ...  many bags or worlds as tasks on Ray (docs/batch.md)
 
 ``run`` is the default command: ``launch.py GRAPH ...`` is ``launch.py run GRAPH ...``.
 The tree is declared here, whole; each command's work is its module's ``main(args)``
@@ -59,7 +60,7 @@ def parser() -> tuple[argparse.ArgumentParser, list[str]]:
         epilog="`python launch.py GRAPH ...` runs a graph (`run` is the default command).",
     )
     commands = top.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for add in (_run, _nodes, _graph, _bag, _replay, _topic, _keys, _calibrate):
+    for add in (_run, _nodes, _graph, _bag, _replay, _topic, _keys, _calibrate, _batch):
         add(commands)
     return top, list(commands.choices)
 
@@ -286,6 +287,12 @@ def _topic(commands: Commands) -> None:
     )
     made["hz"].add_argument("--secs", type=positive_secs, default=None, help="stop after SECS")
     made["hz"].add_argument("--window", type=int, default=1000, help="periods in the window")
+
+
+def _batch(commands: Commands) -> None:
+    from cli.batch import add_parser
+
+    add_parser(commands)
 
 
 def _keys(commands: Commands) -> None:

@@ -53,11 +53,11 @@ def add_deprecated(
     )
 
 
-def add_run_options(parser: argparse.ArgumentParser, *, swap_help: str, swap_metavar: str) -> None:
-    """``--set``, ``--swap``, ``--record``, ``--record-topics``, ``--overwrite``, ``--lockstep``,
-    ``--duration``, ``--log-level``, ``--host`` and ``--keys``, as ``launch.py GRAPH`` and
-    ``launch.py replay`` take them.
-    """
+def add_graph_changes(
+    parser: argparse.ArgumentParser, *, swap_help: str, swap_metavar: str
+) -> None:
+    """``--set NODE.PARAM=VALUE`` and ``--swap``: the changes to a graph every command that
+    runs one takes (run, replay, batch)."""
     parser.add_argument(
         "--set",
         dest="sets",
@@ -69,6 +69,14 @@ def add_run_options(parser: argparse.ArgumentParser, *, swap_help: str, swap_met
     parser.add_argument(
         "--swap", dest="swaps", action="append", default=[], metavar=swap_metavar, help=swap_help
     )
+
+
+def add_run_options(parser: argparse.ArgumentParser, *, swap_help: str, swap_metavar: str) -> None:
+    """``--set``, ``--swap``, ``--record``, ``--record-topics``, ``--overwrite``, ``--lockstep``,
+    ``--duration``, ``--log-level``, ``--host`` and ``--keys``, as ``launch.py GRAPH`` and
+    ``launch.py replay`` take them.
+    """
+    add_graph_changes(parser, swap_help=swap_help, swap_metavar=swap_metavar)
     parser.add_argument("--record", type=Path, default=None, metavar="OUT.mcap")
     parser.add_argument(
         "--record-topics",

@@ -5,6 +5,8 @@
 * :mod:`devices.mcp2221` and :mod:`devices.abp`: a Honeywell ABP pressure sensor
   read over I2C through a Microchip MCP2221A USB bridge, with pyusb.
 * :mod:`devices.royale`: frames of a PMD pico flexx (royale SDK) as ``ToFImage``.
+* :mod:`devices.base`: ``Device``, the lifecycle the clients share (``connect``,
+  ``disconnect``, ``is_connected``, a ``with`` block).
 
 Nodes wrap these; tests drive them against emulators (``sim.wsg50_server``, an
 emulated pyusb backend, a stand-in for the royale SDK). docs/devices.md has the facts.

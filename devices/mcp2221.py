@@ -30,6 +30,7 @@ from typing import Any
 import usb.core
 import usb.util
 
+from devices.base import Device
 from messages.errors import DeviceError
 
 VENDOR_ID = 0x04D8
@@ -132,7 +133,7 @@ def find_bridges(backend: Any = None) -> dict[str, Any]:
     return found
 
 
-class MCP2221:
+class MCP2221(Device):
     """One bridge, chosen by serial number; :meth:`connect` claims its HID interface."""
 
     def __init__(self, serial: str = "", *, backend: Any = None, timeout_ms: int = 100) -> None:
@@ -199,13 +200,6 @@ class MCP2221:
         except usb.core.USBError:
             pass  # unplugged: nothing left to release
         usb.util.dispose_resources(dev)
-
-    def __enter__(self) -> MCP2221:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.disconnect()
 
     def exchange(self, report: bytes) -> bytes:
         """Send one report (padded to 64 bytes), return the bridge's 64-byte answer."""

@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from devices.base import Device
 from messages.errors import DeviceError
 
 ROYPY_HINT = (
@@ -92,7 +93,7 @@ class Frame:
     stamp_nanos: int
 
 
-class RoyaleCamera:
+class RoyaleCamera(Device):
     """One camera: opened by id with a use case; frames arrive on :attr:`frames`."""
 
     def __init__(

@@ -25,6 +25,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 
+from devices.base import Device
 from devices.wsg50 import (
     ACK_PAYLOAD,
     DEFAULT_PORT,
@@ -89,7 +90,7 @@ class Motion:
         return self.client._checked(self._waiter)
 
 
-class WSG50Client:
+class WSG50Client(Device):
     """Talks to one WSG 50 (or its emulator); see the module docstring."""
 
     def __init__(
@@ -163,13 +164,6 @@ class WSG50Client:
             self._reader.join(timeout=2.0)
             self._reader = None
         self._drop("disconnected by the client")
-
-    def __enter__(self) -> WSG50Client:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.disconnect()
 
     # -- commands --------------------------------------------------------------------
 

@@ -3,8 +3,10 @@
 A bag stores, beside each type's messages, the description of the type as it was
 declared when they were recorded (:func:`messages.base.describe`). When that declaration
 is not today's (another fingerprint), a stored message still decodes into today's class
-if every difference is a field today's class added *with a default*: the default is
-filled in. Anything else is refused with a :class:`SchemaChangeError` naming the type and
+if every difference is a field today's class added *with a default* (the default is
+filled in), or a ``str`` field today's class narrowed to a ``Literal`` of strings (each
+stored value is checked as it decodes: one outside today's choices is refused, naming
+the field and the choices). Anything else is refused with a :class:`SchemaChangeError` naming the type and
 the field:
 
 - a stored field today's type no longer has (removed or renamed since);
@@ -92,7 +94,7 @@ def _struct_difference(
                 )
             continue
         now, then = describe_type(hints[name]), stored[name]
-        if now == then:
+        if now == then or _narrowed_str(then, now):
             continue
         hint = hints[name]
         nested = isinstance(hint, type) and issubclass(hint, msgspec.Struct)
@@ -103,6 +105,16 @@ def _struct_difference(
             continue
         return f"{where}: stored as {_spelled(then)}, today {_spelled(now)}"
     return None
+
+
+def _narrowed_str(then: Any, now: Any) -> bool:
+    """Whether a field stored as ``str`` is today a ``Literal`` of strings (see above)."""
+    return (
+        then == "str"
+        and isinstance(now, dict)
+        and now.get("generic") == "Literal"
+        and all(isinstance(a, str) and a[:1] == a[-1:] == "'" for a in now.get("args", []))
+    )
 
 
 def _spelled(description: Any) -> str:

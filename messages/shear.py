@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from messages.base import Header, Message
 
 
@@ -13,4 +15,4 @@ class ShearReset(Message):
     """
 
     header: Header
-    sensor: str = ""
+    sensor: Literal["", "left", "right"] = ""

@@ -7,12 +7,13 @@ two are ``[left, right]``. A hardware graph has no world and no ``WorldState``.
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, ClassVar
 
 import msgspec
 import numpy as np
 
 from messages.base import Array, Header, Message
+from messages.types import GripperStatus
 
 _Pose = Annotated[np.ndarray, Array("float64", (4, 4))]
 _Vec2 = Annotated[np.ndarray, Array("float64", (2,))]
@@ -54,7 +55,7 @@ class WorldState(Message):
     width_m: float
     speed_m_per_s: float = 0.0
     force_n: float = 0.0
-    gripper_state: str = "idle"
+    gripper_state: GripperStatus = "idle"
     in_contact: list[bool] = msgspec.field(default_factory=lambda: [False, False])
     pressure_pa: list[float] = msgspec.field(default_factory=lambda: [0.0, 0.0])
     has_anchor: list[bool] = msgspec.field(default_factory=lambda: [False, False])
@@ -65,3 +66,25 @@ class WorldState(Message):
     membrane_spacing_m: float = 0.0
     membrane_left_m: _Points = msgspec.field(default_factory=_no_points)
     membrane_right_m: _Points = msgspec.field(default_factory=_no_points)
+
+
+class PlacementTruth(Message):
+    """How a set-down object came to rest when the jaws opened over a scene's support (the
+    stacking task's truth, for scoring; ``sim.support``): once per run.
+
+    ``placed`` (resting on the support) or dropped; ``t_secs`` when the jaws were told to
+    open and ``touch_secs`` when the object first touched the support (None: never), both
+    scene time; ``gap_m`` how far it fell onto the support (0: set down touching),
+    ``push_m`` how far the arm had lowered past contact (it slid in the hand), ``tilt_deg``
+    its axis against the vertical.
+    """
+
+    header: Header
+    placed: bool
+    t_secs: float
+    touch_secs: float | None
+    gap_m: float
+    push_m: float
+    tilt_deg: float
+
+    finite_fields: ClassVar[tuple[str, ...]] = ("t_secs", "gap_m", "push_m", "tilt_deg")

@@ -15,6 +15,17 @@ import numpy as np
 
 from messages.base import Array, Header, Message
 
+Side = Literal["left", "right"]
+"""``sensor`` of a bubble's camera or pressure sensor: which bubble."""
+
+GripperStatus = Literal["idle", "moving", "holding", "fault"]
+"""``GripperState.state``: at rest, fingers moving, holding a part (grasp force reached), or
+a fault the gripper reports."""
+
+GripperAction = Literal["move", "grasp", "release", "stop", "home"]
+"""``GripperCommand.command``: move to ``width_m``, grasp (close to ``width_m`` with
+``force_n``), release (open), stop where it is, home (find its limits)."""
+
 GraspEvent = Literal["", "stable", "released"]
 """``GraspState.event``: ``""`` (no change), ``"stable"`` (a stable grasp began),
 ``"released"`` (it ended)."""
@@ -50,7 +61,7 @@ class ToFImage(Message):
     """
 
     header: Header
-    sensor: str
+    sensor: Side
     depth_m: F32Image
     ir: U16Image
     fx_px: float
@@ -67,7 +78,7 @@ class Pressure(Message):
     """A bubble's internal pressure, gauge (over ambient)."""
 
     header: Header
-    sensor: str
+    sensor: Side
     pressure_pa: float
 
     finite_fields: ClassVar[tuple[str, ...]] = ("pressure_pa",)
@@ -80,7 +91,7 @@ class GripperState(Message):
     width_m: float
     speed_m_per_s: float
     force_n: float
-    state: str = "idle"  # idle | moving | holding | fault
+    state: GripperStatus = "idle"
 
     finite_fields: ClassVar[tuple[str, ...]] = ("width_m", "speed_m_per_s", "force_n")
 
@@ -89,7 +100,7 @@ class GripperCommand(Message):
     """A command to the gripper: ``move``, ``grasp``, ``release``, ``stop`` or ``home``."""
 
     header: Header
-    command: str
+    command: GripperAction
     width_m: float = 0.0
     speed_m_per_s: float = 0.05
     force_n: float = 20.0
@@ -118,7 +129,7 @@ class MaskImage(Message):
     """A per-pixel mask of one sensor (255 = selected)."""
 
     header: Header
-    sensor: str
+    sensor: Side
     mask: U8Image
 
 
@@ -157,7 +168,7 @@ class ShearEstimate(Message):
     """
 
     header: Header
-    sensor: str
+    sensor: Side
     shear_px: Annotated[np.ndarray, Array("float64", (2,))]
     magnitude_px: float
     direction: Annotated[np.ndarray, Array("float64", (2,))]
@@ -171,7 +182,7 @@ class OverlayImage(Message):
     """An 8-bit BGR image for the viewer (e.g. IR with the flow field drawn on it)."""
 
     header: Header
-    sensor: str
+    sensor: Side
     image: Annotated[np.ndarray, Array("uint8", (None, None, 3))]
 
 

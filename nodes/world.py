@@ -11,11 +11,11 @@ Ports:
     outputs: ``state`` (messages.sim.WorldState): one per scene frame, at the cameras'
         frame rate; the sensor nodes render from it and stamp their messages with its
         stamp. ``ground_truth`` (GroundTruth): the true pose, contact and shear, when
-        the scene lists ``ground_truth``. ``placement`` (TaskEvent, task ``world``, event
-        ``placed`` or ``dropped``, detail JSON: ``t_secs``, ``touch_secs``, ``gap_mm``,
-        ``push_mm``, ``tilt_deg``): once, when the jaws open over a scene's ``support``
-        (``sim.support``): the stacking task's truth. ``wrench`` (WrenchTruth, source
-        ``sim``): each bubble's true contact wrench, when the scene lists ``wrench``.
+        the scene lists ``ground_truth``. ``placement`` (messages.sim.PlacementTruth: placed
+        or dropped, the gap it fell, how far the arm pushed past contact, its tilt):
+        once, when the jaws open over a scene's ``support`` (``sim.support``): the
+        stacking task's truth. ``wrench`` (WrenchTruth, source ``sim``): each bubble's
+        true contact wrench, when the scene lists ``wrench``.
 
 With ``rig_feed`` (a ZeroMQ endpoint) the world also publishes each state there for the
 emulated devices of an emulated rig (``sim.emulated_rig``: the camera and pressure
@@ -41,7 +41,6 @@ later. Scenes with a ``support`` are refused when the graph is checked.
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import threading
 from dataclasses import dataclass
@@ -53,8 +52,8 @@ from messages.base import Header
 from messages.codec import encode
 from messages.errors import NodeError
 from messages.force import WrenchTruth
-from messages.sim import WorldState
-from messages.types import GripperCommand, GroundTruth, TaskEvent
+from messages.sim import PlacementTruth, WorldState
+from messages.types import GripperCommand, GroundTruth
 from runtime.node import Node
 from runtime.params import ExistingFile
 from runtime.registry import register
@@ -119,7 +118,7 @@ class WorldNode(Node):
     outputs = {
         "state": WorldState,
         "ground_truth": GroundTruth,
-        "placement": TaskEvent,
+        "placement": PlacementTruth,
         "wrench": WrenchTruth,
     }
 
@@ -259,20 +258,16 @@ class WorldNode(Node):
         if placement is None or self.placement_sent:
             return
         self.placement_sent = True
-        detail = {
-            "t_secs": round(placement.t_secs, 4),
-            "touch_secs": None if placement.touch_secs is None else round(placement.touch_secs, 4),
-            "gap_mm": round(placement.gap_m * 1000, 3),
-            "push_mm": round(placement.push_m * 1000, 3),
-            "tilt_deg": round(placement.tilt_deg, 3),
-        }
         self.io.publish(
             "placement",
-            TaskEvent(
+            PlacementTruth(
                 header=Header(stamp_nanos=stamp, frame_id="tool"),
-                task="world",
-                event="placed" if placement.placed else "dropped",
-                detail=json.dumps(detail, sort_keys=True),
+                placed=placement.placed,
+                t_secs=placement.t_secs,
+                touch_secs=placement.touch_secs,
+                gap_m=placement.gap_m,
+                push_m=placement.push_m,
+                tilt_deg=placement.tilt_deg,
             ),
         )
 

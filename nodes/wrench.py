@@ -7,9 +7,10 @@ Ports:
     outputs: ``wrench`` (messages.force.WrenchEstimate: per bubble and on the object,
         tool frame, N and N m, with one-sigma uncertainties), once per pair of frames
         of one instant (stamps within ``max_skew_secs``: a frame waits for its partner
-        among the other bubble's last few; a frame whose partner was dropped makes
-        none), or per frame with one bubble (from its third frame with none of the
-        other's);
+        among the other bubble's last few; when none came for ``max_wait_secs``, the
+        other bubble's frame was dropped and a frame pairs with its newest result, up
+        to ``max_stale_secs`` old), or per frame with one bubble (from its third frame
+        with none of the other's);
         ``contact`` (messages.force.BubbleContact: what each bubble measured, for the
         ``slip`` node), one per frame.
 
@@ -59,6 +60,9 @@ class WrenchParams:
         reference_min_width_m: the gripper counts as open from this opening on ...
         reference_max_speed_m_per_s: ... and as still below this finger speed.
         max_skew_secs: the most two bubbles' frames may differ to make one estimate.
+        max_wait_secs: with no estimate for longer than this (data time), a frame is
+            paired with the other bubble's newest result (its partner was dropped) ...
+        max_stale_secs: ... when that result is at most this much older.
     """
 
     method: Literal["physics", "ridge"] = "physics"
@@ -67,6 +71,8 @@ class WrenchParams:
     reference_min_width_m: float = 0.1
     reference_max_speed_m_per_s: float = 0.001
     max_skew_secs: float = 0.011
+    max_wait_secs: float = 0.05
+    max_stale_secs: float = 0.1
 
     def __post_init__(self) -> None:
         if not self.reference_min_width_m >= 0:
@@ -78,8 +84,9 @@ class WrenchParams:
                 "`reference_max_speed_m_per_s` must be >= 0, got "
                 f"{self.reference_max_speed_m_per_s!r}"
             )
-        if not self.max_skew_secs >= 0:
-            raise ValueError(f"`max_skew_secs` must be >= 0, got {self.max_skew_secs!r}")
+        for name in ("max_skew_secs", "max_wait_secs", "max_stale_secs"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"`{name}` must be >= 0, got {getattr(self, name)!r}")
 
 
 @register("wrench")
@@ -112,6 +119,7 @@ class WrenchNode(Node):
             s: deque(maxlen=PAIR_HISTORY) for s in SIDES
         }
         self.frames = dict.fromkeys(SIDES, 0)
+        self.published_nanos = 0
         self.warned: set[str] = set()
 
     def on_left_pressure(self, msg: Pressure) -> None:
@@ -180,8 +188,22 @@ class WrenchNode(Node):
             self.io.publish(
                 "wrench", self._estimate(stamp, {side: self.latest[side], other: partner})
             )
+            self.published_nanos = stamp
         elif self.frames[other] == 0 and self.frames[side] >= SINGLE_AFTER_FRAMES:
             self.io.publish("wrench", self._estimate(stamp, {side: self.latest[side]}))
+            self.published_nanos = stamp
+        elif (
+            other in self.latest
+            and (stamp - self.published_nanos) / 1e9 > self.params.max_wait_secs
+            and 0 <= (stamp - self.latest[other][0]) / 1e9 <= self.params.max_stale_secs
+        ):
+            # The other bubble's frame of this instant was dropped (a loaded machine,
+            # ``latest`` inputs): pair with its newest result rather than go silent.
+            self.io.publish(
+                "wrench",
+                self._estimate(stamp, {side: self.latest[side], other: self.latest[other]}),
+            )
+            self.published_nanos = stamp
 
     def _estimate(
         self, stamp: int, pair: dict[str, tuple[int, ContactFeatures, BubbleWrench]]

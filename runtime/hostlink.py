@@ -45,6 +45,17 @@ from typing import Any
 import msgpack
 import zmq
 
+from messages.control import (
+    Control,
+    FromHost,
+    LinkBeat,
+    LinkCounts,
+    LinkFinal,
+    LinkHello,
+    LinkPing,
+    LinkPong,
+    LinkStop,
+)
 from runtime import protocol
 from runtime.counters import balanced
 from runtime.hosts import Hosts, HostSpec
@@ -172,14 +183,14 @@ class HostLink:
 
     def send_stop(self, reason: str, exit_code: int) -> None:
         """Tell every other host the graph stops (sent by the link's thread)."""
-        self._queue(self._pack("link_stop", reason=reason, exit_code=exit_code))
+        self._queue(self._pack(LinkStop, reason=reason, exit_code=exit_code))
 
     def send_counts(
         self, published: dict[str, int], received: dict[str, int], held: dict[str, int]
     ) -> None:
         """This host's nodes' newest counts (lockstep): published per topic, received and
         held per ``"node/port"``; each node's are one snapshot, taken after a handled batch."""
-        self._queue(self._pack("link_counts", published=published, received=received, held=held))
+        self._queue(self._pack(LinkCounts, published=published, received=received, held=held))
 
     def remote_counts(self) -> tuple[dict[str, int], dict[str, int], dict[str, int]]:
         """The other hosts' newest counts, merged (as :meth:`send_counts` takes them)."""
@@ -192,7 +203,7 @@ class HostLink:
 
     def send_final(self, published: dict[str, int]) -> None:
         """This host's nodes have stopped (but for listeners): all they published, per topic."""
-        self._queue(self._pack("link_final", published=published))
+        self._queue(self._pack(LinkFinal, published=published))
 
     def finals(self) -> dict[str, int] | None:
         """All the other hosts' nodes published, per topic, once every host that is not
@@ -224,12 +235,12 @@ class HostLink:
             peer.dealer.close()
 
     # -- the thread -------------------------------------------------------------------------
-    def _pack(self, kind: str, **body: Any) -> list[bytes]:
-        return protocol.pack(self.secret, kind, host=self.me, **body)
+    def _pack(self, kind: type[FromHost], **fields: Any) -> list[bytes]:
+        return protocol.pack(self.secret, kind(host=self.me, **fields))
 
     def _hello(self, reply: int) -> list[bytes]:
         return self._pack(
-            "link_hello",
+            LinkHello,
             run_secret=self.secret.hex(),
             reply=reply,
             graph=self.graph,
@@ -275,7 +286,7 @@ class HostLink:
             if now >= next_beat or self._beat_now.is_set():
                 self._beat_now.clear()
                 next_beat = now + protocol.HEARTBEAT_SECS
-                beat = self._pack("link_beat", ready=int(self._ready))
+                beat = self._pack(LinkBeat, ready=int(self._ready))
                 for peer in self.peers.values():
                     self._send(peer, beat)
             for peer in self.peers.values():
@@ -298,7 +309,7 @@ class HostLink:
             if peer.ping_t1 is None or now - peer.ping_sent_at > PING_TIMEOUT_SECS:
                 peer.ping_t1 = time.time_ns()
                 peer.ping_sent_at = now
-                self._send(peer, self._pack("link_ping", t1=peer.ping_t1))
+                self._send(peer, self._pack(LinkPing, t1=peer.ping_t1))
         if peer.last_seen and not peer.lost and now - peer.last_seen > self.timeout:
             peer.lost = True
             self._event(("lost", peer.spec.name, now - peer.last_seen))
@@ -350,19 +361,16 @@ class HostLink:
             return
         self._on_message(peer, msg, arrived_ns)
 
-    def _on_message(self, peer: _Peer, msg: dict[str, Any], arrived_ns: int) -> None:
+    def _on_message(self, peer: _Peer, msg: Control, arrived_ns: int) -> None:
         name = peer.spec.name
-        kind = msg["kind"]
-        if kind == "link_hello":
-            secret = bytes.fromhex(msg["run_secret"])
-            if msg["reply"]:  # also to another graph: then it learns so too, and stops
+        if isinstance(msg, LinkHello):
+            secret = bytes.fromhex(msg.run_secret)
+            if msg.reply:  # also to another graph: then it learns so too, and stops
                 self._say_hello(peer, 0)
-            if msg["graph"] != self.graph:  # its endpoints and nodes are not ours
+            if msg.graph != self.graph:  # its endpoints and nodes are not ours
                 if secret != peer.differs:
                     peer.differs = secret
-                    self._event(
-                        ("graph_differs", name, msg["graph"], self.graph, msg["argv"], self.argv)
-                    )
+                    self._event(("graph_differs", name, msg.graph, self.graph, msg.argv, self.argv))
                 return
             if secret != peer.secret:
                 first = peer.secret is None and not peer.last_seen
@@ -376,31 +384,29 @@ class HostLink:
                     self._event(("joined", name))
                 elif not peer.lost:  # restarted within the timeout
                     self._event(("back", name, True))
-        elif kind == "link_ping":
-            self._send(
-                peer, self._pack("link_pong", t1=msg["t1"], t2=arrived_ns, t3=time.time_ns())
-            )
-        elif kind == "link_pong" and msg["t1"] == peer.ping_t1:
-            t1, t2, t3, t4 = msg["t1"], msg["t2"], msg["t3"], arrived_ns
+        elif isinstance(msg, LinkPing):
+            self._send(peer, self._pack(LinkPong, t1=msg.t1, t2=arrived_ns, t3=time.time_ns()))
+        elif isinstance(msg, LinkPong) and msg.t1 == peer.ping_t1:
+            t1, t2, t3, t4 = msg.t1, msg.t2, msg.t3, arrived_ns
             peer.ping_t1 = None
             peer.samples.append((((t2 - t1) + (t3 - t4)) / 2e9, ((t4 - t1) - (t3 - t2)) / 1e9))
             if len(peer.samples) == CLOCK_SAMPLES:
                 offset, rtt = min(peer.samples, key=lambda s: s[1])
                 self._event(("clock", name, offset, rtt))
-        elif kind == "link_beat":
-            peer.ready = bool(msg["ready"])
-        elif kind in ("link_counts", "link_final"):
-            if kind == "link_counts":
-                peer.counts = (msg["published"], msg["received"], msg["held"])
-            else:
-                peer.final = msg["published"]
+        elif isinstance(msg, LinkBeat):
+            peer.ready = bool(msg.ready)
+        elif isinstance(msg, LinkCounts):
+            peer.counts = (msg.published, msg.received, msg.held)
             _poke(self._note_w)
-        elif kind == "link_stop":
-            self._event(("stop", name, msg["reason"], msg["exit_code"]))
+        elif isinstance(msg, LinkFinal):
+            peer.final = msg.published
+            _poke(self._note_w)
+        elif isinstance(msg, LinkStop):
+            self._event(("stop", name, msg.reason, msg.exit_code))
         peer.last_seen = time.monotonic()
         if peer.lost:
             peer.lost = False
-            self._event(("back", name, kind == "link_hello"))
+            self._event(("back", name, isinstance(msg, LinkHello)))
 
 
 def _poke(fd: int) -> None:

@@ -31,6 +31,23 @@ from typing import IO, Any
 
 import zmq
 
+from messages.control import (
+    Busy,
+    Connect,
+    Control,
+    Counts,
+    Final,
+    FromNode,
+    Heartbeat,
+    Hello,
+    Idle,
+    Ready,
+    Release,
+    Start,
+    Stop,
+    StopRequest,
+    WaitIdle,
+)
 from runtime import child, nodeprocs, protocol, status
 from runtime.counters import balanced, delivered
 from runtime.graph import Graph, ipc_path
@@ -252,43 +269,42 @@ class Launcher:
         self.say(f"node {proc.spec.name!r} {why}; killed")
 
     # -- control messages --------------------------------------------------------
-    def _send(self, name: str, kind: str, **body: Any) -> None:
-        self.control.send(self.procs[name].rid, kind, **body)
+    def _send(self, name: str, msg: Control) -> None:
+        self.control.send(self.procs[name].rid, msg)
 
-    def _on_message(self, proc: Proc, rid: bytes, msg: dict[str, Any]) -> None:
+    def _on_message(self, proc: Proc, rid: bytes, msg: FromNode) -> None:
         name = proc.spec.name
-        kind = msg["kind"]
         proc.last_heartbeat = time.monotonic()
-        if kind == "hello":
+        if isinstance(msg, Hello):
             proc.rid = rid  # where this incarnation's main socket hears the launcher
-            proc.endpoint = msg["endpoint"]
+            proc.endpoint = msg.endpoint
             proc.state = "hello"
             if self.started_at:  # a restart: peers' endpoints are known
-                self._send(name, "connect", endpoints=self._endpoints())
-        elif kind == "ready":
+                self._send(name, Connect(endpoints=self._endpoints()))
+        elif isinstance(msg, Ready):
             proc.state = "ready"
             if self.started_at:
-                self._send(name, "start")
+                self._send(name, Start())
                 proc.state = "running"
                 if proc.restarts:
                     self.say(f"node {name!r} is back")
-        elif kind == "heartbeat":
-            proc.busy_secs = msg["busy_secs"]
-            proc.stats = msg["stats"]
+        elif isinstance(msg, Heartbeat):
+            proc.busy_secs = msg.busy_secs
+            proc.stats = msg.stats
             proc.stats_at = time.monotonic()
-        elif kind == "final":
-            proc.stats = msg["stats"]
-        elif kind == "counts":
-            proc.counts_published = msg["published"]
-            proc.counts_received = msg["received"]
-            proc.counts_held = msg["held"]
+        elif isinstance(msg, Final):
+            proc.stats = msg.stats
+        elif isinstance(msg, Counts):
+            proc.counts_published = msg.published
+            proc.counts_received = msg.received
+            proc.counts_held = msg.held
             proc.released = False
             self.counts_changed = True
-        elif kind == "wait_idle":
+        elif isinstance(msg, WaitIdle):
             self.idle_waiters.append(rid)
-        elif kind == "stop_request":
-            reason = msg.get("reason", "")
-            verdict = msg["exit_code"]
+        elif isinstance(msg, StopRequest):
+            reason = msg.reason
+            verdict = msg.exit_code
             if verdict:
                 self.verdict_code = self.verdict_code or verdict
                 self.say(f"node {name!r} reports failure (exit code {verdict}): {reason}")
@@ -321,16 +337,16 @@ class Launcher:
             for proc in self.procs.values():
                 if any(proc.counts_held.values()) and not proc.released:
                     proc.released = True  # once, until its next counts
-                    self.control.send(proc.rid, "release")
+                    self.control.send(proc.rid, Release())
         return arrived and not held
 
     def _serve(self, timeout_ms: int) -> None:
         # Wakes for a node's message or for the link's (an event, or another host's counts).
         self.poller.poll(timeout_ms)
         for rid, msg in self.control.receive(0):
-            proc = self.procs.get(msg["node"])
+            proc = self.procs.get(msg.node)
             if proc is None:
-                self.control.refuse(f"signed, but names no node of the graph: {msg['node']!r:.40}")
+                self.control.refuse(f"signed, but names no node of the graph: {msg.node!r:.40}")
             else:
                 self._on_message(proc, rid, msg)
         if self.link is not None:
@@ -348,7 +364,7 @@ class Launcher:
         idle = self.lockstep and self._graph_idle()  # also releases what fan-ins hold
         if self.idle_waiters and idle:
             for rid in self.idle_waiters:
-                self.control.send(rid, "idle")
+                self.control.send(rid, Idle())
             self.idle_waiters.clear()
         elif self.idle_waiters and time.monotonic() - self.busy_told_at > BUSY_EVERY_SECS:
             # Slow is not stuck: a waiter's timeout counts from the graph's last progress.
@@ -356,7 +372,7 @@ class Launcher:
                 self.received_told = self.received_total
                 self.busy_told_at = time.monotonic()
                 for rid in self.idle_waiters:
-                    self.control.send(rid, "busy")
+                    self.control.send(rid, Busy())
 
     # -- run ---------------------------------------------------------------------
     def _request_stop(self, reason: str, *, echo: bool = True) -> None:
@@ -396,7 +412,7 @@ class Launcher:
             if not connected and all(p.state in ("hello", "ready") for p in self.procs.values()):
                 endpoints = self._endpoints()
                 for name in self.procs:
-                    self._send(name, "connect", endpoints=endpoints)
+                    self._send(name, Connect(endpoints=endpoints))
                 connected = True
             ready = connected and all(p.state == "ready" for p in self.procs.values())
             if ready and self.link is not None:  # every host starts its nodes at once
@@ -407,7 +423,7 @@ class Launcher:
                 said, ready = waiting, not waiting
             if ready:
                 for name, proc in self.procs.items():
-                    self._send(name, "start")
+                    self._send(name, Start())
                     proc.state = "running"
                 return True
             if time.monotonic() > deadline:
@@ -490,7 +506,7 @@ class Launcher:
             SIGNAL_STOP_GRACE_SECS if hurry else STOP_GRACE_SECS,
             SIGNAL_TERM_GRACE_SECS if hurry else TERM_GRACE_SECS,
         )
-        stop(procs, graces, lambda p: self._send(p.spec.name, "stop"), self._step, self.say)
+        stop(procs, graces, lambda p: self._send(p.spec.name, Stop()), self._step, self.say)
         self._serve(0)
 
     def run(self) -> int:

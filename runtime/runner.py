@@ -64,6 +64,17 @@ from typing import Any
 import zmq
 
 from messages.codec import decode
+from messages.control import (
+    Connect,
+    Control,
+    Final,
+    Heartbeat,
+    Hello,
+    Ready,
+    Release,
+    Start,
+    Stop,
+)
 from messages.errors import FrameDecodeError, NodeError
 from runtime import protocol
 from runtime.node import Node
@@ -105,10 +116,10 @@ class Runner:
     # -- lifecycle -------------------------------------------------------------
     def run(self) -> int:
         io = self.io
-        io.tell("hello", endpoint=io.endpoint)
+        io.tell(Hello, endpoint=io.endpoint)
         self._hb_thread.start()
-        connect = self._wait_control("connect")
-        if connect is None:
+        connect = self._wait_control(Connect)
+        if not isinstance(connect, Connect):
             return self._finish(0)
         by_key: dict[str, Source] = {}
         for inp in self.spec["inputs"]:
@@ -120,7 +131,7 @@ class Runner:
                 sock = self.ctx.socket(zmq.SUB)
                 sock.setsockopt(zmq.RCVHWM, 0 if io.lockstep else inp["queue_size"])
                 sock.setsockopt(zmq.LINGER, 0)
-                endpoint = connect["endpoints"][inp["provider"]]
+                endpoint = connect.endpoints[inp["provider"]]
                 if io.keys is not None and needs_curve(endpoint):
                     connect_to(sock, io.keys, self.spec["curve"]["servers"][inp["provider"]])
                 sock.connect(endpoint)
@@ -139,8 +150,8 @@ class Runner:
         self.node.setup()
         self.set_up = True
         self.busy_since = 0.0
-        io.tell("ready")
-        if self._wait_control("start") is None:
+        io.tell(Ready)
+        if self._wait_control(Start) is None:
             return self._finish(0)
         self._loop()
         return self._finish(0)
@@ -151,7 +162,7 @@ class Runner:
             if self.set_up:
                 self.node.teardown()
         finally:
-            self.io.tell("final", stats=self.io.stats())
+            self.io.tell(Final, stats=self.io.stats())
             for source in self.sources:
                 source.socket.close(linger=0)
             self.io.pub.close(linger=1000)
@@ -162,7 +173,7 @@ class Runner:
             self.ctx.term()
         return code
 
-    def _wait_control(self, kind: str) -> dict[str, Any] | None:
+    def _wait_control(self, kind: type[Control]) -> Control | None:
         """Wait for one control message, serving subscriptions meanwhile; None on stop."""
         poller = zmq.Poller()
         poller.register(self.io.control, zmq.POLLIN)
@@ -173,9 +184,9 @@ class Runner:
                 self._drain_subscriptions()
             if self.io.control in events:
                 msg = self.io.hear()
-                if msg is not None and msg["kind"] == "stop":
+                if isinstance(msg, Stop):
                     return None
-                if msg is not None and msg["kind"] == kind:
+                if isinstance(msg, kind):
                     return msg
         return None
 
@@ -202,7 +213,7 @@ class Runner:
                 self._drain_subscriptions()
             if self.io.control in events:
                 msg = self.io.hear()
-                if msg is not None and msg["kind"] == "stop":
+                if isinstance(msg, Stop):
                     self.io.stop_requested = True
                     return
 
@@ -239,9 +250,9 @@ class Runner:
         released = False
         while self.io.control.poll(0):
             msg = self.io.hear()
-            if msg is not None and msg["kind"] == "stop":
+            if isinstance(msg, Stop):
                 self.io.stop_requested = True
-            released |= msg is not None and msg["kind"] == "release"
+            released |= isinstance(msg, Release)
         return released
 
     def _release(self) -> bool:
@@ -365,7 +376,7 @@ class Runner:
                     return
                 since = self.busy_since
                 busy = time.monotonic() - since if since and not self.io.waiting else 0.0
-                self.io.tell("heartbeat", sock, busy_secs=busy, stats=self.io.stats())
+                self.io.tell(Heartbeat, sock, busy_secs=busy, stats=self.io.stats())
         finally:
             sock.close()
 

@@ -19,6 +19,7 @@ import zmq
 
 from messages.base import Message
 from messages.codec import encode
+from messages.control import Busy, Control, Counts, FromNode, Idle, Stop, StopRequest, WaitIdle
 from runtime import protocol
 from runtime.counters import InputCounters
 from runtime.params import timer_period_nanos
@@ -177,14 +178,17 @@ class ZmqIO:
         return time.time_ns()
 
     def request_stop(self, reason: str, *, exit_code: int = 0) -> None:
-        self.tell("stop_request", reason=reason, exit_code=exit_code)
+        self.tell(StopRequest, reason=reason, exit_code=exit_code)
 
-    def tell(self, kind: str, sock: zmq.Socket[Any] | None = None, **body: Any) -> None:
-        """Send one signed control message to the launcher (on ``sock``, else the main one)."""
-        frames = protocol.pack(self.secret, kind, node=self.name, **body)
+    def tell(
+        self, kind: type[FromNode], sock: zmq.Socket[Any] | None = None, **fields: Any
+    ) -> None:
+        """Send one signed control message of ``kind``, from this node, to the launcher (on
+        ``sock``, else the main one)."""
+        frames = protocol.pack(self.secret, kind(node=self.name, **fields))
         (sock or self.control).send_multipart(frames)
 
-    def hear(self) -> dict[str, Any] | None:
+    def hear(self) -> Control | None:
         """The next control message from the launcher; None (logged) if it fails the checks."""
         frames = self.control.recv_multipart()
         try:
@@ -197,7 +201,7 @@ class ZmqIO:
         if not self.lockstep:
             return True
         self.send_counts()
-        self.tell("wait_idle")
+        self.tell(WaitIdle)
         self.waiting = True  # not busy in a handler: waiting for others (the heartbeat)
         try:
             deadline = time.monotonic() + timeout_secs
@@ -207,11 +211,11 @@ class ZmqIO:
                 msg = self.hear()
                 if msg is None:
                     continue
-                if msg["kind"] == "idle":
+                if isinstance(msg, Idle):
                     return True
-                if msg["kind"] == "busy":  # slow, not stuck: the timeout starts over
+                if isinstance(msg, Busy):  # slow, not stuck: the timeout starts over
                     deadline = time.monotonic() + timeout_secs
-                if msg["kind"] == "stop":
+                if isinstance(msg, Stop):
                     self.stop_requested = True
                     return False
             return False
@@ -244,7 +248,7 @@ class ZmqIO:
 
     def send_counts(self) -> None:
         self.tell(
-            "counts",
+            Counts,
             published=dict(self.published),
             received={i.port: i.counters.received for i in self.inputs},
             held=dict(Counter(inp.port for inp, _ in self.held)),

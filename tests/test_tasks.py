@@ -118,9 +118,8 @@ def test_stacking_releases_within_a_few_millimetres_of_contact(tmp_path: Path) -
     proc, topics = recorded(tmp_path, "graphs/stacking.yaml", "--set", "world.rate_scale=0.5")
     assert proc.returncode == 0, proc.stdout[-3000:]
     ((_, placement),) = topics["world/placement"]
-    truth = json.loads(placement.detail)
-    assert placement.event == "placed" and truth["gap_mm"] == 0.0, truth
-    assert truth["push_mm"] < 5.0, truth  # the arm went at most 5 mm past contact
+    assert placement.placed and placement.gap_m == 0.0, placement
+    assert placement.push_m < 0.005, placement  # the arm went at most 5 mm past contact
     (summary,) = [
         json.loads(e.detail) for _, e in topics["supervisor/event"] if e.event == "summary"
     ]

@@ -42,6 +42,7 @@ import rerun as rr
 
 from messages.base import Message
 from messages.force import BubbleContact, SlipState, WrenchEstimate
+from messages.sim import PlacementTruth
 from messages.types import (
     ClassProbabilities,
     ContactPatch,
@@ -327,6 +328,14 @@ class RerunLogger:
 
     def _log_TaskEvent(self, topic: str, msg: TaskEvent) -> None:
         text = f"{msg.task}: {msg.event}" + (f" ({msg.detail})" if msg.detail else "")
+        self.rec.log("events/task", rr.TextLog(text))
+
+    def _log_PlacementTruth(self, topic: str, msg: PlacementTruth) -> None:
+        outcome = "placed" if msg.placed else "dropped"
+        text = (
+            f"world: {outcome} (gap {msg.gap_m * 1000:.1f} mm, pushed {msg.push_m * 1000:.1f} mm"
+            f" past contact, tilt {msg.tilt_deg:.1f} deg)"
+        )
         self.rec.log("events/task", rr.TextLog(text))
 
     def _log_ClassProbabilities(self, topic: str, msg: ClassProbabilities) -> None:

@@ -15,7 +15,7 @@ unknown and the verdict 0.
 
 Ports:
     inputs: ``grasp`` (GraspState), ``shear`` (ShearEstimate), ``placement``
-        (TaskEvent from ``world.sim``, optional).
+        (messages.sim.PlacementTruth from ``world.sim``, optional).
     outputs: ``command`` (GripperCommand), ``event`` (TaskEvent, task ``stacking``).
 """
 
@@ -24,7 +24,8 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 
-from messages import GraspState, ShearEstimate, TaskEvent
+from messages import GraspState, ShearEstimate
+from messages.sim import PlacementTruth
 from nodes.supervisor.base import SingleGraspTask, TaskParams
 from nodes.supervisor.handover import ShearWatch, describe_shear
 from runtime.registry import register
@@ -54,14 +55,14 @@ class StackingSupervisor(SingleGraspTask):
     """Set the held object down where a touch shears the bubbles (module docstring)."""
 
     Params = StackingParams
-    inputs = {"grasp": GraspState, "shear": ShearEstimate, "placement": TaskEvent}
+    inputs = {"grasp": GraspState, "shear": ShearEstimate, "placement": PlacementTruth}
     optional_inputs = frozenset({"placement"})
     task = "stacking"
 
     def setup(self) -> None:
         super().setup()
         self.watch = ShearWatch(self.params.touch_shear_px, self.params.confirm_frames)
-        self.placement: TaskEvent | None = None
+        self.placement: PlacementTruth | None = None
         self.release_nanos = 0
         self.released_nanos: int | None = None
 
@@ -70,7 +71,7 @@ class StackingSupervisor(SingleGraspTask):
             self.release_nanos = self.now_nanos
             self.release(f"touch {describe_shear(msg)}")
 
-    def on_placement(self, msg: TaskEvent) -> None:
+    def on_placement(self, msg: PlacementTruth) -> None:
         self.placement = msg
         if self.released_nanos is not None:
             self._summary()
@@ -97,14 +98,20 @@ class StackingSupervisor(SingleGraspTask):
         if self.placement is None:
             outcome, failed = "unknown (no placement truth)", False
         else:
-            truth = json.loads(self.placement.detail or "{}")
-            summary.update(truth)
-            summary["outcome"] = self.placement.event
-            failed = self.placement.event != "placed"
+            truth = self.placement
+            event = "placed" if truth.placed else "dropped"
+            summary.update(
+                t_secs=round(truth.t_secs, 4),
+                touch_secs=None if truth.touch_secs is None else round(truth.touch_secs, 4),
+                gap_mm=round(truth.gap_m * 1000, 3),
+                push_mm=round(truth.push_m * 1000, 3),
+                tilt_deg=round(truth.tilt_deg, 3),
+                outcome=event,
+            )
+            failed = not truth.placed
             outcome = (
-                f"{self.placement.event}: gap {truth.get('gap_mm', 0):.1f} mm, "
-                f"tilt {truth.get('tilt_deg', 0):.1f} deg, "
-                f"{truth.get('push_mm', 0):.1f} mm pressed past contact"
+                f"{event}: gap {truth.gap_m * 1000:.1f} mm, tilt {truth.tilt_deg:.1f} deg, "
+                f"{truth.push_m * 1000:.1f} mm pressed past contact"
             )
         self.event("summary", json.dumps(summary, sort_keys=True))
         self.finish(f"{self.task}: {outcome}", exit_code=1 if failed else 0)

@@ -30,6 +30,7 @@ import torch
 from perception.classify.autolabel import end_distance_m
 from perception.classify.checkpoint import ModelMeta, load_checkpoint, save_checkpoint
 from perception.classify.dataset import MANIFEST, concat_samples, load_samples, read_manifest
+from perception.classify.distributed import join_from_env, leave
 from perception.classify.preprocess import MODALITIES, InputSpec
 from perception.classify.train import (
     TrainConfig,
@@ -47,6 +48,8 @@ def _sha256(path: Path) -> str:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
+    group = join_from_env()  # under torchrun: one of several processes (distributed.py)
+    say = print if group.leader else (lambda *_, **__: None)
     config = TrainConfig(
         epochs=args.epochs,
         modality=args.modality,
@@ -79,7 +82,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
             classes=parts[0].classes if parts else (init[1].classes if init else None),
             max_frames_per_grasp=config.max_frames_per_grasp,
         )
-        print(
+        say(
             f"dataset {root}: {len(manifest['grasps'])} grasps, {len(part.labels)} frames, "
             f"classes {part.classes}"
         )
@@ -93,7 +96,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
             }
         )
     samples = concat_samples(parts)
-    print(f"{len(samples.labels)} frames loaded in {time.monotonic() - started:.1f}s")
+    say(f"{len(samples.labels)} frames loaded in {time.monotonic() - started:.1f}s")
     log_path = Path(args.log) if args.log else Path(str(args.out) + ".log.jsonl")
     log_path.parent.mkdir(parents=True, exist_ok=True)
     log_path.write_text("")
@@ -122,9 +125,22 @@ def _cmd_train(args: argparse.Namespace) -> int:
             "sha256": _sha256(Path(args.init)),
             "training": dict(init[1].training),  # the start's own history, nested
         }
-    result = train(samples, config, on_epoch=on_epoch, training_record=record, init=init)
+    record["processes"] = group.size
+    try:
+        result = train(
+            samples,
+            config,
+            on_epoch=on_epoch if group.leader else None,
+            training_record=record,
+            init=init,
+            group=group,
+        )
+    finally:
+        leave(group)
+    if not group.leader:
+        return 0
     save_checkpoint(args.out, result.model, result.meta, half=not args.full_precision)
-    print(f"trained in {result.train_secs:.0f}s; saved {args.out}")
+    print(f"trained in {result.train_secs:.0f}s on {group.size} process(es); saved {args.out}")
     if result.confusion is not None:
         print("validation confusion matrix (by grasp split):")
         print(format_confusion(result.confusion, samples.classes))

@@ -358,3 +358,56 @@ def concat_samples(parts: Sequence[Samples]) -> Samples:
         grasp_ids=np.concatenate(grasp_ids),
         classes=classes,
     )
+
+
+def merge_datasets(parts: Sequence[str | Path], out: str | Path) -> dict[str, Any]:
+    """One dataset made of several (the worlds of a batch run), in the order given.
+
+    Grasps are numbered anew from 0, part after part, each part's in its grasp-id order;
+    each entry says where it came from (``source``: the part's index and seeds, and its
+    grasp id there). Files are hard-linked where the file system allows, else copied.
+    The result depends only on the parts and their order, not on how or where they
+    were made. Returns the new manifest.
+
+    Raises:
+        DatasetError: no parts, parts of other classes or image shapes, or ``out``
+            already holds a dataset.
+    """
+    root = Path(out)
+    if (root / MANIFEST).exists():
+        raise DatasetError(f"{root}: a dataset exists here; merge into a new folder")
+    manifests = [read_manifest(part) for part in parts]
+    if not manifests:
+        raise DatasetError("merge: no datasets given")
+    first = manifests[0]
+    for part, manifest in zip(parts, manifests, strict=True):
+        for key in ("classes", "image_shape"):
+            if manifest[key] != first[key] and manifest["grasps"]:
+                raise DatasetError(
+                    f"{part}: {key} {manifest[key]!r}, {parts[0]} has {first[key]!r}"
+                )
+    (root / "grasps").mkdir(parents=True, exist_ok=True)
+    grasps: list[dict[str, Any]] = []
+    for index, (part, manifest) in enumerate(zip(parts, manifests, strict=True)):
+        for entry in sorted(manifest["grasps"], key=lambda e: int(e["grasp_id"])):
+            relative = f"grasps/grasp_{len(grasps):06d}.npz"
+            target = root / relative
+            target.unlink(missing_ok=True)
+            try:
+                os.link(Path(part) / entry["file"], target)
+            except OSError:
+                target.write_bytes((Path(part) / entry["file"]).read_bytes())
+            source = {"part": index, "seeds": manifest["seeds"], "grasp_id": entry["grasp_id"]}
+            grasps.append({**entry, "grasp_id": len(grasps), "file": relative, "source": source})
+    merged = {
+        "format": FORMAT,
+        "version": VERSION,
+        "classes": first["classes"],
+        "seeds": {"parts": [m["seeds"] for m in manifests]},
+        "scene": {"parts": [m["scene"] for m in manifests]},
+        "image_shape": first["image_shape"],
+        "counts_per_class": counts_per_class(first["classes"], grasps),
+        "grasps": grasps,
+    }
+    _write_atomically(root / MANIFEST, json.dumps(merged, indent=1).encode())
+    return merged

@@ -9,6 +9,7 @@ copies of training frames in the validation set and flatter the model.
 from __future__ import annotations
 
 import copy
+import io
 import json
 import math
 import sys
@@ -24,6 +25,7 @@ from torch import nn
 
 from perception.classify.checkpoint import ModelMeta, build_model
 from perception.classify.dataset import Samples
+from perception.classify.distributed import Group
 from perception.classify.preprocess import check_modality
 
 
@@ -197,6 +199,7 @@ def train(
     on_epoch: Callable[[dict[str, float]], None] | None = None,
     training_record: dict[str, Any] | None = None,
     init: tuple[nn.Module, ModelMeta] | None = None,
+    group: Group | None = None,
 ) -> TrainResult:
     """Train a ResNet18 on ``samples`` (inputs already of ``config``'s modality and size).
 
@@ -212,6 +215,8 @@ def train(
         training_record: extra facts stored in the model's meta (command, dataset).
         init: a model to start from, of ``config``'s modality, size and width and of the
             samples' classes.
+        group: the training processes this one is part of (``distributed``): each
+            computes its share of every batch; default alone.
 
     Raises:
         ValueError: inputs whose channel count or size does not fit ``config``, or an
@@ -260,6 +265,10 @@ def train(
         t = (step - warmup) / max(1, total_steps - warmup)
         return config.lr * 0.5 * (1 + math.cos(math.pi * t))
 
+    group = group or Group()
+    stepper = group.wrap(model)  # the model as the steps call it (DDP in a group)
+    if not group.leader:
+        progress_stream = io.StringIO()  # one progress bar: the leader's
     loss_fn = nn.CrossEntropyLoss()
     history: list[dict[str, float]] = []
     start = time.monotonic()
@@ -274,31 +283,38 @@ def train(
             idx = np.sort(
                 order[batch_index * config.batch_size : (batch_index + 1) * config.batch_size]
             )
-            if len(idx) < 2:  # batch norm needs two samples; drop a lone leftover
+            if len(idx) < 2 * group.size:  # batch norm needs two samples per process
                 continue
             xb = torch.from_numpy(x_train[idx].astype(np.float32))
+            # The whole batch is augmented in every process, so that all draw the same
+            # numbers and stay in step; each then keeps its share.
             if config.swap_sides:
                 xb = _sides_swapped(xb, rng)
             xb = _shifted(xb, config.shift_px, rng)
-            yb = torch.from_numpy(y_train[idx])
-            for group in optimizer.param_groups:
-                group["lr"] = lr_at(step)
-            logits = model(xb)
+            mine = group.shard(np.arange(len(idx)))
+            xb, yb = xb[mine], torch.from_numpy(y_train[idx][mine])
+            for params in optimizer.param_groups:
+                params["lr"] = lr_at(step)
+            logits = stepper(xb)
             loss = loss_fn(logits, yb)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
             step += 1
-            loss_sum += float(loss.detach()) * len(idx)
+            loss_sum += float(loss.detach()) * len(yb)
             correct += int((logits.argmax(1) == yb).sum())
-            seen += len(idx)
+            seen += len(yb)
             bar.update(batch_index + 1, f"loss {loss_sum / seen:.4f} acc {correct / seen:.3f}")
+        epoch_secs = time.monotonic() - epoch_start
+        loss_sum, correct, seen = group.total([loss_sum, correct, seen])
         record: dict[str, float] = {
             "epoch": epoch,
             "train_loss": loss_sum / max(seen, 1),
             "train_accuracy": correct / max(seen, 1),
             "lr": lr_at(max(step - 1, 0)),
-            "epoch_secs": time.monotonic() - epoch_start,
+            "epoch_secs": epoch_secs,
+            "samples_per_sec": seen / max(epoch_secs, 1e-9),
+            "processes": group.size,
         }
         if len(x_val):
             predicted, probs = predict(model, x_val)

@@ -10,7 +10,10 @@ from tests.bench import run_quick
 def test_worlds_quick_scores_one_grasp_on_both_worlds() -> None:
     report, _ = run_quick("worlds", "--no-plot", timeout=600)
     rows = {r["world"]: r for r in report["rows"]}
-    assert set(rows) == {"sim", "mujoco"}
+    assert set(rows) == {"sim", "mujoco", "mujoco (cost)"}
+    cost = rows.pop("mujoco (cost)")
+    assert cost["mesh_mm"] == 12.0 and cost["vertices_per_bubble"] > 30
+    assert math.isfinite(cost["world_cpu_s_per_sim_s"]) and cost["world_cpu_s_per_sim_s"] > 0
     for row in rows.values():
         assert row["grasps"] == 1
         for key in (

@@ -7,6 +7,7 @@ import math
 import msgpack
 import pytest
 
+from messages.control import Connect, Heartbeat, Ready
 from runtime import protocol
 from runtime.counters import InputCounters
 from runtime.protocol import ControlError
@@ -20,9 +21,17 @@ STATS = {
 
 
 def test_a_signed_message_round_trips() -> None:
-    frames = protocol.pack(SECRET, "heartbeat", node="a", busy_secs=0.25, stats=STATS)
+    frames = protocol.pack(SECRET, Heartbeat(node="a", busy_secs=0.25, stats=STATS))
+    assert msgpack.unpackb(frames[0]) == {  # a plain MessagePack map, "kind" first
+        "kind": "heartbeat",
+        "node": "a",
+        "busy_secs": 0.25,
+        "stats": STATS,
+    }
     msg = protocol.unpack(SECRET, frames, from_node=True)
-    assert msg == {"kind": "heartbeat", "node": "a", "busy_secs": 0.25, "stats": STATS}
+    assert msg == Heartbeat(node="a", busy_secs=0.25, stats=STATS)
+    connect = protocol.unpack(SECRET, protocol.pack(SECRET, Connect(endpoints={})), from_node=False)
+    assert connect == Connect(endpoints={})
 
 
 def signed(**body: object) -> list[bytes]:
@@ -35,20 +44,30 @@ def signed(**body: object) -> list[bytes]:
     [
         ([b"x"], "1 frame"),
         ([b"x", b"y", b"z"], "3 frame"),
-        (protocol.pack(b"other secret", "ready", node="a"), "not signed"),
-        ([protocol.pack(SECRET, "ready", node="a")[0], b""], "not signed"),
+        (protocol.pack(b"other secret", Ready(node="a")), "not signed"),
+        ([protocol.pack(SECRET, Ready(node="a"))[0], b""], "not signed"),
         (signed(kind="ready", node="a")[:1] + [b"\x00" * 16], "not signed"),
         ([b"\xc1", protocol._tag(SECRET, b"\xc1")], "not MessagePack"),
         ([msgpack.packb([1]), protocol._tag(SECRET, msgpack.packb([1]))], "expected a map"),
         (signed(kind="launch_missiles", node="a"), "unknown kind"),
         (signed(kind=5, node="a"), "unknown kind"),
-        (signed(kind="ready"), "ready.node"),
-        (signed(kind="hello", node="a"), "hello.endpoint"),
-        (signed(kind="hello", node="a", endpoint=5), "hello.endpoint"),
-        (signed(kind="heartbeat", node="a", busy_secs="x", stats={}), "busy_secs"),
-        (signed(kind="heartbeat", node="a", busy_secs=True, stats={}), "busy_secs"),
-        (signed(kind="heartbeat", node="a", busy_secs=math.nan, stats={}), "busy_secs"),
-        (signed(kind="heartbeat", node="a", busy_secs=-1.0, stats={}), "busy_secs"),
+        (signed(kind="ready"), "ready: Object missing required field `node`"),
+        (signed(kind="hello", node="a"), "hello: Object missing required field `endpoint`"),
+        (
+            signed(kind="hello", node="a", endpoint=5),
+            r"hello: .*`str`, got `int` - at `\$\.endpoint`",
+        ),
+        (
+            signed(kind="ready", node="a", colour="red"),
+            "ready: Object contains unknown field `colour`",
+        ),
+        (signed(kind="connect", endpoints={}), "connect: not a message a node sends"),
+        (signed(kind="heartbeat", node="a", busy_secs="x", stats={}), r"\$\.busy_secs"),
+        (signed(kind="heartbeat", node="a", busy_secs=True, stats={}), r"\$\.busy_secs"),
+        (signed(kind="heartbeat", node="a", busy_secs=math.nan, stats={}), r"\$\.busy_secs"),
+        (signed(kind="heartbeat", node="a", busy_secs=math.inf, stats={}), r"\$\.busy_secs"),
+        (signed(kind="heartbeat", node="a", busy_secs=-1.0, stats={}), r"\$\.busy_secs"),
+        (signed(kind="stop_request", node="a", reason="", exit_code=256), r"\$\.exit_code"),
         (signed(kind="heartbeat", node="a", busy_secs=0.0, stats={"published": 3}), "stats"),
         (
             signed(kind="final", node="a", stats={"inputs": {"p": {"topic": "t", "received": -1}}}),
@@ -58,11 +77,11 @@ def signed(**body: object) -> list[bytes]:
             signed(kind="counts", node="a", published={"t": "many"}, received={}, held={}),
             "published",
         ),
-        (signed(kind="connect", endpoints={"a": 5}), "endpoints"),
+        (signed(kind="connect", endpoints={"a": 5}), r"\$\.endpoints"),
     ],
 )
 def test_every_malformed_or_unsigned_message_is_refused(frames: list[bytes], why: str) -> None:
-    from_node = b"connect" not in frames[0]
+    from_node = frames[0] != signed(kind="connect", endpoints={"a": 5})[0]
     with pytest.raises(ControlError, match=why):
         protocol.unpack(SECRET, frames, from_node=from_node)
 

@@ -69,6 +69,8 @@ def test_check_imports_only_the_graphs_node_modules() -> None:
         "nodes.gripper",
         "nodes.grasp_monitor",
         "nodes.shear_tracker",
+        "nodes.wrench",
+        "nodes.slip",
         "nodes.contact_patch",
         "nodes.pose_estimator",
         "nodes.wrench",

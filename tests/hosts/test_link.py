@@ -9,8 +9,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import msgpack
 import pytest
 
+from messages.control import LinkCounts
 from runtime import protocol
 from runtime.hostlink import Act, judge
 from runtime.hosts import Hosts
@@ -56,6 +58,7 @@ def test_judge_applies_the_policies() -> None:
 LINKS = """
 import json, sys, time, zmq
 from pathlib import Path
+from messages.control import LinkStop
 from runtime import protocol
 from runtime.graph import load_document
 from runtime.hostlink import HostLink
@@ -86,7 +89,9 @@ for key, secret in (("a", b"x" * 32), ("b", b"y" * 32)):
     forger = ctx.socket(zmq.DEALER)
     connect_to(forger, load_key(keys / f"{key}.key"), hosts.table["a"].public_key)
     forger.connect(hosts.table["a"].link)
-    forger.send_multipart(protocol.pack(secret, "link_stop", host="b", reason="forged", exit_code=9))
+    forger.send_multipart(
+        protocol.pack(secret, LinkStop(host="b", reason="forged", exit_code=9))
+    )
     collect(0.5)
     forger.close(linger=0)
 links["b"].send_stop("supervisor: done", 0)
@@ -141,24 +146,26 @@ def test_the_link_joins_measures_refuses_forgeries_passes_stops_and_sees_a_loss(
 def test_link_counts_are_checked_field_by_field() -> None:
     secret = protocol.new_secret()
     good = protocol.pack(
-        secret, "link_counts", host="b", published={"a/t": 3}, received={"n/p": 3}, held={}
+        secret, LinkCounts(host="b", published={"a/t": 3}, received={"n/p": 3}, held={})
     )
-    assert protocol.unpack(secret, good, from_node=False)["received"] == {"n/p": 3}
+    msg = protocol.unpack(secret, good, from_node=False)
+    assert isinstance(msg, LinkCounts) and msg.received == {"n/p": 3}
     for bad, why in (
         (
             {"published": {"a/t": -1}, "received": {}, "held": {}},
-            "link_counts.published: expected a map",
+            r">= 0 - at `\$\.published\[\.\.\.\]`",
         ),
         (
             {"published": {}, "received": {"n/p": "3"}, "held": {}},
-            "link_counts.received: expected a map",
+            r"`int`, got `str` - at `\$\.received",
         ),
         (
             {"published": {}, "received": {}, "held": {"n/p": -1}},
-            "link_counts.held: expected a map",
+            r">= 0 - at `\$\.held\[\.\.\.\]`",
         ),
-        ({"published": {}}, "link_counts.received: expected dict"),
+        ({"published": {}}, "link_counts: Object missing required field `received`"),
     ):
-        frames = protocol.pack(secret, "link_counts", host="b", **bad)
+        payload = msgpack.packb({"kind": "link_counts", "host": "b", **bad})
+        frames = [payload, protocol._tag(secret, payload)]
         with pytest.raises(ControlError, match=why):
             protocol.unpack(secret, frames, from_node=False)

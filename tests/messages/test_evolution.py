@@ -9,13 +9,13 @@ no description and keeps refusing any other fingerprint.
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import msgspec
 import numpy as np
 import pytest
 
-from messages import FingerprintMismatchError, Header, decode, encode
+from messages import FingerprintMismatchError, FrameDecodeError, Header, decode, encode
 from messages.base import Array, Message
 from messages.errors import SchemaChangeError
 from messages.evolution import check_stored
@@ -137,3 +137,23 @@ def test_a_description_that_is_not_its_fingerprint_is_refused(scratch_registry: 
     with pytest.raises(SchemaChangeError, match="no stored description"):
         check_stored(today, old.schema().fingerprint, None)
     check_stored(today, today.schema().fingerprint, None)  # today's own: nothing to check
+
+
+def test_a_str_narrowed_to_choices_reads_each_stored_value_against_them(
+    scratch_registry: dict,
+) -> None:
+    old = declare("EvoProbe", [*BASE, ("sensor", str)])
+    declare("EvoProbe", [*BASE, ("sensor", Literal["left", "right"])], keep=True)
+    frames, description = stored(old, sensor="left")
+    assert decode(frames, stored=description)[1].sensor == "left"
+    frames, description = stored(old, sensor="middle")
+    with pytest.raises(FrameDecodeError, match=r"Invalid enum value 'middle' - at `\$\.sensor`"):
+        decode(frames, stored=description)
+
+
+def test_choices_widened_or_retyped_are_still_refused(scratch_registry: dict) -> None:
+    old = declare("EvoProbe", [*BASE, ("sensor", Literal["left", "right"])])
+    declare("EvoProbe", [*BASE, ("sensor", str)], keep=True)
+    frames, description = stored(old, sensor="left")
+    with pytest.raises(SchemaChangeError, match=r"EvoProbe\.sensor: stored as Literal"):
+        decode(frames, stored=description)

@@ -377,3 +377,24 @@ def test_states_on_the_wire_are_checked_on_decode() -> None:
     with pytest.raises(FrameDecodeError, match="event"):
         decode(encode("grasp/grasp", bad))
     assert set(get_args(PoseStatus)) >= {"ok", "recovered", "suspect", "no_patch", "failed"}
+
+
+@pytest.mark.parametrize(
+    ("msg", "field"),
+    [
+        (
+            GripperState(
+                header=Header(), width_m=0.1, speed_m_per_s=0.0, force_n=0.0, state="open"
+            ),
+            "state",
+        ),  # type: ignore[arg-type]
+        (GripperCommand(header=Header(), command="open"), "command"),  # type: ignore[arg-type]
+        (Pressure(header=Header(), sensor="middle", pressure_pa=0.0), "sensor"),  # type: ignore[arg-type]
+    ],
+    ids=["gripper state", "gripper command", "sensor"],
+)
+def test_a_state_command_or_sensor_outside_its_choices_is_refused_on_the_wire(
+    msg: Message, field: str
+) -> None:
+    with pytest.raises(FrameDecodeError, match=rf"Invalid enum value '\w+' - at `\$\.{field}`"):
+        decode(encode("a/b", msg))

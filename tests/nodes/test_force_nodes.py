@@ -160,3 +160,21 @@ def test_handover_with_the_shear_rule_ignores_the_force() -> None:
     assert node.state == "holding"
     with pytest.raises(ParamError, match="release_on"):
         make_node(HandoverSupervisor, {"release_on": "vibes"})
+
+
+def test_wrench_node_pairs_with_a_stale_partner_when_one_was_dropped(
+    fill_frames: list[sim.Instant],
+) -> None:
+    node, io = make_node(WrenchNode, {})
+    for k, inst in enumerate(fill_frames[:8]):
+        feed(node, "gripper", inst.gripper)
+        for side in ("left", "right"):
+            feed(node, f"{side}_pressure", inst.pressures[side])
+        sides = ("left", "right") if k < 5 else ("left",)  # right's frames 5-7 dropped
+        for side in sides:
+            feed(node, side, inst.images[side])
+    stamps = [e.header.stamp_nanos for e in io.published["wrench"]]
+    # One per instant while both came; then silence while within max_wait_secs (50 ms)
+    # of the last estimate: frame 6 pairs with the right's newest (frame 4, 67 ms old),
+    # frame 7 comes within 50 ms of it.
+    assert stamps == [fill_frames[k].stamp_nanos for k in (0, 1, 2, 3, 4, 6)]

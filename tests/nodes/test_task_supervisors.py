@@ -6,7 +6,8 @@ import json
 
 import numpy as np
 
-from messages import GraspState, GroundTruth, Header, PoseEstimate, ShearEstimate, TaskEvent
+from messages import GraspState, GroundTruth, Header, PoseEstimate, ShearEstimate
+from messages.sim import PlacementTruth
 from nodes.supervisor.antagonism import AntagonismSupervisor
 from nodes.supervisor.stacking import StackingSupervisor
 from runtime.testing import feed, make_node
@@ -116,9 +117,16 @@ def shear(sensor: str, magnitude_px: float) -> ShearEstimate:
     )
 
 
-def placement(event: str, gap_mm: float) -> TaskEvent:
-    detail = {"gap_mm": gap_mm, "push_mm": 1.0, "t_secs": 2.0, "tilt_deg": 0.0, "touch_secs": 1.9}
-    return TaskEvent(header=stamp(2.0), task="world", event=event, detail=json.dumps(detail))
+def placement(event: str, gap_mm: float) -> PlacementTruth:
+    return PlacementTruth(
+        header=stamp(2.0),
+        placed=event == "placed",
+        t_secs=2.0,
+        touch_secs=1.9,
+        gap_m=gap_mm / 1000,
+        push_m=0.001,
+        tilt_deg=0.0,
+    )
 
 
 def test_stacking_releases_on_a_sustained_touch_and_reports_the_truth() -> None:
@@ -138,7 +146,9 @@ def test_stacking_releases_on_a_sustained_touch_and_reports_the_truth() -> None:
         feed(node, "grasp", grasp(1.2, "released"))
         (summary,) = [json.loads(e.detail) for e in io.published["event"] if e.event == "summary"]
         assert summary["outcome"] == outcome and io.stop_exit_code == code
-        assert io.stop_reason.startswith(f"stacking: {outcome}")
+        assert summary["gap_mm"] == (0.0 if outcome == "placed" else 4.0)
+        assert summary["push_mm"] == 1.0 and summary["touch_secs"] == 1.9
+        assert io.stop_reason.startswith(f"stacking: {outcome}: gap")
 
 
 def test_stacking_without_the_truth_ends_after_a_wait() -> None:
