@@ -36,6 +36,7 @@ from perception.force.features import BubbleFeatures, ContactFeatures
 
 ROOT = Path(__file__).resolve().parents[1]
 CALIBRATION = ROOT / "models" / "force" / "sim.json"
+QUICK_GRASPS, QUICK_SECS = 2, 2.0  # --quick: the load starts at 1 s, so 1 s of it
 OBJECTS = {
     # object, held pose (tool xyz), grasp width hint, mass (kg), the reflex's bound on
     # the grip (N: a wine glass takes less; all under the ~20 N where the simulated
@@ -211,9 +212,17 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--grasps", type=int, default=12, help="calibration grasps (seeds 0..n-1)")
     parser.add_argument("--duration", type=float, default=3.0, help="seconds per grasp")
     parser.add_argument("--out", type=Path, default=CALIBRATION)
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help=f"at most {QUICK_GRASPS} grasps of {QUICK_SECS} s, for smoke tests (as every bench)",
+    )
     args = parser.parse_args(argv)
     if args.grasps < 1:
         parser.error("--grasps must be >= 1")
+    if args.quick:
+        args.grasps = min(args.grasps, QUICK_GRASPS)
+        args.duration = min(args.duration, QUICK_SECS)
     cal = calibrate_on(list(range(args.grasps)), duration_secs=args.duration)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     cal.save(args.out)

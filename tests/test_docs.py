@@ -145,10 +145,21 @@ def scratch(work: Path) -> Path:
     return work
 
 
-def is_pure(command: list[str]) -> bool:
+def is_pure(command: list[str], written: set[str] | frozenset[str] = frozenset()) -> bool:
     """A command that writes nothing and reads nothing a command before it wrote: a
-    graph check or the node listing. These run at once, in parallel."""
-    return "--check" in command or command[1:3] == ["launch.py", "nodes"]
+    graph check or the node listing that names none of ``written`` (see
+    :func:`new_names`). These run at once, in parallel."""
+    if "--check" not in command and command[1:3] != ["launch.py", "nodes"]:
+        return False
+    return not any(arg.rpartition("=")[2] in written for arg in command[2:])
+
+
+def new_names(command: list[str]) -> set[str]:
+    """The arguments of a command (the VALUE of a NAME=VALUE one) that are no entry of
+    the repository: what it may write (``calibrate --out my_rig.yaml``), so a check
+    naming one (``--set camera.calibration=my_rig.yaml``) waits for it."""
+    values = {arg.rpartition("=")[2] for arg in command[2:] if not arg.startswith("-")}
+    return {v for v in values if v and not (ROOT / v).exists()}
 
 
 def run_command(path: Path, block: Block, argv: tuple[str, ...], work: Path) -> str:
@@ -180,13 +191,16 @@ def run_file(path: Path, blocks: list[Block], work: Path, pool: ThreadPoolExecut
     """Pure commands in parallel (each distinct one once), the rest in document order."""
     steps = [(b, argv) for b in blocks if not b.skip_reason for argv in b.commands]
     pure: dict[tuple[str, ...], Future[str]] = {}
+    in_order: list[tuple[Block, tuple[str, ...]]] = []
+    written: set[str] = set()
     for block, argv in steps:
-        key = tuple(small(argv))
-        if is_pure(list(key)) and key not in pure:
-            pure[key] = pool.submit(run_command, path, block, argv, work)
-    failures = [
-        run_command(path, block, argv, work) for block, argv in steps if not is_pure(small(argv))
-    ]
+        command = small(argv)
+        if not is_pure(command, written):
+            in_order.append((block, argv))
+            written |= new_names(command)
+        elif tuple(command) not in pure:
+            pure[tuple(command)] = pool.submit(run_command, path, block, argv, work)
+    failures = [run_command(path, block, argv, work) for block, argv in in_order]
     return [f for f in (*failures, *(f.result() for f in pure.values())) if f]
 
 

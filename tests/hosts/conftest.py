@@ -4,7 +4,6 @@ network namespaces (``bench.netns``; skipped with the reason where they cannot b
 from __future__ import annotations
 
 import os
-import re
 import subprocess
 import sys
 import time
@@ -119,13 +118,3 @@ def launched() -> Iterator[list[Launched]]:
     yield started
     for item in started:
         item.kill()
-
-
-def end_count(text: str, topic: str) -> int:
-    """The messages published on ``topic`` by the launcher's end-of-run table (its rows
-    are ``topic -> node.port`` or ``topic (no reader here)``, then the count)."""
-    row = re.compile(rf"^\[launch\] {re.escape(topic)}(?: -> \S+| \(no reader here\))?\s+(\d+)\s")
-    for line in text.splitlines():
-        if found := row.match(line):
-            return int(found.group(1))
-    raise AssertionError(f"no row for {topic} in the end-of-run table")

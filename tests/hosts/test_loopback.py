@@ -14,7 +14,8 @@ import yaml
 
 from runtime.bag import BagReader
 from runtime.bag.diff import diff_bags
-from tests.hosts.conftest import SYNTHETIC, Launched, end_count, write_graph
+from tests.hosts.conftest import SYNTHETIC, Launched, write_graph
+from tests.runtime.conftest import topic_messages
 
 GRAPH = {
     "hosts": {
@@ -89,7 +90,7 @@ def test_record_across_hosts_records_every_message_published_on_the_other(
         command = r.run_info()["command_line"]
     # source_a and relay publish on b; the bag is written on a: every message, as b counted.
     for topic in ("source_a/tick", "relay/tick", "merge/tick"):
-        assert counts[topic] == end_count(b.text, topic), topic
+        assert counts[topic] == topic_messages(b.text, topic), topic
     assert counts == {"source_a/tick": 40, "relay/tick": 40, "source_b/tick": 16, "merge/tick": 56}
     assert stored["hosts"] == GRAPH["hosts"]  # the bag replays across the same hosts
     assert "--host" not in command and command.startswith("python launch.py")

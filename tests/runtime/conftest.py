@@ -62,13 +62,43 @@ def sink(out: Path, topic: str) -> dict:
     return {"impl": "synthetic.sink", "params": {"out_path": str(out)}, "inputs": {"tick": topic}}
 
 
-def table_row(log: str, edge: str) -> dict[str, int]:
+def end_table(log: str) -> dict[str, dict[str, int | float]]:
+    """The launcher's end-of-run table (``runtime.counters.table``) in ``log``: per row
+    (``topic -> node.port``, or ``topic (no reader here)``) its values by column name."""
+    lines = [line.removeprefix("[launch] ") for line in log.splitlines()]
+    start = next(i for i, line in enumerate(lines) if line.startswith("topic -> node.port "))
+    names = lines[start].split()[3:]
+    rows: dict[str, dict[str, int | float]] = {}
+    for line in lines[start + 1 :]:
+        if not line.strip():  # the per-node table follows
+            break
+        words = line.split()
+        values = words[-len(names) :]
+        name = " ".join(words[: -len(names)])
+        rows[name] = dict(
+            zip(names, (int(v) if v.isdigit() else float(v) for v in values), strict=True)
+        )
+    return rows
+
+
+def table_row(log: str, edge: str) -> dict[str, int | float]:
     """The end-of-run table's row of ``edge`` (``topic -> node.port``), by column name."""
-    header = next(line for line in log.splitlines() if line.startswith("[launch] topic -> "))
-    names = header.split()[4:]
-    row = next(line for line in log.splitlines() if line.startswith(f"[launch] {edge} "))
-    values = row.removeprefix(f"[launch] {edge} ").split()
-    return dict(zip(names, (int(v) if v.isdigit() else float(v) for v in values), strict=True))
+    rows = end_table(log)
+    assert edge in rows, f"no row {edge!r} in the end-of-run table: {sorted(rows)}"
+    return rows[edge]
+
+
+def topic_messages(log: str, topic: str) -> int:
+    """How many messages the end-of-run table says ``topic`` carried: the most of its rows
+    (its edges' rows agree unless the topic was published on another host, where each
+    counts what it received)."""
+    counts = [
+        int(row["messages"])
+        for name, row in end_table(log).items()
+        if name.split(" ", 1)[0] == topic
+    ]
+    assert counts, f"no row of topic {topic!r} in the end-of-run table"
+    return max(counts)
 
 
 def children_of(pid: int) -> list[int]:

@@ -13,7 +13,7 @@ import pytest
 import launch
 from runtime.introspect import Rate
 from runtime.status import find_runs
-from tests.runtime.conftest import GraphRun, sink
+from tests.runtime.conftest import GraphRun, sink, table_row
 
 RATE_HZ = 40.0
 COUNT = 400  # 10 s at 40 Hz: time to look
@@ -36,12 +36,6 @@ def echoed_seqs(out: str) -> list[int]:
     assert sum(line.startswith("value: ") for line in lines) == len(heads)
     assert sum(line.startswith("header: {'stamp_nanos': ") for line in lines) == len(heads)
     return [int(h.split(" seq ")[1].split()[0]) for h in heads]
-
-
-def table_rate(log: str, topic: str) -> float:
-    match = re.search(rf"\[launch\] {re.escape(topic)}(?: -> \S+)?\s+(\d+)\s+([\d.]+)", log)
-    assert match, log
-    return float(match.group(2))
 
 
 def test_topic_tools_against_a_running_graph(
@@ -91,7 +85,7 @@ def test_topic_tools_against_a_running_graph(
             proc.kill()
             proc.communicate()
     assert proc.returncode == 0, log
-    final = table_rate(log, "src/tick")
+    final = table_row(log, "src/tick -> sink.tick")["rate_hz"]
     assert hz_rate == pytest.approx(final, rel=0.15), (hz_rate, final)
     assert listed_rate == pytest.approx(final, rel=0.25), (listed_rate, final)
     # The taps took nothing from the graph: the sink got every tick.
