@@ -73,8 +73,6 @@ def test_check_imports_only_the_graphs_node_modules() -> None:
         "nodes.slip",
         "nodes.contact_patch",
         "nodes.pose_estimator",
-        "nodes.wrench",
-        "nodes.slip",
         "nodes.supervisor",
         "nodes.supervisor.base",
         "nodes.supervisor.handover",
