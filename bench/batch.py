@@ -16,8 +16,9 @@ Rows, each measured side by side in one run on this machine:
 
 A graph is many processes: on two cores a replay already keeps both busy much of the
 time, so two workers cannot double the rate here (docs/batch.md works the cluster case
-out from these figures). ``--quick`` uses 2 short recordings, 2 worlds of 2 grasps and
-a tiny network.
+out from these figures). ``--quick`` (the smoke test) uses one short recording, one world
+of one grasp and a tiny network: it shows every row is measured, not what parallel work
+gains.
 """
 
 from __future__ import annotations
@@ -59,7 +60,7 @@ MODES = (("loop", False, 1), ("ray", True, 1), ("ray", True, 2))
 
 
 def _replay_rows(work: Path, quick: bool) -> list[Row]:
-    count, secs = (2, 1.5) if quick else (4, 3.0)
+    count, secs = (1, 1.0) if quick else (4, 3.0)
     bags = [_record(work / f"run{i}.mcap", secs) for i in range(count)]
     rows: list[Row] = []
     for mode, use_ray, workers in MODES:
@@ -82,7 +83,7 @@ def _replay_rows(work: Path, quick: bool) -> list[Row]:
 
 
 def _autolabel_rows(work: Path, quick: bool) -> list[Row]:
-    seeds, grasps = ([1, 2], 2) if quick else ([1, 2, 3, 4], 5)
+    seeds, grasps = ([1], 1) if quick else ([1, 2, 3, 4], 5)
     graph = str(ROOT / "graphs" / "autolabel.yaml")
     rows: list[Row] = []
     for mode, use_ray, workers in MODES:
@@ -112,7 +113,7 @@ def _train_rows(work: Path, quick: bool) -> list[Row]:
         if quick
         else ["--input-px", "112", "--width", "0.5"]
     )
-    epochs = "3" if quick else "4"
+    epochs = "2" if quick else "4"
     rows: list[Row] = []
     for processes in (1, 2):
         # The epoch log is the checkpoint's (OUT.log.jsonl): torchrun would take a

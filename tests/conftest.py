@@ -25,6 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # Paths (relative to the repository, a folder ends with "/") whose tests start processes.
 SPAWNING = (
     "tests/bench/",
+    "tests/cli/",
     "tests/faults/",
     "tests/hosts/",
     "tests/devices/test_emulated_rig.py",
@@ -37,7 +38,6 @@ SPAWNING = (
     "tests/runtime/test_bag_faults.py",
     "tests/runtime/test_bag_formats.py",
     "tests/runtime/test_bag_hostile.py",
-    "tests/runtime/test_cli.py",
     "tests/runtime/test_first_hour.py",
     "tests/runtime/test_graph_check.py",
     "tests/runtime/test_hostile_graphs.py",
