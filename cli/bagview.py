@@ -126,7 +126,7 @@ def view_bag(
     type; what it skips is counted in ``skipped``."""
     import rerun as rr
 
-    from viz.rerun_log import RerunLogger, check_viewer, flush, spawn_viewer
+    from viz.rerun_log import RerunLogger, check_viewer, confirm_viewer, flush, spawn_viewer
 
     rec = rr.RecordingStream("softbubble", recording_id=path.stem)
     logger = RerunLogger(rec, object_name=object_name)
@@ -149,6 +149,7 @@ def view_bag(
                     check_viewer(viewer)
                     skipped.guard(topic, msg, lambda: logger.log(topic, msg))  # noqa: B023
                 flush(rec, viewer=viewer)
+                confirm_viewer(viewer)
             except OSError:
                 rr.unregister_shutdown()  # its exit handler would wait for the viewer again
                 raise

@@ -81,6 +81,9 @@ def mask_centroid(mask: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray
 VIEWER_PORT = 9876  # Rerun's own default: a viewer already open there is reused
 
 
+VIEWER_SETTLE_SECS = 3.0  # a viewer that fails to open its window has exited by then
+
+
 def spawn_viewer(rec: rr.RecordingStream, *, instead: str) -> subprocess.Popen[bytes] | None:
     """Stream ``rec`` to a Rerun viewer: the one already listening on ``VIEWER_PORT``
     (returns None), or a new one started here (returns its process, which outlives this
@@ -140,6 +143,23 @@ def flush(
             check_viewer(viewer)
             if deadline_secs is not None and time.monotonic() - start > deadline_secs:
                 return False
+
+
+def confirm_viewer(
+    viewer: subprocess.Popen[bytes] | None, settle_secs: float = VIEWER_SETTLE_SECS
+) -> None:
+    """After the last flush: a viewer started here that exits within ``settle_secs`` did
+    not show the data, though it may have taken it (one that cannot open its display can
+    accept a small recording before it fails, and the write error stays inside Rerun).
+    Raise ``OSError`` as :func:`check_viewer` does; a viewer still up returns at once
+    after ``settle_secs``."""
+    if viewer is None:
+        return
+    try:
+        viewer.wait(timeout=settle_secs)
+    except subprocess.TimeoutExpired:
+        return
+    check_viewer(viewer)
 
 
 def check_viewer(viewer: subprocess.Popen[bytes] | None) -> None:
