@@ -52,8 +52,10 @@ import os
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -319,17 +321,12 @@ def slip_rows(test_recs: list[Recorded], cal: Calibration, period_secs: float) -
     return rows
 
 
-def closed_loop(seed: int, duration_secs: float, cal: Calibration, *, reflex: bool) -> dict:
-    """One grasp whose load outgrows its grip, with or without the reflex."""
-    spec = draw(seed, duration_secs=duration_secs, load="fill")
-    scene = spec.scene
-    simulator = sim.Simulator(scene)
+def stepped(simulator: sim.Simulator) -> Iterator[tuple[Any, Any, dict]]:
+    """Each instant of a closed-loop run to its end: the simulator's instant, the grasp
+    monitor's state at it (fed the bubbles' pressures and the jaws) and each bubble's
+    contact features."""
     bubbles = Bubbles(SETTINGS[DEFAULT_SETTING])
     monitor = GraspMonitor()
-    detectors = {s: SlipDetector(friction=cal.friction) for s in SIDES}
-    limit = OBJECTS[spec.object][3]
-    grip = GripReflex(ReflexParams(max_force_n=limit), spec.grip_n, cal.friction)
-    stable = False
     while not simulator.world.done:
         inst = simulator.step()
         snap = inst.snapshot
@@ -337,7 +334,20 @@ def closed_loop(seed: int, duration_secs: float, cal: Calibration, *, reflex: bo
         for side in SIDES:
             monitor.update_pressure(side, snap.pressure_pa[side], stamp)
         status = monitor.update_gripper(snap.speed_m_per_s, snap.width_m, stamp)
-        feats = bubbles.frame(inst, scene)
+        yield inst, status, bubbles.frame(inst, simulator.scene)
+
+
+def closed_loop(seed: int, duration_secs: float, cal: Calibration, *, reflex: bool) -> dict:
+    """One grasp whose load outgrows its grip, with or without the reflex."""
+    spec = draw(seed, duration_secs=duration_secs, load="fill")
+    scene = spec.scene
+    simulator = sim.Simulator(scene)
+    detectors = {s: SlipDetector(friction=cal.friction) for s in SIDES}
+    limit = OBJECTS[spec.object][3]
+    grip = GripReflex(ReflexParams(max_force_n=limit), spec.grip_n, cal.friction)
+    stable = False
+    for inst, status, feats in stepped(simulator):
+        snap = inst.snapshot
         if status.stable and not stable:
             for d in detectors.values():
                 d.reference()
@@ -408,21 +418,13 @@ def handover_runs(seed: int, cal: Calibration) -> dict:
     out = {}
     for name, scene in (("pull", pulled), ("hold", held)):
         simulator = sim.Simulator(scene)
-        bubbles = Bubbles(SETTINGS[DEFAULT_SETTING])
-        monitor = GraspMonitor()
         trackers = {s: ShearTracker(ShearParams(scale=0.5, warm_start=True)) for s in SIDES}
         above = dict.fromkeys(SIDES, 0)
         pull = PullWatch(0.6, 2)
         decided: dict[str, float] = {}
         stable = False
-        while not simulator.world.done:
-            inst = simulator.step()
+        for inst, status, feats in stepped(simulator):
             snap = inst.snapshot
-            stamp = sim.stamp_of(snap)
-            for side in SIDES:
-                monitor.update_pressure(side, snap.pressure_pa[side], stamp)
-            status = monitor.update_gripper(snap.speed_m_per_s, snap.width_m, stamp)
-            feats = bubbles.frame(inst, scene)
             force = -sum(estimate(feats[s], s, cal, "physics").force_n for s in SIDES)
             if status.stable and not stable:
                 pull.start(force)
