@@ -15,6 +15,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 from runtime.graph import RUNDIR_PREFIX
@@ -26,8 +27,8 @@ def make_rundir() -> Path:
     return Path(tempfile.mkdtemp(prefix=f"{RUNDIR_PREFIX}{os.getpid()}-"))
 
 
-def sweep_stale_rundirs() -> None:
-    """Remove ``sbg-PID-*`` folders of this user whose launcher PID no longer exists."""
+def user_rundirs() -> Iterator[tuple[Path, bool]]:
+    """This user's ``sbg-PID-*`` run folders, each with whether its launcher PID exists."""
     for path in Path(tempfile.gettempdir()).glob(f"{RUNDIR_PREFIX}*-*"):
         pid = path.name[len(RUNDIR_PREFIX) :].partition("-")[0]
         try:
@@ -35,6 +36,15 @@ def sweep_stale_rundirs() -> None:
                 continue
             os.kill(int(pid), 0)
         except ProcessLookupError:
-            shutil.rmtree(path, ignore_errors=True)
+            yield path, False
         except OSError:
             continue
+        else:
+            yield path, True
+
+
+def sweep_stale_rundirs() -> None:
+    """Remove ``sbg-PID-*`` folders of this user whose launcher PID no longer exists."""
+    for path, alive in user_rundirs():
+        if not alive:
+            shutil.rmtree(path, ignore_errors=True)

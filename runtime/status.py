@@ -24,7 +24,8 @@ from typing import Any
 
 from messages.errors import GraphError
 from runtime.counters import add_stats, topic_totals
-from runtime.graph import RUNDIR_PREFIX, Graph
+from runtime.graph import Graph
+from runtime.isolation import user_rundirs
 from runtime.nodeprocs import Proc
 
 STATUS_FILE = "status.json"
@@ -118,15 +119,8 @@ def read(rundir: Path) -> Run | None:
 def find_runs() -> list[Run]:
     """The running graphs of this user, newest first (a folder whose launcher is gone is not)."""
     runs = []
-    for path in Path(tempfile.gettempdir()).glob(f"{RUNDIR_PREFIX}*-*"):
-        pid = path.name[len(RUNDIR_PREFIX) :].partition("-")[0]
-        try:
-            if not pid.isdigit() or path.stat().st_uid != os.getuid():
-                continue
-            os.kill(int(pid), 0)
-        except OSError:
-            continue
-        run = read(path)
+    for path, alive in user_rundirs():
+        run = read(path) if alive else None
         if run is not None:
             runs.append(run)
     return sorted(runs, key=lambda r: -float(r.status.get("written_unix", 0)))
