@@ -65,8 +65,10 @@ def test_wsg50_node_grasps_and_reports_the_device_state(caplog: pytest.LogCaptur
             _run_until(
                 io,
                 lambda: (
+                    # The state and width streams are sampled one by one: the state can
+                    # say idle while the width still trails the jaws' last steps.
                     io.published["state"][-1].state == "idle"
-                    and io.published["state"][-1].width_m > 0.099
+                    and io.published["state"][-1].width_m == pytest.approx(0.1)
                 ),
             )
             assert io.published["state"][-1].width_m == pytest.approx(0.1)
