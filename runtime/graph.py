@@ -221,6 +221,26 @@ class Graph:
             if not spec.cls.merges_in_any_order and len(self.fed_by[name]) > 1
         }
 
+    def release_order(self) -> list[str]:
+        """The fan-ins, upstream first: the order lockstep lets them handle what they hold.
+
+        One at a time, and the first in this order that holds something: a fan-in
+        released together with one upstream of it would handle what it holds before the
+        upstream one's outputs arrived, or after, as timing has it. Upstream first, it
+        holds those outputs too, and handles them all in its fixed order. A cycle (a
+        supervisor commanding the gripper it reads) is entered at its first node in the
+        graph's order.
+        """
+        left = list(self.nodes)
+        order: list[str] = []
+        while left:
+            ready = [n for n in left if not self.fed_by[n] & set(left) - {n}]
+            take = ready[0] if ready else left[0]
+            order.append(take)
+            left.remove(take)
+        fan_ins = self.fan_ins()
+        return [n for n in order if n in fan_ins]
+
     def barrier_topics(self) -> set[str]:
         """Topics from which a message can reach a node that merges several publishers.
 

@@ -114,6 +114,7 @@ class Launcher:
         self.held = {n for n in remote if graph.nodes[n].cls.raw_input}
         self.barrier_topics = graph.barrier_topics() if lockstep else set()
         self.fan_ins = graph.fan_ins() if lockstep else set()
+        self.release_order = graph.release_order() if lockstep else []
         self.stop_reason: str | None = None
         self.exit_code = 0
         self.verdict_code = 0  # a node's verdict on the run (stop_request's exit_code)
@@ -333,11 +334,14 @@ class Launcher:
         arrived = delivered(self.edges, published, lambda n, port: received.get(f"{n}/{port}", 0))
         if arrived and held:
             # Everything published has arrived, and only ordered fan-ins hold messages:
-            # nothing else is on its way to them, so they may handle what they hold.
-            for proc in self.procs.values():
-                if any(proc.counts_held.values()) and not proc.released:
-                    proc.released = True  # once, until its next counts
-                    self.control.send(proc.rid, Release())
+            # nothing else is on its way to them. The first of them upstream handles what
+            # it holds (Graph.release_order); what it publishes is held in turn downstream.
+            holding = {key.rsplit("/", 1)[0] for key in held}
+            first = next((n for n in self.release_order if n in holding), "")
+            proc = self.procs.get(first)  # another host's: its own launcher releases it
+            if proc is not None and not proc.released:
+                proc.released = True  # once, until its next counts
+                self.control.send(proc.rid, Release())
         return arrived and not held
 
     def _serve(self, timeout_ms: int) -> None:

@@ -120,6 +120,42 @@ def test_lockstep_pipelines_what_no_fan_in_can_reorder(recorded: Path, tmp_path:
     assert values(out, "merge/tick") == order and len(order) == 56
 
 
+# Two ordered fan-ins, one upstream of the other, both reached by one replayed message:
+# ``merge2`` reads ``source_b`` from the replay and, through ``merge`` and a slow relay,
+# again. Released together, ``merge2`` would handle the direct copy before the slow one
+# arrived; released upstream first, it holds both and handles them by stamp, then port.
+CHAIN = yaml.safe_load(
+    """
+nodes:
+  source_a: {impl: synthetic.source, params: {rate_hz: 200, count: 12}}
+  source_b: {impl: synthetic.source, params: {rate_hz: 80, count: 6, stop_when_done: false}}
+  relay: {impl: synthetic.relay, params: {add: 1000}, inputs: {tick: source_a/tick}}
+  merge: {impl: synthetic.merge, inputs: {a: relay/tick, b: source_b/tick}}
+  slow: {impl: synthetic.relay, params: {add: 100000, work_secs: 0.05}, inputs: {tick: merge/tick}}
+  merge2: {impl: synthetic.merge, inputs: {a: slow/tick, b: source_b/tick}}
+"""
+)
+
+
+def test_lockstep_releases_an_upstream_fan_in_before_a_downstream_one(tmp_path: Path) -> None:
+    live = tmp_path / "live.mcap"
+    assert launch(CHAIN, source="chain", record=live, log_level="WARNING", command_line="t") == 0
+    rerun = dict.fromkeys(("relay", "merge", "slow", "merge2"), "")
+    graph = build_replay_graph(CHAIN, live, rerun, ReplayOptions(lockstep=True))
+    assert check(graph).fan_ins() == {"merge", "merge2"}
+    out = tmp_path / "replayed.mcap"
+    assert launch(graph, source="replay", record=out, lockstep=True, log_level="WARNING") == 0
+    expected: list[float] = []
+    with BagReader(live) as r:
+        for m in r.messages(["source_a/tick", "source_b/tick"]):
+            value = m.decode_plain()["value"]
+            if m.topic == "source_a/tick":
+                expected.append(value + 1000 + 100000)
+            else:  # the copy through merge and slow (port a), then the direct one (port b)
+                expected += [value + 100000, value]
+    assert values(out, "merge2/tick") == expected and len(expected) == 12 + 2 * 6
+
+
 def _pid_holding(path: Path, parent: int) -> int | None:
     """The child of ``parent`` that has ``path`` open (Linux /proc), if any."""
     for entry in Path("/proc").iterdir():
