@@ -30,7 +30,12 @@ on each, side by side:
   (``perception.grasp``) on the world's pressures and finger speed: detected, and its
   delay after the jaws hold; ``classifier_right``: the committed classifier
   (``models/tactile_resnet18.pt``, trained on ``world.sim`` only), majority of the held
-  frames; ``world_cpu_s_per_sim_s``: the world's stepping, CPU seconds per simulated
+  frames; ``classifier_drawn_right``: the same classifier on grasps drawn as its
+  training grasps were (:func:`drawn_scene`: the auto-labeller's generator,
+  ``perception.classify.autolabel``, held-out seed :data:`DRAWN_SEED`; the object placed,
+  the jaws closed to the drawn width and force after :data:`SETTLE_SECS`, the training
+  frames' effects, no dot pattern), majority of the frames after the grasp monitor calls
+  the grasp stable (a grasp never stable is counted wrong); ``world_cpu_s_per_sim_s``: the world's stepping, CPU seconds per simulated
   second (one process; the MuJoCo figure is the recording's).
 - cost rows (``mujoco (cost)``): MuJoCo's CPU seconds per simulated second against the
   membrane mesh (12, 8, 5 and 3 mm edges; 12 mm only with ``--quick``) while the jaws
@@ -38,8 +43,9 @@ on each, side by side:
 
     python -m bench.worlds [--quick] [--json]
 
-``--quick``: one grasp, a 12 mm membrane mesh, in a temporary folder. The full run: 8
-grasps, an 8 mm mesh, recordings in ``out/worlds`` (``WORLDS_DIR`` overrides).
+``--quick``: one grasp of each kind, a 12 mm membrane mesh, in a temporary folder. The
+full run: 8 grasps of each kind, an 8 mm mesh, recordings in ``out/worlds``
+(``WORLDS_DIR`` overrides).
 """
 
 from __future__ import annotations
@@ -85,6 +91,14 @@ OFFAXIS_OK_M = 0.002
 MODEL = Path("models/tactile_resnet18.pt")
 EFFECTS = ["membrane", "depth", "tof_noise", "ir", "dot_pattern", "shear", "pressure"]
 EFFECTS += ["gripper", "ground_truth"]
+# The classifier's own grasps: a seed no training or held-out set of models/ used, the
+# auto-labelling world's effects and pacing (nodes/autolabel.py).
+DRAWN_SEED = 2900
+DRAWN_EFFECTS = ["membrane", "depth", "ir", "tof_noise", "pressure", "gripper", "ground_truth"]
+SETTLE_SECS = 0.2
+OPEN_WIDTH_M = 0.11
+CLOSE_SPEED_M_PER_S = 0.1
+DRAWN_HOLD_SECS = 0.5
 
 
 def grasp_scene(k: int, rng: np.random.Generator) -> dict[str, Any]:
@@ -125,6 +139,44 @@ def grasp_scene(k: int, rng: np.random.Generator) -> dict[str, Any]:
     }
 
 
+def drawn_scene(k: int) -> dict[str, Any]:
+    """The ``k``-th grasp of the auto-labeller's generator (seed :data:`DRAWN_SEED`) as a
+    scene document: placed, settled, closed to its width and force, held."""
+    from perception.classify.autolabel import GraspGenerator, GraspGeneratorParams
+    from sim.scene import rpy_deg_from_rotation
+
+    sample = GraspGenerator(GraspGeneratorParams(seed=DRAWN_SEED)).sample(k)
+    pose = sample.tool_from_object
+    closing = (OPEN_WIDTH_M - sample.grasp_width_m) / CLOSE_SPEED_M_PER_S
+    return {
+        "name": f"worlds_drawn_{k}",
+        "seed": DRAWN_SEED * 100 + k,
+        "duration_secs": round(SETTLE_SECS + closing + DRAWN_HOLD_SECS, 3),
+        "effects": DRAWN_EFFECTS,
+        "object": {"name": sample.object_name},
+        "mount_rpy_deg": [0, 0, 0],
+        "gripper": {
+            "initial_width_m": OPEN_WIDTH_M,
+            "commands": [
+                {
+                    "t_secs": SETTLE_SECS,
+                    "command": "grasp",
+                    "width_m": sample.grasp_width_m,
+                    "speed_m_per_s": CLOSE_SPEED_M_PER_S,
+                    "force_n": sample.force_n,
+                }
+            ],
+        },
+        "trajectory": [
+            {
+                "t_secs": 0.0,
+                "xyz_m": [float(v) for v in pose[:3, 3]],
+                "rpy_deg": list(rpy_deg_from_rotation(pose[:3, :3])),
+            }
+        ],
+    }
+
+
 def record_mujoco(scene_path: Path, bag: Path, mesh_spacing_m: float) -> float:
     """Run a scene in MuJoCo and record what ``world.mujoco`` publishes; CPU s per sim s."""
     from runtime.bag import BagWriter
@@ -161,9 +213,16 @@ def recorded_grasp(
     Both are named by the digest of the scene and the mesh: a changed grasp or mesh is
     recorded again, an unchanged one reused (by this bench and ``bench.force``).
     """
-    text = yaml.safe_dump(grasp_scene(k, rng), sort_keys=False)
+    return recorded_scene(f"grasp_{k}", grasp_scene(k, rng), spacing_m, workdir)
+
+
+def recorded_scene(
+    stem: str, doc: dict[str, Any], spacing_m: float, workdir: Path
+) -> tuple[Path, Path, float]:
+    """A scene document's file and its MuJoCo bag (see :func:`recorded_grasp`)."""
+    text = yaml.safe_dump(doc, sort_keys=False)
     key = hashlib.sha256(f"{text}{spacing_m}".encode()).hexdigest()[:10]
-    scene_path = workdir / f"grasp_{k}_{key}.yaml"
+    scene_path = workdir / f"{stem}_{key}.yaml"
     scene_path.write_text(text)
     bag = scene_path.with_suffix(".mcap")
     if bag.exists() and bag.with_suffix(".json").exists():
@@ -293,6 +352,31 @@ def score(frames: list[Instant], classifier: Classifier) -> dict[str, Any]:
     return out
 
 
+def classify_drawn(frames: list[Instant], classifier: Classifier) -> dict[str, Any]:
+    """The classifier's majority over the frames after the grasp monitor's stable grasp."""
+    monitor = GraspMonitor()
+    votes = []
+    for inst in frames:
+        g = inst.gripper
+        status = monitor.update_gripper(g.speed_m_per_s, g.width_m, inst.stamp_nanos)
+        for side in SIDES:
+            status = monitor.update_pressure(
+                side, inst.pressures[side].pressure_pa, inst.stamp_nanos
+            )
+        if status.stable:
+            p = classifier.classify(
+                depth_left_m=inst.images["left"].depth_m,
+                depth_right_m=inst.images["right"].depth_m,
+                ir_left=inst.images["left"].ir,
+                ir_right=inst.images["right"].ir,
+            )
+            votes.append(classifier.meta.classes[int(np.argmax(p))])
+    assert frames[-1].ground_truth is not None
+    name = frames[-1].ground_truth.object_class
+    said = max(sorted(set(votes)), key=votes.count) if votes else "not stable"
+    return {"drawn_object": name, "drawn_said": said, "classifier_drawn_right": int(said == name)}
+
+
 def _summary(world: str, scores: list[dict[str, Any]], cpu: list[float]) -> Row:
     def med(key: str) -> float:
         return median([s[key] for s in scores if np.isfinite(s[key])] or [float("nan")])
@@ -314,6 +398,12 @@ def _summary(world: str, scores: list[dict[str, Any]], cpu: list[float]) -> Row:
         "classifier_right_fraction": sum(s["classifier_right"] for s in scores) / n,
         "classifier_wrong": " ".join(
             f"{s['object']}->{s['classifier_said']}" for s in scores if not s["classifier_right"]
+        ),
+        "classifier_drawn_right_fraction": sum(s["classifier_drawn_right"] for s in scores) / n,
+        "classifier_drawn_wrong": " ".join(
+            f"{s['drawn_object']}->{s['drawn_said']}"
+            for s in scores
+            if not s["classifier_drawn_right"]
         ),
         "world_cpu_s_per_sim_s": median(cpu),
     }
@@ -373,10 +463,16 @@ def run(quick: bool) -> list[Row]:
     try:
         for k in progress(range(grasps), "bench.worlds", label=lambda k: f"grasp {k}"):
             scene_path, bag, mujoco_cpu = recorded_grasp(k, rng, spacing, workdir)
+            drawn_path, drawn_bag, _ = recorded_scene(
+                f"drawn_{k}", drawn_scene(k), spacing, workdir
+            )
             frames, cpu = run_sim(scene_path)
-            results["sim"][0].append(score(frames, classifier))
+            drawn = classify_drawn(run_sim(drawn_path)[0], classifier)
+            results["sim"][0].append(score(frames, classifier) | drawn)
             results["sim"][1].append(cpu)
-            results["mujoco"][0].append(score(replay_mujoco(scene_path, bag), classifier))
+            drawn = classify_drawn(replay_mujoco(drawn_path, drawn_bag), classifier)
+            mujoco = score(replay_mujoco(scene_path, bag), classifier) | drawn
+            results["mujoco"][0].append(mujoco)
             results["mujoco"][1].append(mujoco_cpu)
     finally:
         if tmp is not None:

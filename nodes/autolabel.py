@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,7 +52,7 @@ from runtime.node import Node
 from runtime.registry import register
 from sim import World, ground_truth, load_scene, stamp_of
 from sim.effects import resolve
-from sim.scene import Keyframe, Scene, SceneError
+from sim.scene import Keyframe, Scene, SceneError, rpy_deg_from_rotation
 from sim.wire import apply_command, to_message
 
 TASK = "autolabel"
@@ -315,18 +314,6 @@ class AutolabelSupervisor(Node):
             rate,
             rate * len(self.todo),
         )
-
-
-def rpy_deg_from_rotation(rot: np.ndarray) -> tuple[float, float, float]:
-    """Roll, pitch, yaw (degrees) with ``rot = Rz(yaw) Ry(pitch) Rx(roll)`` (sim scenes)."""
-    pitch = math.asin(max(-1.0, min(1.0, -rot[2, 0])))
-    if math.cos(pitch) > 1e-9:
-        roll = math.atan2(rot[2, 1], rot[2, 2])
-        yaw = math.atan2(rot[1, 0], rot[0, 0])
-    else:  # gimbal lock: only roll -+ yaw is defined; put it all in yaw
-        roll = 0.0
-        yaw = math.atan2(-rot[0, 1], rot[1, 1])
-    return math.degrees(roll), math.degrees(pitch), math.degrees(yaw)
 
 
 DEFAULT_SCENES = {

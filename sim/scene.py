@@ -112,6 +112,18 @@ def rotation_from_rpy_deg(rpy_deg: tuple[float, float, float] | np.ndarray) -> n
     return rz @ ry @ rx
 
 
+def rpy_deg_from_rotation(rot: np.ndarray) -> tuple[float, float, float]:
+    """Roll, pitch, yaw (degrees) with ``rot = Rz(yaw) Ry(pitch) Rx(roll)`` (sim scenes)."""
+    pitch = math.asin(max(-1.0, min(1.0, -rot[2, 0])))
+    if math.cos(pitch) > 1e-9:
+        roll = math.atan2(rot[2, 1], rot[2, 2])
+        yaw = math.atan2(rot[1, 0], rot[0, 0])
+    else:  # gimbal lock: only roll -+ yaw is defined; put it all in yaw
+        roll = 0.0
+        yaw = math.atan2(-rot[0, 1], rot[1, 1])
+    return math.degrees(roll), math.degrees(pitch), math.degrees(yaw)
+
+
 @dataclass(frozen=True, kw_only=True)
 class Scene:
     """A whole scene (see the module docstring). Hashable: renderers cache on it."""
