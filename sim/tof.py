@@ -253,7 +253,7 @@ class BubbleRenderer:
     def _mesh_membrane(self, snap: WorldSnapshot) -> dict[str, np.ndarray]:
         """A world's simulated membrane mesh, ray-cast (``sim.mujoco.render``): its dots
         are the latex's own material points, so it adds ``material_shift_m`` too."""
-        from sim.mujoco.mesh import CONTACT_TOLERANCE_M, membrane_mesh
+        from sim.mujoco.mesh import contact_tolerance_m, membrane_mesh
         from sim.mujoco.render import MeshView
 
         assert snap.membranes_f is not None
@@ -276,7 +276,7 @@ class BubbleRenderer:
             self.side, snap.width_m
         )
         local = surface @ object_from_finger[:3, :3].T + object_from_finger[:3, 3]
-        touching = self.field.value(local) < CONTACT_TOLERANCE_M
+        touching = self.field.value(local) < contact_tolerance_m(spacing)
         return view.render(surface, touching)
 
     def _depth(self, frame: dict[str, Any], snap: WorldSnapshot) -> None:

@@ -92,9 +92,20 @@ def _cap_mesh(bubble: BubbleGeometry, spacing_m: float) -> CapMesh:
     return CapMesh(rest, np.ascontiguousarray(triangles), pinned, spacing_m)
 
 
-# A membrane point is in contact where the object's field is under this (m): MuJoCo's
-# contacts sit on the flex radius's surface, within a fraction of a millimetre.
-CONTACT_TOLERANCE_M = 0.0005
+# A membrane vertex is in contact where the object's field is under the solver's
+# residual (m) plus the stand-off of a flat triangle's corners: a triangle touching a
+# surface of curvature radius R stands off at its corners by about h^2 / (6 R) for an
+# edge h (the circumradius h / sqrt(3) squared over 2 R); R = 30 mm, the radius of the
+# objects' grasped bodies (mug 40 mm, PET bottle 33 mm, the wine glass's bowl 22 to 40 mm;
+# the square bottle's faces are flatter).
+CONTACT_RESIDUAL_M = 0.0005
+CONTACT_CURVATURE_RADIUS_M = 0.03
+
+
+def contact_tolerance_m(spacing_m: float) -> float:
+    """How far from the object a vertex of a mesh of edge ``spacing_m`` still touches it."""
+    return CONTACT_RESIDUAL_M + spacing_m**2 / (6.0 * CONTACT_CURVATURE_RADIUS_M)
+
 
 # The shell's reference (stress-free) cap is this fraction of the rest cap's height: the
 # air stretches the latex to about the rest cap's 25 mm (measured with the default

@@ -33,7 +33,7 @@ from messages.base import Header
 from messages.force import WrenchTruth
 from sim.friction import BubbleWrench
 from sim.gripper import GripperDynamics
-from sim.mujoco.mesh import CONTACT_TOLERANCE_M, vertex_area_vectors
+from sim.mujoco.mesh import contact_tolerance_m, vertex_area_vectors
 from sim.mujoco.model import ShellSpec
 from sim.mujoco.physics import AirSpec, Contacts, GraspPhysics
 from sim.scene import Scene
@@ -231,10 +231,10 @@ class MujocoWorld:
     def contact_vertices(
         self, points_in_tool: np.ndarray, tool_from_object: np.ndarray
     ) -> np.ndarray:
-        """Which membrane points lie on the object (within ``CONTACT_TOLERANCE_M``)."""
+        """Which membrane points lie on the object (within ``contact_tolerance_m``)."""
         object_from_tool = invert(tool_from_object)
         local = points_in_tool @ object_from_tool[:3, :3].T + object_from_tool[:3, 3]
-        return self.model.field.value(local) < CONTACT_TOLERANCE_M
+        return self.model.field.value(local) < contact_tolerance_m(self.shell.mesh_spacing_m)
 
 
 def _grip_force_n(contacts: Contacts) -> float:
