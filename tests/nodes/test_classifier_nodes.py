@@ -135,14 +135,10 @@ import json  # noqa: E402
 
 from messages.classify import GraspRequest  # noqa: E402
 from messages.types import GripperCommand, GroundTruth, TaskEvent  # noqa: E402
-from nodes.autolabel import (  # noqa: E402
-    AutolabelSupervisor,
-    AutolabelWorld,
-    rpy_deg_from_rotation,
-)
+from nodes.autolabel import AutolabelSupervisor, AutolabelWorld  # noqa: E402
 from nodes.dataset_writer import DatasetWriterNode  # noqa: E402
 from perception.classify.dataset import read_manifest  # noqa: E402
-from sim.scene import rotation_from_rpy_deg  # noqa: E402
+from sim.scene import rotation_from_rpy_deg, rpy_deg_from_rotation  # noqa: E402
 
 
 def _states(io, port: str) -> list:
