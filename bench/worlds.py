@@ -339,17 +339,22 @@ def score(frames: list[Instant], classifier: Classifier) -> dict[str, Any]:
     # The committed classifier, majority over the held frames.
     votes = []
     for inst in frames[(holding_at and int(round(holding_at / scene_period))) or hold : hold + 1]:
-        p = classifier.classify(
-            depth_left_m=inst.images["left"].depth_m,
-            depth_right_m=inst.images["right"].depth_m,
-            ir_left=inst.images["left"].ir,
-            ir_right=inst.images["right"].ir,
-        )
-        votes.append(classifier.meta.classes[int(np.argmax(p))])
+        votes.append(_class_of(classifier, inst))
     said = max(set(votes), key=votes.count) if votes else ""
     out["classifier_said"] = said
     out["classifier_right"] = int(said == name)
     return out
+
+
+def _class_of(classifier: Classifier, inst: Instant) -> str:
+    """The classifier's answer for one frame pair."""
+    p = classifier.classify(
+        depth_left_m=inst.images["left"].depth_m,
+        depth_right_m=inst.images["right"].depth_m,
+        ir_left=inst.images["left"].ir,
+        ir_right=inst.images["right"].ir,
+    )
+    return classifier.meta.classes[int(np.argmax(p))]
 
 
 def classify_drawn(frames: list[Instant], classifier: Classifier) -> dict[str, Any]:
@@ -364,13 +369,7 @@ def classify_drawn(frames: list[Instant], classifier: Classifier) -> dict[str, A
                 side, inst.pressures[side].pressure_pa, inst.stamp_nanos
             )
         if status.stable:
-            p = classifier.classify(
-                depth_left_m=inst.images["left"].depth_m,
-                depth_right_m=inst.images["right"].depth_m,
-                ir_left=inst.images["left"].ir,
-                ir_right=inst.images["right"].ir,
-            )
-            votes.append(classifier.meta.classes[int(np.argmax(p))])
+            votes.append(_class_of(classifier, inst))
     assert frames[-1].ground_truth is not None
     name = frames[-1].ground_truth.object_class
     said = max(sorted(set(votes)), key=votes.count) if votes else "not stable"
