@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from tests.bench import run_quick
 
 
@@ -26,7 +28,25 @@ def test_worlds_quick_scores_one_grasp_on_both_worlds() -> None:
             assert math.isfinite(row[key]), (row["world"], key)
         assert 0.0 <= row["contact_iou_median"] <= 1.0
         assert row["stable_detected_fraction"] in (0.0, 1.0)
+        assert row["classifier_drawn_right_fraction"] in (0.0, 1.0)
     # The engine costs what it costs: far more than the geometric world, but finite.
     assert rows["mujoco"]["world_cpu_s_per_sim_s"] > rows["sim"]["world_cpu_s_per_sim_s"]
     # A mug grasped in the middle is seen as a contact patch on both worlds.
     assert rows["mujoco"]["contact_iou_median"] > 0.3
+
+
+def test_drawn_grasps_are_the_auto_labellers_grasps() -> None:
+    # The classifier's own grasps: the generator's pose, width and force, as a scene.
+    from bench.worlds import DRAWN_SEED, drawn_scene
+    from perception.classify.autolabel import GraspGenerator, GraspGeneratorParams
+    from sim.scene import scene_from_dict
+
+    generator = GraspGenerator(GraspGeneratorParams(seed=DRAWN_SEED))
+    for k in range(4):
+        sample = generator.sample(k)
+        scene = scene_from_dict(drawn_scene(k))
+        assert scene.object.name == sample.object_name
+        assert np.allclose(scene.tool_from_object(0.0), sample.tool_from_object, atol=1e-9)
+        (command,) = scene.gripper.commands
+        assert command.width_m == sample.grasp_width_m and command.force_n == sample.force_n
+        assert "dot_pattern" not in scene.resolved_effects
