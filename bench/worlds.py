@@ -141,13 +141,16 @@ def grasp_scene(k: int, rng: np.random.Generator) -> dict[str, Any]:
 
 def drawn_scene(k: int) -> dict[str, Any]:
     """The ``k``-th grasp of the auto-labeller's generator (seed :data:`DRAWN_SEED`) as a
-    scene document: placed, settled, closed to its width and force, held."""
+    scene document: placed, settled, closed to its width and force, held at least
+    :data:`DRAWN_HOLD_SECS`."""
     from perception.classify.autolabel import GraspGenerator, GraspGeneratorParams
     from sim.scene import rpy_deg_from_rotation
 
     sample = GraspGenerator(GraspGeneratorParams(seed=DRAWN_SEED)).sample(k)
     pose = sample.tool_from_object
-    closing = (OPEN_WIDTH_M - sample.grasp_width_m) / CLOSE_SPEED_M_PER_S
+    # A grasp command closes until the force is reached, past the drawn width if the
+    # membrane gives: time for the whole stroke.
+    closing = OPEN_WIDTH_M / CLOSE_SPEED_M_PER_S
     return {
         "name": f"worlds_drawn_{k}",
         "seed": DRAWN_SEED * 100 + k,
