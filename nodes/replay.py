@@ -180,8 +180,8 @@ class Replay(Node):
             if not self._due(msg, self.io.now_nanos()):
                 return
             topic = self.topic_map[msg.topic]
-            frames = self._decodable(msg, topic)
-            if frames is None:
+            decoded = self._decodable(msg, topic)
+            if decoded is None:
                 self._pending = next(self._iter, None)
                 continue
             # Bound what is in flight: "as fast as the graph takes them", not faster (in
@@ -194,20 +194,22 @@ class Replay(Node):
                 if not self.io.wait_idle(self.params.idle_timeout_secs):
                     self.io.log.warning("graph not idle after %s s", self.params.idle_timeout_secs)
                 self._in_flight = 0
-            self.io.publish_raw(topic, frames)
+            frames, typed = decoded
+            self.io.publish_raw(topic, frames, typed)
             self.published += 1
             self._in_flight += 1
             self._pending = next(self._iter, None)
 
-    def _decodable(self, msg: BagMessage, topic: str) -> list[Any] | None:
-        """The message's frames if they decode into its type; else skip it (or stop: strict)."""
+    def _decodable(self, msg: BagMessage, topic: str) -> tuple[list[Any], Message] | None:
+        """The message's frames and itself if they decode into its type; else skip it (or
+        stop: strict)."""
         schema = msg.channel.schema
         try:
             frames = msg.wire_frames(topic)
             _, typed = decode(frames, expect=self.kinds[msg.topic], stored=schema.description)
             if schema.fingerprint == typed.schema().fingerprint:
-                return frames
-            return encode(topic, typed)  # an older declaration goes out as today's
+                return frames, typed
+            return encode(topic, typed), typed  # an older declaration goes out as today's
         except BagError as err:
             problem = str(err)
         except FrameDecodeError as err:
