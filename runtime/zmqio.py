@@ -150,17 +150,17 @@ class ZmqIO:
         if header is not None:
             header.seq = self.published[topic]
         frames = encode(topic, msg)
-        self._check_finite(topic, msg)
         self._count_ahead(topic)
         send_parts(self.pub, frames)
+        self._check_finite(topic, msg)  # after the send: not on the frame's way out
 
     def publish_raw(self, topic: str, frames: list[Any], decoded: Message | None = None) -> None:
         if topic not in self.topics.values():
             raise KeyError(f"{self.name}: {topic!r} is not one of its output topics")
-        if decoded is not None:
-            self._check_finite(topic, decoded)
         self._count_ahead(topic)
         send_parts(self.pub, [topic.encode(), *frames[1:]])
+        if decoded is not None:
+            self._check_finite(topic, decoded)
 
     def _check_finite(self, topic: str, msg: Message) -> None:
         """Count (per topic) and warn once about a message whose ``finite_fields`` are not.
