@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import functools
 import math
-import typing
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -40,16 +39,13 @@ _encoder = msgspec.msgpack.Encoder()
 _header_decoder = msgspec.msgpack.Decoder()
 
 
-_ArrayRows = list[tuple[str, str, list[int]]]
-
-
 class WireHeader(msgspec.Struct, forbid_unknown_fields=True):
     """The envelope of frame 1, validated on decode."""
 
     type: str
     fp: str
     fields: dict[str, Any]
-    arrays: _ArrayRows
+    arrays: list[tuple[str, str, list[int]]]
 
 
 _wire_decoder = msgspec.msgpack.Decoder(WireHeader)
@@ -84,32 +80,6 @@ class _Plan:
     arrays: tuple[_WireArray, ...]
     arrays_by_name: dict[str, _WireArray]
     scalar_names: tuple[str, ...]
-    typed_header: msgspec.msgpack.Decoder[Any]  # frame 1 with the class's own fields
-
-
-def _typed_header(
-    cls: type[Message], scalar_names: tuple[str, ...]
-) -> msgspec.msgpack.Decoder[Any]:
-    """A decoder of frame 1 that validates ``fields`` as ``cls`` declares its non-array
-    fields (types, constraints, defaults) while reading it: no dict, then no conversion."""
-    hints = typing.get_type_hints(cls, include_extras=True)
-    fields: list[tuple[str, Any] | tuple[str, Any, Any]] = []
-    for f in msgspec.structs.fields(cls):
-        if f.name not in scalar_names:
-            continue
-        if f.default is not msgspec.NODEFAULT:
-            fields.append((f.name, hints[f.name], f.default))
-        elif f.default_factory is not msgspec.NODEFAULT:
-            fields.append((f.name, hints[f.name], msgspec.field(default_factory=f.default_factory)))
-        else:
-            fields.append((f.name, hints[f.name]))
-    scalars = msgspec.defstruct(f"{cls.__name__}Fields", fields, kw_only=True)
-    envelope = msgspec.defstruct(
-        f"{cls.__name__}Wire",
-        [("type", str), ("fp", str), ("fields", scalars), ("arrays", _ArrayRows)],
-        forbid_unknown_fields=True,
-    )
-    return msgspec.msgpack.Decoder(envelope)
 
 
 @functools.cache
@@ -122,15 +92,13 @@ def _plan(cls: type[Message]) -> _Plan:
         dtype = np.dtype(np.dtype(spec.dtype).newbyteorder("<").str)
         fixed = tuple((axis, n) for axis, n in enumerate(spec.shape) if n is not None)
         arrays.append(_WireArray(name, spec, dtype, dtype.str, fixed))
-    scalar_names = tuple(
-        f.name for f in msgspec.structs.fields(cls) if f.name not in schema.array_fields
-    )
     return _Plan(
         fingerprint=schema.fingerprint,
         arrays=tuple(arrays),
         arrays_by_name={a.name: a for a in arrays},
-        scalar_names=scalar_names,
-        typed_header=_typed_header(cls, scalar_names),
+        scalar_names=tuple(
+            f.name for f in msgspec.structs.fields(cls) if f.name not in schema.array_fields
+        ),
     )
 
 
@@ -307,10 +275,6 @@ def decode(
         topic = str(getattr(frames[0], "bytes", frames[0]), "utf-8")  # zmq.Frame or bytes
     except UnicodeDecodeError as err:
         raise FrameDecodeError("topic frame is not UTF-8") from err
-    if expect is not None and stored is None:
-        expected = _decode_expected(topic, frames, expect)
-        if expected is not None:
-            return topic, expected
     wire = decode_header(_buffer(frames[1]))
     cls = Message.registry.get(wire.type)
     if cls is None:
@@ -340,36 +304,6 @@ def decode(
     except (msgspec.ValidationError, NotImplementedError, TypeError) as err:
         raise FrameDecodeError(f"{topic}: {wire.type}: {err}") from err
     return topic, msg
-
-
-def _decode_expected(topic: str, frames: Sequence[Any], cls: type[Message]) -> Message | None:
-    """The usual frame of the type a node expects, in one validating pass over frame 1; None
-    for anything else, which :func:`decode`'s general path then reads or explains."""
-    plan = _plan(cls)
-    try:
-        wire = plan.typed_header.decode(_buffer(frames[1]))
-    except (
-        msgspec.DecodeError,
-        msgspec.ValidationError,
-        UnicodeDecodeError,
-        ValueError,
-        RecursionError,
-    ):
-        return None
-    if (
-        wire.type != cls.__name__
-        or wire.fp != plan.fingerprint
-        or len(frames) != 2 + len(wire.arrays)
-    ):
-        return None
-    fields = msgspec.structs.asdict(wire.fields)
-    for row, frame in zip(wire.arrays, frames[2:], strict=True):
-        fields[row[0]] = _received_array(topic, wire.type, row, frame, plan)
-    try:
-        # The values are validated: the typed header's fields, the arrays just checked.
-        return cls(**fields)
-    except (TypeError, ValueError):  # an array field missing: the general path says so
-        return None
 
 
 # -- the single-value form (bags) ----------------------------------------------------------------
