@@ -24,7 +24,7 @@ check: $(VENV_STAMP)
 lint: $(VENV_STAMP)
 	$(PY) -m ruff check .
 	$(PY) -m ruff format --check .
-	$(PY) -m mypy messages runtime cli
+	$(PY) -m mypy messages runtime cli nodes perception
 
 format: $(VENV_STAMP)
 	$(PY) -m ruff format .

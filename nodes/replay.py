@@ -155,7 +155,7 @@ class Replay(Node):
         )
         self._pending: BagMessage | None = next(self._iter, None)
         self._wall0: int | None = None
-        self._bag0 = self._pending.log_time_nanos if self._pending else 0
+        self._bag0: int = self._pending.log_time_nanos if self._pending else 0
         self.passes += 1
 
     def _due(self, msg: BagMessage, now: int) -> bool:
@@ -163,7 +163,8 @@ class Replay(Node):
             return True
         if self._wall0 is None:
             self._wall0 = now
-        return (msg.log_time_nanos - self._bag0) / self.params.rate <= now - self._wall0
+        bag_elapsed: float = (msg.log_time_nanos - self._bag0) / self.params.rate
+        return bag_elapsed <= now - self._wall0
 
     def _tick(self) -> None:
         if self.done:
