@@ -102,12 +102,11 @@ class Calibration:
         if not isinstance(data, dict):
             raise ValueError(f"{where}: a calibration must be a JSON object")
         try:
-            physics = PhysicsCalibration(
-                **{
-                    k: tuple(v) if isinstance(v, list) else v
-                    for k, v in data.get("physics", {}).items()
-                }
-            )
+            physics_fields: dict[str, Any] = {
+                k: tuple(v) if isinstance(v, list) else v
+                for k, v in data.get("physics", {}).items()
+            }
+            physics = PhysicsCalibration(**physics_fields)
             ridge = RidgeCalibration(**data.get("ridge", {}))
             rest = {k: v for k, v in data.items() if k not in ("physics", "ridge")}
             return cls(physics=physics, ridge=ridge, **rest)
@@ -219,7 +218,8 @@ class Sample:
 
 
 def _lstsq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.linalg.lstsq(a, b, rcond=None)[0]
+    solution: np.ndarray = np.linalg.lstsq(a, b, rcond=None)[0]
+    return solution
 
 
 def calibrate_physics(samples: list[Sample]) -> PhysicsCalibration:
@@ -249,9 +249,9 @@ def calibrate_physics(samples: list[Sample]) -> PhysicsCalibration:
     base = PhysicsCalibration(
         gain=gain,
         unseen_gain=unseen,
-        stiffness_n_per_m3=tuple(stiffness),
-        indent_bias_n_per_m3=tuple(bias),
-    )  # type: ignore[arg-type]
+        stiffness_n_per_m3=(stiffness[0], stiffness[1]),
+        indent_bias_n_per_m3=(bias[0], bias[1]),
+    )
     # Torsion: what the centroid's moment leaves of the torque about x.
     rest = np.array([s.torque_nm[0] - physics_wrench(s.features, base).torque_nm[0] for s in used])
     twist = np.array([s.features.area_m2 * s.features.torsion_rad for s in used])

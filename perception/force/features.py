@@ -121,7 +121,9 @@ def rim_correction(indent_m: np.ndarray, threshold_m: float) -> float:
     return math.sqrt(deepest / (deepest - threshold_m))
 
 
-def footprint_m2(depth_m: np.ndarray, camera: PinholeCamera, normal_in_sensor: np.ndarray):
+def footprint_m2(
+    depth_m: np.ndarray, camera: PinholeCamera, normal_in_sensor: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Each pixel's footprint projected on a plane normal to ``normal_in_sensor``, and
     its range (m); NaN where the depth is invalid."""
     rays = camera.unit_rays()

@@ -146,7 +146,12 @@ class EstimatorParams:
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0.0):
                 raise ValueError(f"{name} must be >= 0, got {value}")
-        positive = ("accept_ratio", "distinct_deg", "distinct_m", "track_rise_ratio")
+        positive: tuple[str, ...] = (
+            "accept_ratio",
+            "distinct_deg",
+            "distinct_m",
+            "track_rise_ratio",
+        )
         positive += ("tolerance_deg", "tolerance_m", "step_limit", "observability_floor")
         for name in (*positive, "warm_deg", "warm_accept_ratio"):
             value = getattr(self, name)
@@ -440,7 +445,8 @@ class PoseEstimator:
         return self._finish(result, status, "; ".join(reasons), iterations, tried, noise, start)
 
     def _bias_limit_m(self, noise: float, n: int) -> float:
-        return (self.params.bias_ratio + 2.0 / np.sqrt(max(n, 1))) * noise
+        limit: float = (self.params.bias_ratio + 2.0 / np.sqrt(max(n, 1))) * noise
+        return limit
 
     def _centre_unobservable(self, result: FitResult, pts: np.ndarray) -> FitResult:
         """Move the pose along its unobservable translations so the patch's centroid

@@ -207,7 +207,8 @@ def observed_difference(
         if float(np.linalg.norm(along)) < 1e-12:
             break
         rel = se3.exp_se3(-along * scale) @ rel
-    return basis.T @ (se3.log_se3(rel) / scale)
+    coords: np.ndarray = basis.T @ (se3.log_se3(rel) / scale)
+    return coords
 
 
 def extent(
