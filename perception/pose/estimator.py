@@ -55,7 +55,7 @@ import numpy as np
 from geometry import se3
 from geometry.fields import Field
 from perception.pose import judge
-from perception.pose.cloud import clean_cloud, clean_points, estimate_noise_m
+from perception.pose.cloud import camera_rays, clean_cloud, clean_points, estimate_noise_m
 from perception.pose.problem import (
     MIN_POINTS,
     FitResult,
@@ -259,16 +259,17 @@ class PoseEstimator:
         # while tracking.
         kept = self.last_noise_m if tracking else 0.0
         noise = prm.noise_m or kept or max(estimate_noise_m(pts), prm.min_noise_m)
+        rays = camera_rays(pts, sides)
         if prior is not None:
             first = self._solve(pts, prior)
             if self._warm_stands(first, prior, tracking, noise):
                 judged = self._judge(
-                    pts, [_Minimum(first, 0)], first.iterations, 1, True, noise, start
+                    pts, rays, [_Minimum(first, 0)], first.iterations, 1, True, noise, start
                 )
                 if judged.status == "ok":
                     return judged
         minima, iterations, tried = self._search(pts, sides, prior, noise)
-        return self._judge(pts, minima, iterations, tried, prior is not None, noise, start)
+        return self._judge(pts, rays, minima, iterations, tried, prior is not None, noise, start)
 
     def _warm_stands(
         self, first: FitResult, prior: np.ndarray, tracking: bool, noise: float
@@ -356,6 +357,7 @@ class PoseEstimator:
     def _judge(
         self,
         pts: np.ndarray,
+        rays: np.ndarray | None,
         minima: list[_Minimum],
         iterations: int,
         tried: int,
@@ -374,7 +376,7 @@ class PoseEstimator:
         if best.rank != 0 or not had_prior:
             result = self._centre_unobservable(result, pts)
         fld = self.solver.field.resized(**result.dims_m)
-        unc = judge.uncertainty(fld, result.object_from_tool, pts, floor=prm.observability_floor)
+        result, unc = self._at_minimum(fld, result, pts, rays)
         reasons = []
         if unc.region95_deg > prm.tolerance_deg or unc.region95_m > prm.tolerance_m:
             reasons.append(
@@ -386,7 +388,8 @@ class PoseEstimator:
             stopped = f" (the solver did not converge: {result.message})"
             reasons.append(
                 f"not at the minimum of the fit: a step of {unc.step_sigma:.2f} of the 95% "
-                f"region remains{stopped if result.status == 'not_converged' else ''}"
+                "region remains after one Gauss-Newton step"
+                f"{stopped if result.status == 'not_converged' else ''}"
             )
         accept = prm.accept_ratio * noise
         if result.residual_rms_m > accept:
@@ -431,6 +434,7 @@ class PoseEstimator:
             status = "ok" if best.rank == 0 else "recovered"
         result = replace(
             result,
+            object_from_tool=se3.exp_se3(unc.correction) @ result.object_from_tool,
             observable=unc.observable,
             covariance=unc.covariance,
             region95_deg=unc.region95_deg,
@@ -438,6 +442,34 @@ class PoseEstimator:
             alternatives="; ".join(alike),
         )
         return self._finish(result, status, "; ".join(reasons), iterations, tried, noise, start)
+
+    def _at_minimum(
+        self, fld: Field, result: FitResult, pts: np.ndarray, rays: np.ndarray | None
+    ) -> tuple[FitResult, judge.Uncertainty]:
+        """The answer and its uncertainty at the minimum of the fit: a solver that stopped
+        short (ICP, a loose tolerance) is taken one Gauss-Newton step further, kept if
+        the cost does not rise; the judgement then says whether that reached it."""
+        prm = self.params
+        unc = judge.uncertainty(
+            fld, result.object_from_tool, pts, rays_in_tool=rays, floor=prm.observability_floor
+        )
+        if unc.step_sigma <= prm.step_limit:
+            return result, unc
+        pose = se3.exp_se3(unc.step) @ result.object_from_tool
+        r = residuals(fld, pose, pts)
+        cost = float(r @ r)
+        if not cost <= result.cost:
+            return result, unc
+        stepped = replace(
+            result,
+            object_from_tool=pose,
+            cost=cost,
+            residual_rms_m=float(np.sqrt(cost / max(len(pts), 1))),
+            residual_mean_m=float(np.mean(r)),
+        )
+        return stepped, judge.uncertainty(
+            fld, pose, pts, rays_in_tool=rays, floor=prm.observability_floor
+        )
 
     def _bias_limit_m(self, noise: float, n: int) -> float:
         return (self.params.bias_ratio + 2.0 / np.sqrt(max(n, 1))) * noise

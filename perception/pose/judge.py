@@ -37,7 +37,7 @@ a slide along a face), then the rest is expressed in the observable coordinates.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -54,8 +54,9 @@ from perception.pose.problem import (
 #: chi-square 95% quantiles for 0-6 degrees of freedom.
 CHI2_95 = (0.0, 3.841, 5.991, 7.815, 9.488, 11.070, 12.592)
 #: Fitted calibration (module docstring; measured by ``bench.pose_hard``).
-INFLATION = 1.3
+INFLATION = 1.4
 MODEL_ERROR = 1.0
+BIAS_ERROR = 0.6
 #: How far along its gradient (in residual RMS) the field must stay smooth at a point for
 #: the point to count toward what the patch observes.
 REACH = 6.0
@@ -87,6 +88,8 @@ class Uncertainty:
     region95_deg: float
     region95_m: float
     step_sigma: float
+    step: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    correction: np.ndarray = field(default_factory=lambda: np.zeros(6))
 
     @property
     def scale(self) -> np.ndarray:
@@ -140,16 +143,49 @@ def from_covariance(covariance: np.ndarray, length_m: float) -> Uncertainty:
     )
 
 
+def ray_bias(
+    fld: Field,
+    object_from_tool: np.ndarray,
+    points_in_tool: np.ndarray,
+    rays_in_tool: np.ndarray,
+    r: np.ndarray,
+    jac: np.ndarray,
+) -> np.ndarray:
+    """The expected gradient of the half cost, ``E[sum_i r_i J_i]`` (6,), that noise along
+    the camera rays leaves at the true pose (module docstring): with ``e`` along the
+    unit ray ``d`` (object frame), ``r = e (g . d) + O(e^2)`` and the Jacobian row moves
+    by ``e [K d, d x g + q x K d]`` (``K d``: the change of the field's gradient along
+    the ray, a central difference over one noise sigma, which also takes in the edges
+    and rims the noise crosses); the products average to ``sigma^2 (g . d) [...]``. The
+    ray noise ``sigma^2`` is ``sum r^2 / sum (g . d)^2``."""
+    rot = object_from_tool[:3, :3]
+    q = points_in_tool @ rot.T + object_from_tool[:3, 3]
+    d = rays_in_tool @ rot.T
+    g = jac[:, :3]
+    along = np.sum(g * d, axis=1)
+    sigma2 = float(r @ r) / max(float(along @ along), 1e-12)
+    h = float(np.sqrt(sigma2))
+    _, ahead = fld.value_and_grad(q + h * d)
+    _, behind = fld.value_and_grad(q - h * d)
+    kd = (ahead - behind) / (2.0 * h)
+    moved = np.concatenate([kd, np.cross(d, g) + np.cross(q, kd)], axis=1)
+    return sigma2 * (along @ moved)
+
+
 def uncertainty(
     fld: Field,
     object_from_tool: np.ndarray,
     points_in_tool: np.ndarray,
     *,
+    rays_in_tool: np.ndarray | None = None,
     floor: float = 1e-4,
     inflation: float = INFLATION,
+    bias_error: float = BIAS_ERROR,
     model_error: float = MODEL_ERROR,
 ) -> Uncertainty:
-    """The uncertainty of ``object_from_tool`` on finite (N, 3) points (module docstring)."""
+    """The uncertainty of ``object_from_tool`` on finite (N, 3) points (module docstring);
+    ``rays_in_tool`` (N, 3): each point's camera ray (``cloud.camera_rays``), for the
+    bias that noise along them leaves."""
     length = characteristic_length(fld)
     r, jac = residuals_and_jacobian(fld, object_from_tool, points_in_tool)
     n = len(r)
@@ -172,14 +208,22 @@ def uncertainty(
     a = (jac * scale) @ basis
     h_inv = np.linalg.inv(a.T @ a)
     meat = (a * (r * r)[:, None]).T @ a
-    noise_sq = float(r @ r) / n
     cov = inflation**2 * (h_inv @ meat @ h_inv) * n / (n - k)
-    cov = cov + (model_error * noise_sq / length) ** 2 * n * h_inv
+    twist = basis * scale[:, None]  # basis coordinates -> twist
+    if rays_in_tool is not None:
+        # The fit's minimum sits off the truth by -H^-1 (bias of the gradient): undone
+        # by the correction; what the second-order model misses is a share of it.
+        bias = ray_bias(fld, object_from_tool, points_in_tool, rays_in_tool, r, jac)
+        shift = h_inv @ (basis.T @ (scale * bias))
+        cov = cov + bias_error**2 * np.outer(shift, shift)
+    else:
+        shift = np.zeros(k)
+        noise_sq = float(r @ r) / n
+        cov = cov + (model_error * noise_sq / length) ** 2 * n * h_inv
     cov = 0.5 * (cov + cov.T)
     inverse = np.linalg.inv(cov)
     q95 = CHI2_95[k]
     step = -h_inv @ (a.T @ r)
-    twist = basis * scale[:, None]  # basis coordinates -> twist
     cov6 = twist @ cov @ twist.T
     return Uncertainty(
         covariance=cov6,
@@ -190,6 +234,8 @@ def uncertainty(
         region95_deg=float(np.degrees(np.sqrt(q95 * max(np.linalg.eigvalsh(cov6[3:, 3:])[-1], 0)))),
         region95_m=float(np.sqrt(q95 * max(np.linalg.eigvalsh(cov6[:3, :3])[-1], 0.0))),
         step_sigma=float(np.sqrt(step @ inverse @ step / q95)),
+        step=twist @ step,
+        correction=twist @ shift,
     )
 
 
