@@ -197,9 +197,7 @@ def test_an_answer_short_of_the_minimum_is_finished_or_suspect(tilt_deg, reached
     seed = synthetic.tilted_seed(truth, tilt_deg, rng, offset_m=0.0005)
     # One seed: the search cannot replace the lazy answer with a data seed's.
     prm = EstimatorParams(track=False, noise_m=0.001, max_seeds=1)
-    result = PoseEstimator(_Lazy(CYL.field), prm).estimate(
-        pts, bubble, seed_tool_from_object=seed
-    )
+    result = PoseEstimator(_Lazy(CYL.field), prm).estimate(pts, bubble, seed_tool_from_object=seed)
     if reached:
         assert result.status == "ok", result.message
         assert metrics.right(CYL.field, result, truth)
