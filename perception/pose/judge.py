@@ -15,16 +15,28 @@ Uncertainty (:func:`uncertainty`), from the fit at the estimate whatever solver 
   ``H^-1 (sum r_i^2 a_i a_i^T) H^-1`` with ``H = sum a_i a_i^T``): noise along the
   camera rays leaves less in the residual where a ray meets the surface obliquely, and
   the sandwich follows that without a noise model.
-- Model error: noise across an edge or a rim, or across a curved surface, biases the
-  residuals by about ``noise^2 / length`` (a point pushed inside past a rim is nearer the
-  cap than the side); the bias is coherent over the patch and does not average out with
-  more points. It is added as ``(model_error * noise^2 / length)^2 H^-1 N``, where
-  ``length`` is the object's half diagonal.
-- Calibration: the statistical part is scaled by ``inflation``. ``inflation`` and
-  ``model_error`` were fitted on synthetic two-bubble clouds (cylinders of radius 30-50
-  mm, a 60x60x160 mm box on a face, an edge and a corner; 0.5-3 mm noise along the rays;
-  3000 points) so that the 95% region holds the truth 95% of the time over all of them;
-  ``bench.pose_hard`` measures the coverage per shape and noise.
+- Bias from the rays (``rays_in_tool``, from ``cloud.camera_rays``): each camera looks
+  at its membrane obliquely (about 55 degrees from the plate's normal), so the depth
+  noise moves a point along the surface as well as across it, and on a curved surface,
+  an edge or a rim, the point's residual and its Jacobian row then move together. Their
+  product does not average out: the fit's minimum sits off the truth by
+  ``-H^-1 E[sum r_i J_i]`` (:func:`ray_bias`), second order in the noise and the same
+  for any number of points (a 30 mm cylinder at 3 mm noise: 0.2-0.5 mm and 0.3-0.6
+  degrees, two to six times the statistical spread at 3000 points). The predicted
+  offset is returned as ``correction`` (the estimator applies it) and what the
+  second-order model misses, ``BIAS_ERROR`` of it, is added to the covariance.
+  Without rays (no bubble labels) a cruder term stands in: a coherent bias of
+  ``b = MODEL_ERROR * noise^2 / length`` per point, ``b^2 n H^-1``, with ``length`` the
+  object's half diagonal; it does not know the rays' direction and is not calibrated.
+- Calibration: the statistical part is scaled by ``INFLATION``. ``INFLATION`` and
+  ``BIAS_ERROR`` were fitted on synthetic two-bubble clouds (cylinders of radius 30-50
+  mm, a 60x60x160 mm box on a face, an edge and a corner, the PET bottle by its body;
+  0.5-3 mm noise along the rays; 3000 points; LM, cold starts) so that the 95% region
+  holds the truth 95% of the time over all of them; ``bench.pose_hard`` measures the
+  coverage per shape, noise and solver.
+- Short of the minimum: ``step`` is the Gauss-Newton step from the estimate to the
+  minimum of the fit, ``step_sigma`` its size in 95% regions; the estimator takes a
+  solver that stopped short one such step further before it judges.
 
 The 95% region is the ellipsoid ``c^T C^-1 c <= chi2_k(0.95)`` over the ``k`` observable
 directions. ``region95_deg`` and ``region95_m`` are its extent: the largest rotation and
@@ -55,8 +67,9 @@ from perception.pose.problem import (
 CHI2_95 = (0.0, 3.841, 5.991, 7.815, 9.488, 11.070, 12.592)
 #: Fitted calibration (module docstring; measured by ``bench.pose_hard``).
 INFLATION = 1.4
-MODEL_ERROR = 1.0
 BIAS_ERROR = 0.6
+#: The stand-in for the rays' bias when the rays are not known (module docstring).
+MODEL_ERROR = 1.0
 #: How far along its gradient (in residual RMS) the field must stay smooth at a point for
 #: the point to count toward what the patch observes.
 REACH = 6.0
@@ -78,6 +91,9 @@ class Uncertainty:
         step_sigma: the Gauss-Newton step from the estimate to the minimum of the fit,
             as a fraction of the 95% region's size along it (0 at the minimum; 1 at
             the region's edge): how far the solver stopped short.
+        step: (6,) that step, as a left twist.
+        correction: (6,) the left twist that moves the estimate onto the truth by the
+            bias the rays predict (zeros without rays): ``exp(correction) X``.
     """
 
     covariance: np.ndarray
