@@ -346,8 +346,7 @@ class PoseEstimator:
         else:
             status = "ok" if best.rank == 0 else "recovered"
         result = replace(
-            result,
-            object_from_tool=se3.exp_se3(unc.correction) @ result.object_from_tool,
+            _moved(fld, result, se3.exp_se3(unc.correction) @ result.object_from_tool, pts),
             observable=unc.observable,
             covariance=unc.covariance,
             region95_deg=unc.region95_deg,
@@ -368,20 +367,11 @@ class PoseEstimator:
         )
         if unc.step_sigma <= prm.step_limit:
             return result, unc
-        pose = se3.exp_se3(unc.step) @ result.object_from_tool
-        r = residuals(fld, pose, pts)
-        cost = float(r @ r)
-        if not cost <= result.cost:
+        stepped = _moved(fld, result, se3.exp_se3(unc.step) @ result.object_from_tool, pts)
+        if not stepped.cost <= result.cost:
             return result, unc
-        stepped = replace(
-            result,
-            object_from_tool=pose,
-            cost=cost,
-            residual_rms_m=float(np.sqrt(cost / max(len(pts), 1))),
-            residual_mean_m=float(np.mean(r)),
-        )
         return stepped, judge.uncertainty(
-            fld, pose, pts, rays_in_tool=rays, floor=prm.observability_floor
+            fld, stepped.object_from_tool, pts, rays_in_tool=rays, floor=prm.observability_floor
         )
 
     def _bias_limit_m(self, noise: float, n: int) -> float:
@@ -397,17 +387,8 @@ class PoseEstimator:
         pose = result.object_from_tool.copy()
         centroid = pose[:3, :3] @ pts.mean(axis=0) + pose[:3, 3]
         pose[unseen, 3] -= centroid[unseen]
-        r = residuals(self.solver.field.resized(**result.dims_m), pose, pts)
-        cost = float(r @ r)
-        if not cost <= result.cost * (1.0 + 1e-6) + 1e-12:
-            return result
-        return replace(
-            result,
-            object_from_tool=pose,
-            cost=cost,
-            residual_rms_m=float(np.sqrt(cost / max(len(pts), 1))),
-            residual_mean_m=float(np.mean(r)),
-        )
+        moved = _moved(self.solver.field.resized(**result.dims_m), result, pose, pts)
+        return moved if moved.cost <= result.cost * (1.0 + 1e-6) + 1e-12 else result
 
     def _finish(
         self,
@@ -459,3 +440,16 @@ class PoseEstimator:
             solver=self.solver.name,
             message=message,
         )
+
+
+def _moved(fld: Field, result: FitResult, pose: np.ndarray, pts: np.ndarray) -> FitResult:
+    """``result`` at another pose, with the fit's cost, RMS and mean there."""
+    r = residuals(fld, pose, pts)
+    cost = float(r @ r)
+    return replace(
+        result,
+        object_from_tool=pose,
+        cost=cost,
+        residual_rms_m=float(np.sqrt(cost / max(len(pts), 1))),
+        residual_mean_m=float(np.mean(r)),
+    )
