@@ -70,8 +70,11 @@ CHI2_95 = (0.0, 3.841, 5.991, 7.815, 9.488, 11.070, 12.592)
 #: Fitted calibration (module docstring; measured by ``bench.pose_hard``).
 INFLATION = 1.5
 BIAS_ERROR = 0.6
+IDENTITY = np.eye(4)
 #: Gauss-Hermite nodes of the average over the noise along a ray (``ray_bias``).
 NODES = 7
+#: The rays' bias is summed over at most this many points, scaled to all (``ray_bias``).
+BIAS_POINTS = 2000
 #: Newton steps along the ray back onto the surface (``ray_bias``).
 SURFACE_STEPS = 3
 #: The stand-in for the rays' bias when the rays are not known (module docstring).
@@ -179,10 +182,13 @@ def ray_bias(
     its residual and Jacobian row is averaged over Gaussian noise along the ray there
     (Gauss-Hermite, ``NODES`` nodes): no expansion in the noise, so edges and rims the
     noise crosses count as they are. The ray noise ``sigma^2`` is
-    ``sum r^2 / sum (g . d)^2``."""
+    ``sum r^2 / sum (g . d)^2``. Every k-th point stands for its neighbours, so at most
+    ``BIAS_POINTS`` are evaluated."""
+    stride = -(-len(r) // BIAS_POINTS)  # every stride-th point: at most BIAS_POINTS
     rot = object_from_tool[:3, :3]
-    q = points_in_tool @ rot.T + object_from_tool[:3, 3]
-    d = rays_in_tool @ rot.T
+    q = points_in_tool[::stride] @ rot.T + object_from_tool[:3, 3]
+    d = rays_in_tool[::stride] @ rot.T
+    r, jac = r[::stride], jac[::stride]
     along = np.sum(jac[:, :3] * d, axis=1)
     sigma = float(np.sqrt(float(r @ r) / max(float(along @ along), 1e-12)))
     # Back along the ray onto the surface (Newton steps; no further than three sigma in
@@ -200,11 +206,9 @@ def ray_bias(
     weights = weights / weights.sum()
     total = np.zeros(6)
     for e, w in zip(sigma * nodes, weights, strict=True):
-        at = surface + e * d
-        value, grad = fld.value_and_grad(at)
-        rows = np.concatenate([grad, np.cross(at, grad)], axis=1)
+        value, rows = residuals_and_jacobian(fld, IDENTITY, surface + e * d)
         total += w * (value @ rows)
-    return total
+    return total * (len(points_in_tool) / len(q))
 
 
 def uncertainty(
