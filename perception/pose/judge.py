@@ -180,17 +180,18 @@ def ray_bias(
     the camera rays leaves at the true pose (module docstring). Each point is moved back
     along its ray onto the surface (Newton steps ``r / (g . d)``), and the product of
     its residual and Jacobian row is averaged over Gaussian noise along the ray there
-    (Gauss-Hermite, ``NODES`` nodes): no expansion in the noise, so edges and rims the
-    noise crosses count as they are. The ray noise ``sigma^2`` is
-    ``sum r^2 / sum (g . d)^2``. Every k-th point stands for its neighbours, so at most
-    ``BIAS_POINTS`` are evaluated."""
+    (Gauss-Hermite, ``NODES`` nodes), less that product without noise: no expansion in
+    the noise, so edges and rims the noise crosses count as they are. The ray noise
+    ``sigma^2`` is ``sum (r - mean r)^2 / sum (g . d)^2``. Every k-th point stands for
+    its neighbours, so that at most ``BIAS_POINTS`` are evaluated."""
     stride = -(-len(r) // BIAS_POINTS)  # every stride-th point: at most BIAS_POINTS
     rot = object_from_tool[:3, :3]
     q = points_in_tool[::stride] @ rot.T + object_from_tool[:3, 3]
     d = rays_in_tool[::stride] @ rot.T
     r, jac = r[::stride], jac[::stride]
     along = np.sum(jac[:, :3] * d, axis=1)
-    sigma = float(np.sqrt(float(r @ r) / max(float(along @ along), 1e-12)))
+    spread = r - np.mean(r)  # a model of the wrong size offsets them all: not noise
+    sigma = float(np.sqrt(float(spread @ spread) / max(float(along @ along), 1e-12)))
     # Back along the ray onto the surface (Newton steps; no further than three sigma in
     # all, for a ray that grazes it): one step leaves the point inside a curved surface
     # by about the bias sought.
@@ -204,7 +205,10 @@ def ray_bias(
         value, grad = fld.value_and_grad(surface)
     nodes, weights = np.polynomial.hermite_e.hermegauss(NODES)
     weights = weights / weights.sum()
-    total = np.zeros(6)
+    # Only what the noise adds: where the model misses the points (an object of another
+    # size) the point cannot be moved onto the surface, and its own residual is no bias.
+    value, rows = residuals_and_jacobian(fld, IDENTITY, surface)
+    total = -(value @ rows)
     for e, w in zip(sigma * nodes, weights, strict=True):
         value, rows = residuals_and_jacobian(fld, IDENTITY, surface + e * d)
         total += w * (value @ rows)
