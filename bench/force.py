@@ -259,7 +259,7 @@ def slip_rows(test_recs: list[Recorded], cal: Calibration, period_secs: float) -
     false_alarms, still_secs = 0, 0.0
     for rec in test_recs:
         for side in SIDES:
-            detector = SlipDetector(friction=cal.friction)
+            detector = SlipDetector.for_rig(cal)
             onsets: dict[str, int] = {}
             stable = False
             for i, f in enumerate(rec.frames):
@@ -342,7 +342,7 @@ def closed_loop(seed: int, duration_secs: float, cal: Calibration, *, reflex: bo
     spec = draw(seed, duration_secs=duration_secs, load="fill")
     scene = spec.scene
     simulator = sim.Simulator(scene)
-    detectors = {s: SlipDetector(friction=cal.friction) for s in SIDES}
+    detectors = {s: SlipDetector.for_rig(cal) for s in SIDES}
     limit = OBJECTS[spec.object][3]
     grip = GripReflex(ReflexParams(max_force_n=limit), spec.grip_n, cal.friction)
     stable = False

@@ -188,7 +188,7 @@ def held(frame: Frame) -> bool:
 def samples(frames: list[Frame]) -> list[Sample]:
     """Every bubble of every frame while the object is held, as a calibration sample."""
     return [
-        Sample(s, f.features[s], f.force_n[s], f.torque_nm[s], f.slipping[s] >= 1.0)
+        Sample(s, f.features[s], f.force_n[s], f.torque_nm[s], f.slipping[s])
         for f in frames
         if held(f)
         for s in SIDES
