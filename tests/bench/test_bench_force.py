@@ -31,9 +31,12 @@ def test_quick_json_has_every_sweep() -> None:
     reflex = {r["setting"]: r for r in rows if r["sweep"] == "reflex"}
     assert set(reflex) == {"off", "on"}
     assert all(r["kept"] + r["dropped"] == r["samples"] for r in reflex.values())
+    assert all(0 <= r["dropped_at_bound"] <= r["dropped"] for r in reflex.values())
     handover = {r["method"]: r for r in rows if r["sweep"] == "handover"}
     assert set(handover) == {"shear", "force"}
     assert all(0.0 <= r["false_release_rate"] <= 1.0 for r in handover.values())
     slip = [r for r in rows if r["sweep"] == "slip"]
-    assert {r["method"] for r in slip} == {"onset_edge", "onset_patch"}
+    assert {(r["world"], r["method"]) for r in slip} == {
+        (w, m) for w in ("sim", "mujoco") for m in ("onset_edge", "onset_patch")
+    }
     assert all(r["still_secs"] > 0 for r in slip)
