@@ -7,8 +7,11 @@ decides, for as long as it holds the object, between letting go and holding on:
   the default; ``shear`` keeps the paper's rule below): when the bubbles' force on
   the object has changed since the stable grasp by ``release_force_n`` or more, in a
   direction other than straight up against ``gravity_in_tool`` (a person pulls), for
-  ``force_confirm_frames`` estimates (``perception.force.reflex.PullWatch``). Without
-  it, the paper's rule: when a bubble's shear magnitude (``ShearEstimate.magnitude_px``,
+  ``force_confirm_frames`` estimates (``perception.force.reflex.PullWatch``). The
+  baseline is the first estimate stamped at or after the stable grasp with both bubbles
+  in contact, and only such estimates count (a bubble that missed its free reference
+  sees no contact: half the grasp's force is no pull). Until then, and without
+  ``wrench``, the paper's rule: when a bubble's shear magnitude (``ShearEstimate.magnitude_px``,
   the mean displacement of the membrane against the stable-grasp reference) stays at
   or above ``release_shear_px`` for ``confirm_frames`` frames.
 * **Squeeze on slip.** With the ``slip`` input wired and ``reflex`` on: a slip onset
@@ -122,26 +125,35 @@ class HandoverSupervisor(SingleGraspTask):
         )
         self.uses_force = False
         self.object_force_n: np.ndarray | None = None
+        self.stable_stamp_nanos: int | None = None
 
-    def on_stable(self) -> None:
-        if self.object_force_n is not None:
-            self.pull.start(self.object_force_n)
+    def on_grasp(self, msg: GraspState) -> None:
+        if msg.event == "stable" and self.state == "grasping":
+            self.stable_stamp_nanos = msg.header.stamp_nanos
+        super().on_grasp(msg)
 
     def on_shear(self, msg: ShearEstimate) -> None:
         if self.state != "holding" or self.uses_force:
-            return
+            return  # the force rule, once it has a baseline, decides alone
         if self.watch.update(msg):
             self.release(f"pull {describe_shear(msg)}")
 
     def on_wrench(self, msg: WrenchEstimate) -> None:
         self.object_force_n = msg.object_force_n
-        if self.params.release_on != "force":
+        if self.params.release_on != "force" or self.state != "holding":
             return
-        self.uses_force = True
-        if self.state != "holding":
+        # Only the grasp's force counts: both bubbles in contact (a bubble without its
+        # free reference, or whose frame was dropped, sees none: half the grasp's force
+        # is no pull), measured at or after the stable grasp (an estimate from the
+        # closing, still in flight when the grasp turned stable, is no baseline). Until
+        # such an estimate comes the shear rule stands in.
+        stable = self.stable_stamp_nanos
+        if not all(msg.in_contact) or (stable is not None and msg.header.stamp_nanos < stable):
             return
-        if self.pull.reference is None:
+        if not self.uses_force:
+            self.uses_force = True
             self.pull.start(msg.object_force_n)
+            return
         if self.pull.update(msg.object_force_n):
             change = self.pull.change_n
             self.release(
