@@ -108,8 +108,14 @@ def test_handover_releases_only_after_the_pull_starts_within_a_bounded_delay(
 def test_handover_by_force_releases_on_the_pull_and_not_before(tmp_path: Path) -> None:
     # The force rule on the default graph: the wrench node's estimates decide (the
     # release says so), after the pull starts (not while the mug is held still before
-    # it) and within the shear rule's bound.
-    proc, topics = recorded(tmp_path, "graph.yaml", "--set", "supervisor.release_on=force")
+    # it) and within the shear rule's bound. Half real time: what is judged is the
+    # decision; the wrench node needs about half a core at the cameras' rate, which a
+    # machine shared by a load of 20 on 2 cores does not give it in real time.
+    proc, topics = recorded(
+        tmp_path,
+        "graph.yaml",
+        *("--set", "supervisor.release_on=force", "--set", "world.rate_scale=0.5"),
+    )
     assert proc.returncode == 0, proc.stdout[-3000:]
     truth = topics["world/ground_truth"]
     start = truth[0][1].tool_from_object
