@@ -40,3 +40,17 @@ def test_quick_json_has_every_sweep() -> None:
         (w, m) for w in ("sim", "mujoco") for m in ("onset_edge", "onset_patch")
     }
     assert all(r["still_secs"] > 0 for r in slip)
+
+
+def test_mujoco_slip_truth_and_its_calibration_file() -> None:
+    from bench.force_mujoco import CALIBRATION, slipping_share
+    from perception.force.estimators import Calibration
+
+    # The rim alone at its cone (under half the contacts) is no slip; past 0.9 the whole
+    # patch slides; between, the share is the slipping area's.
+    assert [slipping_share(f) for f in (0.0, 0.25, 0.5, 0.7, 0.9, 1.0)] == [
+        0.0, 0.0, 0.5, 0.7, 1.0, 1.0,
+    ]  # fmt: skip
+    cal = Calibration.load(CALIBRATION)
+    assert cal.rig == "mujoco" and min(cal.slip_onsets) > 0
+    assert 0 < cal.slip_edge_m_per_pa < cal.slip_patch_m_per_pa

@@ -99,6 +99,12 @@ def test_calibration_file_round_trips_and_a_bad_one_names_the_file(tmp_path: Pat
         )
     with pytest.raises(ValueError, match="unknown method"):
         estimate(f, "left", cal, "oracle")
+    # A file from before the slip limits: world.sim's defaults.
+    old = json.loads(cal.to_json())
+    for key in ("slip_edge_m_per_pa", "slip_patch_m_per_pa", "slip_onsets"):
+        del old[key]
+    older = Calibration.from_dict(old)
+    assert older.slip_edge_m_per_pa == Calibration().slip_edge_m_per_pa > 0
     path.write_text(json.dumps({"physics": {"stiffness": 1}}))
     with pytest.raises(ValueError, match=str(path)):
         Calibration.load(path)
