@@ -169,6 +169,21 @@ def test_handover_uses_the_shear_rule_until_the_force_has_a_baseline() -> None:
     assert node.state == "releasing"
 
 
+def test_handover_lets_the_shear_rule_stand_in_while_the_force_lags() -> None:
+    # The wrench node behind (a loaded machine): its newest estimate is 0.3 s older than
+    # the shear's, more than `force_max_lag_secs`; the shear rule answers the pull.
+    node, _ = _holding_handover()  # the force's baseline at 25 ns
+    lagging = int(0.3e9)
+    for k in range(3):
+        feed(node, "shear", _shear(lagging + k, 2.0))
+    assert node.state == "releasing"
+    # A current force rule decides alone: the same shear does nothing.
+    node, _ = _holding_handover()
+    for k in range(3):
+        feed(node, "shear", _shear(30 + k, 2.0))
+    assert node.state == "holding"
+
+
 def _shear(stamp: int, magnitude_px: float) -> ShearEstimate:
     direction = np.array([0.0, 1.0])
     return ShearEstimate(
