@@ -228,6 +228,9 @@ def features_of(
     """Every setting's (default: all) features of one grasp's frames, beside the truth."""
     bubbles = {name: Bubbles(SETTINGS[name]) for name in settings or SETTINGS}
     rec = Recorded([], {name: [] for name in bubbles})
+    # The frames' own features: the default setting's (the nodes', the one the slip and
+    # reflex sweeps calibrate with), else the only one recorded.
+    main = DEFAULT_SETTING if DEFAULT_SETTING in bubbles else next(iter(bubbles))
     for inst, truth in zip(instants, truths, strict=True):
         snap = inst.snapshot
         for name, b in bubbles.items():
@@ -236,7 +239,7 @@ def features_of(
         rec.frames.append(
             Frame(
                 t_secs=snap.time_secs,
-                features=rec.by_setting[next(iter(bubbles))][-1],
+                features=rec.by_setting[main][-1],
                 force_n={s: truth.bubble_force_n[i] for i, s in enumerate(SIDES)},
                 torque_nm={s: truth.bubble_torque_nm[i] for i, s in enumerate(SIDES)},
                 slipping={s: snap.wrench.get(s, none).slipping_fraction for s in SIDES},

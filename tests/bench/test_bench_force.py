@@ -54,3 +54,16 @@ def test_mujoco_slip_truth_and_its_calibration_file() -> None:
     cal = Calibration.load(CALIBRATION)
     assert cal.rig == "mujoco" and min(cal.slip_onsets) > 0
     assert 0 < cal.slip_edge_m_per_pa < cal.slip_patch_m_per_pa
+
+
+def test_recorded_frames_carry_the_default_settings_features() -> None:
+    # The slip sweep reads each frame's own features with limits calibrated on the
+    # default setting's: they must be that setting's (they were the first setting's,
+    # Farneback, scored against a DIS calibration: every edge onset 6-15 frames early).
+    from bench.force import record_all
+    from bench.force_data import DEFAULT_SETTING
+
+    rec = record_all(0, 0.2)
+    assert len(rec.by_setting) == 3 and rec.frames
+    for frame, feats in zip(rec.frames, rec.by_setting[DEFAULT_SETTING], strict=True):
+        assert frame.features is feats
