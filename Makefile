@@ -32,7 +32,7 @@ format: $(VENV_STAMP)
 
 # The one gate: lint and every test.
 test: $(VENV_STAMP) lint
-	$(PY) -m pytest
+	$(PY) -m pytest --durations=25
 
 # The loop to run every few minutes: the unit tests, no process started (under a minute).
 test-fast: $(VENV_STAMP)
