@@ -70,6 +70,7 @@ CHI2_95 = (0.0, 3.841, 5.991, 7.815, 9.488, 11.070, 12.592)
 #: Fitted calibration (module docstring; measured by ``bench.pose_hard``).
 INFLATION = 1.5
 BIAS_ERROR = 0.6
+#: Points already in the object frame (``ray_bias`` evaluates rows there).
 IDENTITY = np.eye(4)
 #: Gauss-Hermite nodes of the average over the noise along a ray (``ray_bias``).
 NODES = 7
@@ -255,7 +256,7 @@ def uncertainty(
     twist = basis * scale[:, None]  # basis coordinates -> twist
     if rays_in_tool is not None:
         # The fit's minimum sits off the truth by -H^-1 (bias of the gradient): undone
-        # by the correction; what the second-order model misses is a share of it.
+        # by the correction; what the prediction misses is taken as a share of it.
         bias = ray_bias(fld, object_from_tool, points_in_tool, rays_in_tool, r, jac)
         shift = h_inv @ (basis.T @ (scale * bias))
         cov = cov + bias_error**2 * np.outer(shift, shift)
