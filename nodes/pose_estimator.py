@@ -47,10 +47,11 @@ from geometry import objects
 from geometry.fields import Field
 from messages.base import Header
 from messages.types import ContactPatch, GraspState, PoseEstimate, PoseStatus
-from perception.pose.estimator import EstimatorParams, LocalSolver, PoseEstimator
+from perception.pose.estimator import LocalSolver, PoseEstimator
 from perception.pose.icp import IcpParams, IcpSolver
 from perception.pose.ipopt import IpoptParams, IpoptSolver
 from perception.pose.lm import LMParams, LMSolver
+from perception.pose.params import EstimatorParams
 from perception.pose.problem import check_rigid
 from perception.pose.synthetic import grasp_cloud, random_grasp_pose
 from runtime.node import Node

@@ -85,4 +85,5 @@ def camera_rays(
         plate_x = inner + gripper.bubble.cap_height_m
         width = 2.0 * (plate_x - gripper.plate_outset_m)
         rays[sel] = points[sel] - gripper.tool_from_sensor(side, width)[:3, 3]
-    return rays / np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
+    unit: np.ndarray = rays / np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
+    return unit

@@ -375,7 +375,8 @@ class PoseEstimator:
         )
 
     def _bias_limit_m(self, noise: float, n: int) -> float:
-        return (self.params.bias_ratio + 2.0 / np.sqrt(max(n, 1))) * noise
+        limit: float = (self.params.bias_ratio + 2.0 / np.sqrt(max(n, 1))) * noise
+        return limit
 
     def _centre_unobservable(self, result: FitResult, pts: np.ndarray) -> FitResult:
         """Move the pose along its unobservable translations so the patch's centroid

@@ -213,7 +213,8 @@ def ray_bias(
     for e, w in zip(sigma * nodes, weights, strict=True):
         value, rows = residuals_and_jacobian(fld, IDENTITY, surface + e * d)
         total += w * (value @ rows)
-    return total * (len(points_in_tool) / len(q))
+    bias: np.ndarray = total * (len(points_in_tool) / len(q))
+    return bias
 
 
 def uncertainty(

@@ -81,7 +81,12 @@ class EstimatorParams:
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0.0):
                 raise ValueError(f"{name} must be >= 0, got {value}")
-        positive = ("accept_ratio", "distinct_deg", "distinct_m", "track_rise_ratio")
+        positive: tuple[str, ...] = (
+            "accept_ratio",
+            "distinct_deg",
+            "distinct_m",
+            "track_rise_ratio",
+        )
         positive += ("tolerance_deg", "tolerance_m", "step_limit", "observability_floor")
         for name in (*positive, "warm_deg", "warm_accept_ratio"):
             value = getattr(self, name)
