@@ -4,7 +4,8 @@
 them with every heartbeat. The table, per topic: messages published, the rate, and what
 its subscribers lost (``dropped``), skipped on purpose (``superseded``), could not
 decode (``bad``), and how many its publisher sent with a NaN or infinity where the type
-says a number is finite (``nonfinite``, counted once per message where it is published). Per node: restarts, CPU seconds, the last exit code.
+says a number is finite (``nonfinite``, counted once per message where it is published).
+Per node: restarts, CPU seconds, the last exit code.
 
 ``dropped`` is what the receivers counted from sequence gaps, but never more than what
 the publisher sent and the receiver did not take off its socket: a corrupted
@@ -134,7 +135,8 @@ def edge_rows(stats: dict[str, dict[str, Any]]) -> dict[str, dict[str, int]]:
     (skipped on purpose by a ``latest`` input) + ``bad_frames`` (could not be decoded).
     ``nonfinite`` counts the topic's messages published with a NaN or infinity where the
     type says finite (the publisher checks each once), not a loss. A topic
-    published on another host: ``messages`` is what arrived here, so nothing is unreceived.
+    published on another host: ``messages`` is what arrived here, so nothing is unreceived,
+    and its ``nonfinite`` is in that host's table (its publisher counted them).
     """
     published: dict[str, int] = {}
     nonfinite: dict[str, int] = {}
