@@ -24,7 +24,7 @@ check: $(VENV_STAMP)
 lint: $(VENV_STAMP)
 	$(PY) -m ruff check .
 	$(PY) -m ruff format --check .
-	$(PY) -m mypy messages runtime cli
+	$(PY) -m mypy messages runtime cli nodes perception
 
 format: $(VENV_STAMP)
 	$(PY) -m ruff format .
@@ -32,7 +32,7 @@ format: $(VENV_STAMP)
 
 # The one gate: lint and every test.
 test: $(VENV_STAMP) lint
-	$(PY) -m pytest
+	$(PY) -m pytest --durations=25
 
 # The loop to run every few minutes: the unit tests, no process started (under a minute).
 test-fast: $(VENV_STAMP)

@@ -11,9 +11,9 @@ every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` e
   contact forces): ``bench.worlds``' grasps (the four objects in turn, a 12 N grasp,
   a 4 mm slide along the fingers; recorded once per scene and mesh in ``out/worlds``
   or ``WORLDS_DIR``, shared with ``bench.worlds``), the first half against the second,
-  an 8 mm membrane mesh (12 mm with ``--quick``). The slip, reflex and handover sweeps
-  are ``world.sim``'s only (MuJoCo's object is held by a hand, without gravity: it
-  cannot slip out).
+  an 8 mm membrane mesh (12 mm with ``--quick``). The reflex and handover sweeps are
+  ``world.sim``'s only (MuJoCo's object is held by a hand, without gravity: it cannot
+  slip out of the grip).
   Errors per bubble and frame in contact while the object is held (slid less than
   ``DROP_M``): force (N), torque (N m), force in percent of
   the bubble's true load; median and p90; plus the share of frames within the goal
@@ -25,11 +25,16 @@ every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` e
   onset against the first frame the whole patch slips: detected (within
   ``MAX_LATE_FRAMES`` after), latency in frames and ms (negative: before the truth);
   false alarms per minute of still holding (onsets while the truth is stuck and stays
-  so for ``MAX_EARLY_FRAMES``).
+  so for ``MAX_EARLY_FRAMES``). On both worlds: ``world.sim``'s held-out grasps and
+  long still holds (the detector's limits from its calibration grasps); MuJoCo's
+  grasps slid past the stick limit (``bench.force_mujoco``: its truth of slip, and the
+  limits fitted on the first half of them with the calibration grasps, the second half
+  scored).
 * ``reflex``: grasps whose load outgrows the grip (fillings, and weights held too
   lightly), run closed loop twice, without and with the reflex (slip onset: raise the
   grip, bounded per object, ``perception.force.reflex``); kept (slid less than
-  ``DROP_M``) or dropped.
+  ``DROP_M``) or dropped, and dropped with the grip at the object's bound (a filling
+  heavier than the bound can hold: the bound's doing, not the reflex's).
 * ``handover``: the handover's pull (``scenes/handover_task.yaml`` with the pull's start
   drawn as ``bench.tasks`` draws it): frames from the pull's start to the release
   decision by the shear rule (the paper's: 1.5 px for 3 frames) and by the force rule
@@ -37,11 +42,11 @@ every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` e
   false releases. Decisions only: the graph's latency adds the pipeline's
   (``bench.tasks``).
 
-By default: 8 ``world.sim`` grasps per set, 8 MuJoCo grasps, 4 still holds of 15 s, 8
-reflex grasps, 4 handovers; ``--grasps``, ``--mujoco``, ``--still``, ``--reflex`` and
-``--handover`` set them. ``--quick`` runs two grasps per set of ``world.sim``, one
-MuJoCo grasp at a 12 mm mesh (scored on itself: a smoke test, not held out), one
-reflex grasp and one handover.
+By default: 8 ``world.sim`` grasps per set, 8 MuJoCo grasps, 4 MuJoCo slides, 4 still
+holds of 15 s, 8 reflex grasps, 4 handovers; ``--grasps``, ``--mujoco``, ``--slides``,
+``--still``, ``--reflex`` and ``--handover`` set them. ``--quick`` runs two grasps per
+set of ``world.sim``, one MuJoCo grasp and one slide at a 12 mm mesh (scored on
+themselves: a smoke test, not held out), one reflex grasp and one handover.
 """
 
 from __future__ import annotations
@@ -53,95 +58,39 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 import sim
+from bench import force_mujoco
 from bench.common import Row, main, median, one_core, percentile, progress
-from bench.force_data import DROP_M, OBJECTS, Frame, draw, free_and_still, held, samples
+from bench.force_data import (
+    DEFAULT_SETTING,
+    DROP_M,
+    OBJECTS,
+    SETTINGS,
+    Bubbles,
+    Recorded,
+    draw,
+    features_of,
+    held,
+    samples,
+)
 from geometry.camera import PinholeCamera
 from geometry.gripper import SIDES
-from messages.force import WrenchTruth
 from perception.force.estimators import METHODS, Calibration, calibrate, estimate
-from perception.force.features import BubbleFeatures, ContactFeatures, FeatureParams
 from perception.force.reflex import GripReflex, PullWatch, ReflexParams
 from perception.force.slip import SlipDetector
 from perception.grasp import GraspMonitor
 from perception.shear import ShearParams, ShearTracker, tool_basis
 
-SETTINGS = {
-    "fb_half": ShearParams(scale=0.5, warm_start=True),
-    "fb_quarter": ShearParams(scale=0.25, warm_start=True),
-    "dis_half": ShearParams(method="dis", scale=0.5, warm_start=True),
-}
-DEFAULT_SETTING = "dis_half"  # FeatureParams' default
 TIMING_REPEATS = 3
 MAX_LATE_FRAMES = 15
 MAX_EARLY_FRAMES = 15
 GOAL_FRACTION, GOAL_N = 0.10, 0.3
-
-
-@dataclass
-class Recorded:
-    """One grasp's frames, with the features of every setting."""
-
-    frames: list[Frame]
-    by_setting: dict[str, list[dict[str, ContactFeatures]]] = field(default_factory=dict)
-    frame_secs: float = 0.0
-
-
-class Bubbles:
-    """Both bubbles' feature extraction as the ``wrench`` node does it, for one setting."""
-
-    def __init__(self, flow: ShearParams) -> None:
-        self.extractors = {s: BubbleFeatures(FeatureParams(flow=flow)) for s in SIDES}
-
-    def frame(self, inst: sim.Instant, scene: sim.Scene) -> dict[str, ContactFeatures]:
-        snap = inst.snapshot
-        out = {}
-        for side in SIDES:
-            img, ext = inst.images[side], self.extractors[side]
-            camera = PinholeCamera.from_frame(img)
-            if free_and_still(snap, scene):
-                ext.free_frame(img.depth_m, snap.pressure_pa[side])
-                ext.untare()
-            elif snap.gripper_state == "holding" and not ext.tared:
-                ext.tare(img.ir, img.depth_m, camera, img.tool_from_sensor)
-            out[side] = ext.update(
-                img.ir, img.depth_m, snap.pressure_pa[side], camera, img.tool_from_sensor
-            )
-        return out
-
-
-def features_of(
-    instants: list[sim.Instant],
-    scene: sim.Scene,
-    truths: list[WrenchTruth],
-    settings: tuple[str, ...] = (),
-) -> Recorded:
-    """Every setting's (default: all) features of one grasp's frames, beside the truth."""
-    bubbles = {name: Bubbles(SETTINGS[name]) for name in settings or SETTINGS}
-    rec = Recorded([], {name: [] for name in bubbles})
-    for inst, truth in zip(instants, truths, strict=True):
-        snap = inst.snapshot
-        for name, b in bubbles.items():
-            rec.by_setting[name].append(b.frame(inst, scene))
-        none = sim.friction.BubbleWrench.none()
-        rec.frames.append(
-            Frame(
-                t_secs=snap.time_secs,
-                features=rec.by_setting[next(iter(bubbles))][-1],
-                force_n={s: truth.bubble_force_n[i] for i, s in enumerate(SIDES)},
-                torque_nm={s: truth.bubble_torque_nm[i] for i, s in enumerate(SIDES)},
-                slipping={s: snap.wrench.get(s, none).slipping_fraction for s in SIDES},
-                slide_m=snap.slide_m.copy(),
-                feature_secs=0.0,
-            )
-        )
-    return rec
 
 
 def record_all(
@@ -157,23 +106,6 @@ def record_all(
     truths = [inst.wrench for inst in instants]
     assert all(t is not None for t in truths)
     return features_of(instants, spec.scene, truths, settings)  # type: ignore[arg-type]
-
-
-def mujoco_grasps(count: int, spacing_m: float, workdir: Path) -> list[Recorded]:
-    """``bench.worlds``' grasps on the MuJoCo world (recorded once per scene and mesh in
-    ``workdir``, shared with ``bench.worlds``), with the engine's wrench as the truth."""
-    from bench import worlds
-    from runtime.bag import BagReader
-
-    rng = np.random.default_rng(worlds.SEED)
-    out = []
-    for k in progress(range(count), "bench.force mujoco"):
-        scene_path, bag, _ = worlds.recorded_grasp(k, rng, spacing_m, workdir)
-        instants = worlds.replay_mujoco(scene_path, bag)
-        with BagReader(bag) as reader:
-            truths = [m.decode() for m in reader.messages(["world/wrench"])]
-        out.append(features_of(instants, sim.load_scene(scene_path), truths))
-    return out
 
 
 def time_setting(
@@ -252,14 +184,16 @@ def first(flags: list[bool]) -> int | None:
     return next((i for i, f in enumerate(flags) if f), None)
 
 
-def slip_rows(test_recs: list[Recorded], cal: Calibration, period_secs: float) -> list[Row]:
+def slip_rows(
+    world: str, test_recs: list[Recorded], cal: Calibration, period_secs: float
+) -> list[Row]:
     """Onsets against the truth's, and false alarms while held still (module docstring)."""
     found: dict[str, list[float]] = {"edge": [], "patch": []}
     missed = {"edge": 0, "patch": 0}
     false_alarms, still_secs = 0, 0.0
     for rec in test_recs:
         for side in SIDES:
-            detector = SlipDetector(friction=cal.friction)
+            detector = SlipDetector.for_rig(cal)
             onsets: dict[str, int] = {}
             stable = False
             for i, f in enumerate(rec.frames):
@@ -304,7 +238,7 @@ def slip_rows(test_recs: list[Recorded], cal: Calibration, period_secs: float) -
         rows.append(
             {
                 "sweep": "slip",
-                "world": "sim",
+                "world": world,
                 "setting": DEFAULT_SETTING,
                 "method": f"onset_{phase}",
                 "samples": total,
@@ -342,7 +276,7 @@ def closed_loop(seed: int, duration_secs: float, cal: Calibration, *, reflex: bo
     spec = draw(seed, duration_secs=duration_secs, load="fill")
     scene = spec.scene
     simulator = sim.Simulator(scene)
-    detectors = {s: SlipDetector(friction=cal.friction) for s in SIDES}
+    detectors = {s: SlipDetector.for_rig(cal) for s in SIDES}
     limit = OBJECTS[spec.object][3]
     grip = GripReflex(ReflexParams(max_force_n=limit), spec.grip_n, cal.friction)
     stable = False
@@ -384,6 +318,9 @@ def reflex_rows(seeds: list[int], duration_secs: float, cal: Calibration) -> lis
                 "samples": len(runs),
                 "kept": sum(r["kept"] for r in runs),
                 "dropped": sum(not r["kept"] for r in runs),
+                "dropped_at_bound": sum(
+                    not r["kept"] and r["final_grip_n"] >= r["max_grip_n"] for r in runs
+                ),
                 "slide_mm_median": median([r["slide_mm"] for r in runs]),
                 "raises_median": median([float(r["raises"]) for r in runs]),
                 "objects": ",".join(
@@ -479,6 +416,7 @@ class Sizes:
     duration_secs: float = 3.0
     mujoco: int = 8  # MuJoCo grasps (half calibration, half held out)
     mujoco_mesh_m: float = 0.008
+    slides: int = 4  # MuJoCo grasps slid past the stick limit (half calibration)
     still: int = 4  # still holds of 15 s for the false alarms
     still_secs: float = 15.0
     reflex: int = 8
@@ -487,8 +425,8 @@ class Sizes:
 
 
 QUICK = Sizes(
-    grasps=2, duration_secs=1.8, mujoco=1, mujoco_mesh_m=0.012, still=1, still_secs=3.0,
-    reflex=1, handover=1, timing_repeats=1,
+    grasps=2, duration_secs=1.8, mujoco=1, mujoco_mesh_m=0.012, slides=1, still=1,
+    still_secs=3.0, reflex=1, handover=1, timing_repeats=1,
 )  # fmt: skip
 
 
@@ -515,16 +453,22 @@ def run(quick: bool, sizes: Sizes | None = None) -> list[Row]:
     with tempfile.TemporaryDirectory() as tmp:
         workdir = Path(tmp) if quick else Path(os.environ.get("WORLDS_DIR", "out/worlds"))
         workdir.mkdir(parents=True, exist_ok=True)
-        recs = mujoco_grasps(z.mujoco, z.mujoco_mesh_m, workdir)
+        recs = force_mujoco.grasps(z.mujoco, z.mujoco_mesh_m, workdir)
     half = max(1, z.mujoco // 2)
     rows += wrench_rows("mujoco", recs[:half], recs[half:] or recs, secs)[0]
     period = draw(0).scene.frame_period_secs
+    # Its slips: grasps slid past the stick limit, half to calibrate the slip limits
+    # (with the calibration grasps), half scored. (--quick: one, scored on itself.)
+    slides = force_mujoco.slides(z.slides, z.mujoco_mesh_m)
+    cut = max(1, z.slides // 2)
+    mujoco_cal = force_mujoco.calibrate_mujoco(recs[:half], slides[:cut], "bench.force")
     # Long still holds for the false alarms (the default setting only).
     still = [
         record_all(100 + i, z.still_secs, load="still", settings=(DEFAULT_SETTING,))
         for i in progress(range(z.still), "bench.force still holds")
     ]
-    rows += slip_rows(test_recs + still, cal, period)
+    rows += slip_rows("sim", test_recs + still, cal, period)
+    rows += slip_rows("mujoco", slides[cut:] or slides, mujoco_cal, period)
     reflex_seeds = [n * 2 + i for i in range(z.reflex)]
     rows += reflex_rows(reflex_seeds, 2.5 if quick else 4.0, cal)
     rows += handover_rows(list(range(z.handover)), cal, period)
@@ -535,7 +479,7 @@ COLUMNS = [
     "sweep", "world", "setting", "method", "samples", "force_err_n_median", "force_err_pct_median",
     "torque_err_nm_median", "within_goal_fraction", "ms_per_frame", "rate_hz",
     "detected_fraction", "onset_frames_median", "onset_ms_median", "false_alarms_per_min",
-    "kept", "dropped", "release_latency_ms_median", "false_release_rate",
+    "kept", "dropped", "dropped_at_bound", "release_latency_ms_median", "false_release_rate",
 ]  # fmt: skip
 
 
@@ -543,16 +487,20 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(add_help=False)
     parser.add_argument("--grasps", type=int, default=Sizes.grasps, help="sim grasps per set")
     parser.add_argument("--mujoco", type=int, default=Sizes.mujoco, help="MuJoCo grasps")
+    parser.add_argument("--slides", type=int, default=Sizes.slides, help="MuJoCo slides")
     parser.add_argument("--still", type=int, default=Sizes.still, help="15 s still holds")
     parser.add_argument("--reflex", type=int, default=Sizes.reflex, help="reflex grasps")
     parser.add_argument("--handover", type=int, default=Sizes.handover, help="handovers")
     extra, rest = parser.parse_known_args()
-    counts = (extra.grasps, extra.mujoco, extra.still, extra.reflex, extra.handover)
-    if extra.grasps < 2 or extra.mujoco < 2 or min(counts) < 1:
-        sys.exit(f"bench.force: --grasps and --mujoco must be >= 2, the rest >= 1, got {extra}")
+    counts = (extra.grasps, extra.mujoco, extra.slides, extra.still, extra.reflex, extra.handover)
+    if min(extra.grasps, extra.mujoco, extra.slides) < 2 or min(counts) < 1:
+        sys.exit(
+            f"bench.force: --grasps, --mujoco and --slides must be >= 2, the rest >= 1, got {extra}"
+        )
     chosen = Sizes(
         grasps=extra.grasps,
         mujoco=extra.mujoco,
+        slides=extra.slides,
         still=extra.still,
         reflex=extra.reflex,
         handover=extra.handover,

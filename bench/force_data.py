@@ -23,7 +23,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -31,8 +31,10 @@ import numpy as np
 import sim
 from geometry.camera import PinholeCamera
 from geometry.gripper import SIDES
+from messages.force import WrenchTruth
 from perception.force.estimators import Calibration, Sample, calibrate
-from perception.force.features import BubbleFeatures, ContactFeatures
+from perception.force.features import BubbleFeatures, ContactFeatures, FeatureParams
+from perception.shear import ShearParams
 
 ROOT = Path(__file__).resolve().parents[1]
 CALIBRATION = ROOT / "models" / "force" / "sim.json"
@@ -177,6 +179,77 @@ def record(spec: GraspSpec) -> list[Frame]:
     return frames
 
 
+SETTINGS = {
+    "fb_half": ShearParams(scale=0.5, warm_start=True),
+    "fb_quarter": ShearParams(scale=0.25, warm_start=True),
+    "dis_half": ShearParams(method="dis", scale=0.5, warm_start=True),
+}
+DEFAULT_SETTING = "dis_half"  # FeatureParams' default
+
+
+@dataclass
+class Recorded:
+    """One grasp's frames, with the features of every setting."""
+
+    frames: list[Frame]
+    by_setting: dict[str, list[dict[str, ContactFeatures]]] = field(default_factory=dict)
+    frame_secs: float = 0.0
+
+
+class Bubbles:
+    """Both bubbles' feature extraction as the ``wrench`` node does it, for one setting."""
+
+    def __init__(self, flow: ShearParams) -> None:
+        self.extractors = {s: BubbleFeatures(FeatureParams(flow=flow)) for s in SIDES}
+
+    def frame(self, inst: sim.Instant, scene: sim.Scene) -> dict[str, ContactFeatures]:
+        snap = inst.snapshot
+        out = {}
+        for side in SIDES:
+            img, ext = inst.images[side], self.extractors[side]
+            camera = PinholeCamera.from_frame(img)
+            if free_and_still(snap, scene):
+                ext.free_frame(img.depth_m, snap.pressure_pa[side])
+                ext.untare()
+            elif snap.gripper_state == "holding" and not ext.tared:
+                ext.tare(img.ir, img.depth_m, camera, img.tool_from_sensor)
+            out[side] = ext.update(
+                img.ir, img.depth_m, snap.pressure_pa[side], camera, img.tool_from_sensor
+            )
+        return out
+
+
+def features_of(
+    instants: list[sim.Instant],
+    scene: sim.Scene,
+    truths: list[WrenchTruth],
+    settings: tuple[str, ...] = (),
+) -> Recorded:
+    """Every setting's (default: all) features of one grasp's frames, beside the truth."""
+    bubbles = {name: Bubbles(SETTINGS[name]) for name in settings or SETTINGS}
+    rec = Recorded([], {name: [] for name in bubbles})
+    # The frames' own features: the default setting's (the nodes', the one the slip and
+    # reflex sweeps calibrate with), else the only one recorded.
+    main = DEFAULT_SETTING if DEFAULT_SETTING in bubbles else next(iter(bubbles))
+    for inst, truth in zip(instants, truths, strict=True):
+        snap = inst.snapshot
+        for name, b in bubbles.items():
+            rec.by_setting[name].append(b.frame(inst, scene))
+        none = sim.friction.BubbleWrench.none()
+        rec.frames.append(
+            Frame(
+                t_secs=snap.time_secs,
+                features=rec.by_setting[main][-1],
+                force_n={s: truth.bubble_force_n[i] for i, s in enumerate(SIDES)},
+                torque_nm={s: truth.bubble_torque_nm[i] for i, s in enumerate(SIDES)},
+                slipping={s: snap.wrench.get(s, none).slipping_fraction for s in SIDES},
+                slide_m=snap.slide_m.copy(),
+                feature_secs=0.0,
+            )
+        )
+    return rec
+
+
 DROP_M = 0.010  # an object that slid this far in the hand is lost: its frames do not count
 
 
@@ -188,7 +261,7 @@ def held(frame: Frame) -> bool:
 def samples(frames: list[Frame]) -> list[Sample]:
     """Every bubble of every frame while the object is held, as a calibration sample."""
     return [
-        Sample(s, f.features[s], f.force_n[s], f.torque_nm[s], f.slipping[s] >= 1.0)
+        Sample(s, f.features[s], f.force_n[s], f.torque_nm[s], f.slipping[s])
         for f in frames
         if held(f)
         for s in SIDES
@@ -233,4 +306,7 @@ if __name__ == "__main__":
     main()
 
 
-__all__ = ["CALIBRATION", "Frame", "GraspSpec", "calibrate_on", "draw", "record", "samples"]
+__all__ = [
+    *("CALIBRATION", "DEFAULT_SETTING", "SETTINGS", "Bubbles", "Frame", "GraspSpec"),
+    *("Recorded", "calibrate_on", "draw", "features_of", "record", "samples"),
+]

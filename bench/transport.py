@@ -36,7 +36,9 @@ Rows report medians over repeats (of each repeat's rate, median and p99 latency)
 ``throughput_vs_raw`` is the median over repeats of the rate divided by raw's rate in
 the same repeat and transport (measured minutes apart, the machine's load drifts more
 than it does within one repeat), ``throughput_vs_raw_min``/``_max`` their range;
-``latency_vs_raw`` divides by the raw row's median latency.
+``latency_vs_raw`` divides by the raw row's median latency; ``source_cpu_vs_raw`` and
+``sink_cpu_vs_raw`` are the CPU per frame of each side against raw's, paired by repeat
+as the throughput is.
 
     python -m bench.transport [--quick] [--json] [--no-plot]
 """
@@ -149,10 +151,8 @@ def _rows(runs: dict[tuple[str, str], list[Measured]], sizes: Sizes) -> list[Row
             m = medians(runs[(transport, impl)])
             # Each repeat's ratio against raw measured next to it: the machine's load
             # drifts between repeats far more than it does within one.
-            paired = [
-                mine.frames_per_sec / theirs.frames_per_sec
-                for mine, theirs in zip(runs[(transport, impl)], raw_runs, strict=True)
-            ]
+            pairs = list(zip(runs[(transport, impl)], raw_runs, strict=True))
+            paired = [mine.frames_per_sec / theirs.frames_per_sec for mine, theirs in pairs]
             rows.append(
                 {
                     "transport": transport,
@@ -162,6 +162,13 @@ def _rows(runs: dict[tuple[str, str], list[Measured]], sizes: Sizes) -> list[Row
                     "throughput_vs_raw_min": min(paired),
                     "throughput_vs_raw_max": max(paired),
                     "latency_vs_raw": m.latency_ms_median / raw.latency_ms_median,
+                    # CPU per frame against raw's in the same repeat, as for throughput.
+                    "source_cpu_vs_raw": median(
+                        [a.source_cpu_us_per_frame / b.source_cpu_us_per_frame for a, b in pairs]
+                    ),
+                    "sink_cpu_vs_raw": median(
+                        [a.sink_cpu_us_per_frame / b.sink_cpu_us_per_frame for a, b in pairs]
+                    ),
                 }
             )
     return rows
@@ -176,7 +183,9 @@ COLUMNS = [
     "latency_ms_p99",
     "latency_vs_raw",
     "source_cpu_us_per_frame",
+    "source_cpu_vs_raw",
     "sink_cpu_us_per_frame",
+    "sink_cpu_vs_raw",
     "drops",
     "repeats",
     "throughput_vs_plain",

@@ -56,7 +56,7 @@ class Sizes:
 
 
 QUICK = Sizes(latency_frames=300, throughput_frames=1000, repeats=1)
-FULL = Sizes(latency_frames=1000, throughput_frames=5000, repeats=3)
+FULL = Sizes(latency_frames=1000, throughput_frames=5000, repeats=5)
 
 
 @dataclass

@@ -19,6 +19,7 @@ import struct
 from dataclasses import dataclass
 
 from messages.errors import DeviceError
+from messages.types import GripperStatus
 
 PREAMBLE = b"\xaa\xaa\xaa"
 HEADER_SIZE = 6  # preamble, id, u16 length
@@ -137,7 +138,7 @@ class GraspState(enum.IntEnum):
 
 
 # GripperState.state for each grasping state.
-STATE_NAMES: dict[int, str] = {
+STATE_NAMES: dict[int, GripperStatus] = {
     GraspState.IDLE: "idle",
     GraspState.GRASPING: "moving",
     GraspState.NO_PART: "fault",

@@ -135,11 +135,16 @@ def _numpy_scalar(obj: Any) -> Any:
     raise NotImplementedError(f"cannot encode {type(obj).__name__}")
 
 
+# Frame 1's encoder: nested structs (the Header) are written as maps straight from the
+# message, the same bytes as converting them to dicts first, without the dicts.
+_header_encoder = msgspec.msgpack.Encoder(enc_hook=_numpy_scalar)
+
+
 def _unencodable(fields: dict[str, Any]) -> str:
     """The first field that does not encode (only called once encoding has failed)."""
     for name, value in fields.items():
         try:
-            _encoder.encode(msgspec.to_builtins(value, enc_hook=_numpy_scalar))
+            _header_encoder.encode(value)
         except (TypeError, OverflowError, NotImplementedError):
             return name
     return "?"
@@ -163,11 +168,11 @@ def encode(topic: str, msg: Message) -> list[Any]:
         buffers.append(_raw_bytes(array))
     fields = {name: getattr(msg, name) for name in plan.scalar_names}
     try:
-        header = _encoder.encode(
+        header = _header_encoder.encode(
             {
                 "type": type(msg).__name__,
                 "fp": plan.fingerprint,
-                "fields": msgspec.to_builtins(fields, enc_hook=_numpy_scalar),
+                "fields": fields,
                 "arrays": rows,
             }
         )

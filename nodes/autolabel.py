@@ -39,14 +39,20 @@ import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from messages.base import Header
 from messages.classify import GraspRequest
 from messages.sim import WorldState
-from messages.types import GraspState, GripperCommand, GroundTruth, TaskEvent
-from perception.classify.autolabel import DEFAULT_OBJECTS, GraspGenerator, GraspGeneratorParams
+from messages.types import GraspState, GripperAction, GripperCommand, GroundTruth, TaskEvent
+from perception.classify.autolabel import (
+    DEFAULT_OBJECTS,
+    GraspGenerator,
+    GraspGeneratorParams,
+    GraspSample,
+)
 from perception.classify.dataset import DatasetError, read_manifest
 from runtime.node import Node
 from runtime.registry import register
@@ -155,7 +161,7 @@ class AutolabelSupervisor(Node):
         self.todo = [i for i in range(self.params.grasps) if i not in done]
         self.skipped = self.params.grasps - len(self.todo)
         self.phase = "idle"
-        self.current = None
+        self.current: GraspSample | None = None
         self.phase_start_nanos: int | None = None
         self.finished = 0
         self.failed = 0
@@ -168,7 +174,7 @@ class AutolabelSupervisor(Node):
 
     # -- the run ----------------------------------------------------------------------
 
-    def _event(self, event: str, detail: dict | None = None, stamp: int = 0) -> None:
+    def _event(self, event: str, detail: dict[str, Any] | None = None, stamp: int = 0) -> None:
         self.io.publish(
             "event",
             TaskEvent(
@@ -287,7 +293,7 @@ class AutolabelSupervisor(Node):
         self._command("release", self.params.open_width_m, 0.0, now)
         self._enter("releasing", now)
 
-    def _command(self, command: str, width_m: float, force_n: float, stamp: int) -> None:
+    def _command(self, command: GripperAction, width_m: float, force_n: float, stamp: int) -> None:
         self.io.publish(
             "command",
             GripperCommand(
@@ -363,7 +369,7 @@ class AutolabelWorldParams:
         pose = np.asarray(request.tool_from_object, dtype=np.float64)
         keyframe = Keyframe(
             t_secs=0.0,
-            xyz_m=tuple(float(v) for v in pose[:3, 3]),
+            xyz_m=(float(pose[0, 3]), float(pose[1, 3]), float(pose[2, 3])),
             rpy_deg=rpy_deg_from_rotation(pose[:3, :3]),
         )
         gripper = dataclasses.replace(

@@ -115,6 +115,7 @@ class RoyaleBubbleCamera(Node):
     """Publishes a PMD pico flexx's frames, placed in the tool frame (module docstring)."""
 
     Params = RoyaleParams
+    clocked = True  # publishes what the camera streams, when it streams it
     inputs = {"gripper": GripperState}
     optional_inputs = frozenset({"gripper"})
     outputs = {"image": ToFImage}

@@ -35,7 +35,7 @@ import numpy as np
 
 from geometry.camera import PinholeCamera
 from messages.base import Header
-from messages.types import ContactPatch, GripperState, MaskImage, ToFImage, pose_is_known
+from messages.types import ContactPatch, GripperState, MaskImage, Side, ToFImage, pose_is_known
 from perception.contact import ContactParams, ContactPatcher, StampedHistory
 from runtime.node import Node
 from runtime.registry import register
@@ -119,7 +119,7 @@ class ContactPatchNode(Node):
     def on_right(self, msg: ToFImage) -> None:
         self._image("right", msg)
 
-    def _image(self, side: str, msg: ToFImage) -> None:
+    def _image(self, side: Side, msg: ToFImage) -> None:
         if not pose_is_known(msg.tool_from_sensor):
             if side not in self.warned_mount:
                 self.io.log.warning(
@@ -168,7 +168,11 @@ class ContactPatchNode(Node):
                 bubble=np.ascontiguousarray(cloud.bubble, dtype=np.uint8),
             ),
         )
-        for side, mask in cloud.masks.items():
+        sides: tuple[Side, ...] = ("left", "right")
+        for side in sides:
+            mask = cloud.masks.get(side)
+            if mask is None:
+                continue
             self.io.publish(
                 "mask",
                 MaskImage(

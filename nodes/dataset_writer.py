@@ -34,6 +34,7 @@ import bisect
 import json
 from collections import Counter, OrderedDict, deque
 from dataclasses import dataclass, field
+from typing import Any
 
 from messages.base import Header
 from messages.errors import NodeError
@@ -79,7 +80,7 @@ class _Grasp:
     """One grasp of the run, from its ``grasp_start`` to its ``grasp_end`` stamp."""
 
     grasp_id: int
-    params: dict
+    params: dict[str, Any]
     start_nanos: int
     end_nanos: int | None = None
     buffer: GraspBuffer = field(default_factory=GraspBuffer)
@@ -189,7 +190,7 @@ class DatasetWriterNode(Node):
             stamp,
         )
 
-    def _progress(self, event: str, detail: dict, stamp: int) -> None:
+    def _progress(self, event: str, detail: dict[str, Any], stamp: int) -> None:
         self.io.publish(
             "progress",
             TaskEvent(

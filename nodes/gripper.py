@@ -43,7 +43,7 @@ from devices.wsg50_client import Motion, WSG50Client, float_value, u8_value
 from messages.base import Header
 from messages.errors import DeviceError, NodeError
 from messages.sim import WorldState
-from messages.types import GripperCommand, GripperState
+from messages.types import GripperCommand, GripperState, GripperStatus
 from runtime.node import Node
 from runtime.registry import register
 from sim import gripper_state
@@ -236,7 +236,7 @@ class WSG50Gripper(Node):
         speed_mm = float_value(self.client.latest(Cmd.GET_SPEED), Cmd.GET_SPEED) or 0.0
         force = float_value(self.client.latest(Cmd.GET_FORCE), Cmd.GET_FORCE) or 0.0
         grasp = u8_value(self.client.latest(Cmd.GET_GRASP_STATE))
-        state = STATE_NAMES.get(grasp, "fault") if grasp is not None else "idle"
+        state: GripperStatus = STATE_NAMES.get(grasp, "fault") if grasp is not None else "idle"
         self.io.publish(
             "state",
             GripperState(

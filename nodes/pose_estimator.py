@@ -39,16 +39,19 @@ for it (about 0.5 s).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 
 from geometry import objects
+from geometry.fields import Field
 from messages.base import Header
-from messages.types import ContactPatch, GraspState, PoseEstimate
-from perception.pose.estimator import EstimatorParams, PoseEstimator
+from messages.types import ContactPatch, GraspState, PoseEstimate, PoseStatus
+from perception.pose.estimator import LocalSolver, PoseEstimator
 from perception.pose.icp import IcpParams, IcpSolver
 from perception.pose.ipopt import IpoptParams, IpoptSolver
 from perception.pose.lm import LMParams, LMSolver
+from perception.pose.params import EstimatorParams
 from perception.pose.problem import check_rigid
 from perception.pose.synthetic import grasp_cloud, random_grasp_pose
 from runtime.node import Node
@@ -114,7 +117,7 @@ class IcpPoseParams(PoseParams):
     icp: IcpParams = field(default_factory=IcpParams)
 
 
-def fit_field(name: str, body_only: bool):  # noqa: ANN201 - a geometry.fields.Field
+def fit_field(name: str, body_only: bool) -> tuple[objects.ObjectModel, Field]:
     """The field to fit: the whole object, or its first (main) body part."""
     model = objects.make(name)
     fld = model.field
@@ -128,7 +131,7 @@ class _PoseNode(Node):
     outputs = {"pose": PoseEstimate}
     optional_inputs = frozenset({"grasp"})
 
-    def make_solver(self, fld):  # noqa: ANN001, ANN201 - overridden per implementation
+    def make_solver(self, fld: Field) -> LocalSolver:  # overridden per implementation
         raise NotImplementedError
 
     def setup(self) -> None:
@@ -206,7 +209,8 @@ class _PoseNode(Node):
                 residual_rms_m=float(result.residual_rms_m),
                 cost=float(result.cost),
                 iterations=int(result.iterations),
-                status=result.status,
+                # The estimator's final statuses (its _finish) are the message's.
+                status=cast(PoseStatus, result.status),
                 solve_secs=float(result.solve_secs),
                 points_used=int(result.points_used),
                 solver=result.solver,
@@ -231,7 +235,7 @@ class LMPoseNode(_PoseNode):
 
     Params = LMPoseParams
 
-    def make_solver(self, fld):  # noqa: ANN001, ANN201
+    def make_solver(self, fld: Field) -> LocalSolver:
         return LMSolver(fld, self.params.lm)
 
 
@@ -242,7 +246,7 @@ class IpoptPoseNode(_PoseNode):
 
     Params = IpoptPoseParams
 
-    def make_solver(self, fld):  # noqa: ANN001, ANN201
+    def make_solver(self, fld: Field) -> LocalSolver:
         solver = IpoptSolver(fld, self.params.ipopt)
         # The full cloud and the screening subsample: both compiled (or loaded) now.
         solver.prepare(self.params.estimator.max_points)
@@ -256,5 +260,5 @@ class IcpPoseNode(_PoseNode):
 
     Params = IcpPoseParams
 
-    def make_solver(self, fld):  # noqa: ANN001, ANN201
+    def make_solver(self, fld: Field) -> LocalSolver:
         return IcpSolver(fld, self.params.icp)

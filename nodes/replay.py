@@ -155,7 +155,7 @@ class Replay(Node):
         )
         self._pending: BagMessage | None = next(self._iter, None)
         self._wall0: int | None = None
-        self._bag0 = self._pending.log_time_nanos if self._pending else 0
+        self._bag0: int = self._pending.log_time_nanos if self._pending else 0
         self.passes += 1
 
     def _due(self, msg: BagMessage, now: int) -> bool:
@@ -163,7 +163,8 @@ class Replay(Node):
             return True
         if self._wall0 is None:
             self._wall0 = now
-        return (msg.log_time_nanos - self._bag0) / self.params.rate <= now - self._wall0
+        bag_elapsed: float = (msg.log_time_nanos - self._bag0) / self.params.rate
+        return bag_elapsed <= now - self._wall0
 
     def _tick(self) -> None:
         if self.done:
@@ -180,8 +181,8 @@ class Replay(Node):
             if not self._due(msg, self.io.now_nanos()):
                 return
             topic = self.topic_map[msg.topic]
-            frames = self._decodable(msg, topic)
-            if frames is None:
+            decoded = self._decodable(msg, topic)
+            if decoded is None:
                 self._pending = next(self._iter, None)
                 continue
             # Bound what is in flight: "as fast as the graph takes them", not faster (in
@@ -194,20 +195,22 @@ class Replay(Node):
                 if not self.io.wait_idle(self.params.idle_timeout_secs):
                     self.io.log.warning("graph not idle after %s s", self.params.idle_timeout_secs)
                 self._in_flight = 0
-            self.io.publish_raw(topic, frames)
+            frames, typed = decoded
+            self.io.publish_raw(topic, frames, typed)
             self.published += 1
             self._in_flight += 1
             self._pending = next(self._iter, None)
 
-    def _decodable(self, msg: BagMessage, topic: str) -> list[Any] | None:
-        """The message's frames if they decode into its type; else skip it (or stop: strict)."""
+    def _decodable(self, msg: BagMessage, topic: str) -> tuple[list[Any], Message] | None:
+        """The message's frames and itself if they decode into its type; else skip it (or
+        stop: strict)."""
         schema = msg.channel.schema
         try:
             frames = msg.wire_frames(topic)
             _, typed = decode(frames, expect=self.kinds[msg.topic], stored=schema.description)
             if schema.fingerprint == typed.schema().fingerprint:
-                return frames
-            return encode(topic, typed)  # an older declaration goes out as today's
+                return frames, typed
+            return encode(topic, typed), typed  # an older declaration goes out as today's
         except BagError as err:
             problem = str(err)
         except FrameDecodeError as err:

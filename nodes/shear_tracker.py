@@ -24,7 +24,14 @@ import numpy as np
 from geometry.camera import PinholeCamera
 from messages.base import Header
 from messages.shear import ShearReset
-from messages.types import GraspState, OverlayImage, ShearEstimate, ToFImage, pose_is_known
+from messages.types import (
+    GraspState,
+    OverlayImage,
+    ShearEstimate,
+    Side,
+    ToFImage,
+    pose_is_known,
+)
 from perception.shear import GraspShear, ShearParams, ShearResult, draw_overlay, tool_basis
 from runtime.node import Node
 from runtime.registry import register
@@ -121,7 +128,7 @@ class _ShearTrackerNode(Node):
     def on_right(self, msg: ToFImage) -> None:
         self._image("right", msg)
 
-    def _image(self, sensor: str, msg: ToFImage) -> None:
+    def _image(self, sensor: Side, msg: ToFImage) -> None:
         if msg.ir.size == 0:
             # A camera without the IR channel (the scene's ``ir`` effect off): nothing to track.
             self._warn_once(sensor, "ir", "frames carry no IR image; skipped")
@@ -173,7 +180,7 @@ class _ShearTrackerNode(Node):
             )
 
 
-def _estimate(sensor: str, header: Header, result: ShearResult) -> ShearEstimate:
+def _estimate(sensor: Side, header: Header, result: ShearResult) -> ShearEstimate:
     return ShearEstimate(
         header=header,
         sensor=sensor,

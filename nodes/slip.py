@@ -8,9 +8,10 @@ Ports:
         says which bubble; ``onset`` is ``edge`` or ``patch`` on the frame that phase
         began).
 
-The logic (the edge's lag behind the core, the load's share of the friction cone, the
-episode's hysteresis) is :class:`perception.force.slip.SlipDetector`; the friction
-coefficient is the rig's, from the same ``calibration`` file the ``wrench`` node reads.
+The logic (the dots' shift against the pressure's limit, the edge's lag behind the
+core, the episode's hysteresis) is :class:`perception.force.slip.SlipDetector`; the
+friction coefficient and the slip limits are the rig's, from the same ``calibration``
+file the ``wrench`` node reads.
 Times are the messages' stamps, so a replayed bag gives the same onsets.
 """
 
@@ -49,10 +50,10 @@ class SlipNode(Node):
 
     def setup(self) -> None:
         try:
-            friction = Calibration.load(self.params.calibration).friction
+            cal = Calibration.load(self.params.calibration)
         except ValueError as err:
             raise NodeError(f"{self.name}: {err}") from err
-        self.detectors = {s: SlipDetector(self.params.detector, friction) for s in SIDES}
+        self.detectors = {s: SlipDetector.for_rig(cal, self.params.detector) for s in SIDES}
         self.stable = False
 
     def on_grasp(self, msg: GraspState) -> None:

@@ -96,7 +96,7 @@ class WorldParams:
     def load(self) -> Scene:
         """The scene with this node's overrides applied."""
         scene = load_scene(self.scene)
-        changes: dict[str, object] = {}
+        changes: dict[str, Any] = {}
         if self.effects:
             changes["effects"] = tuple(self.effects)
         if self.seed >= 0:

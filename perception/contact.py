@@ -70,7 +70,7 @@ def contact_mask(depth_m: np.ndarray, reference_m: np.ndarray, params: ContactPa
         raise ValueError(f"depth_m shape {depth.shape} differs from reference {ref.shape}")
     with np.errstate(invalid="ignore"):
         raw = (ref - depth) > params.threshold_m  # NaN compares False
-    mask = raw.astype(np.uint8)
+    mask: np.ndarray = raw.astype(np.uint8)
     if params.opening_px > 1:
         kernel = np.ones((params.opening_px, params.opening_px), np.uint8)
         mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kernel)
@@ -91,7 +91,7 @@ def mask_points_in_tool(
     """Back-project the masked, valid pixels and move them into the tool frame, (M, 3) float32."""
     pts = camera.depth_to_points(depth_m)[mask]
     pts = pts[np.all(np.isfinite(pts), axis=1)].astype(np.float64)
-    out = pts @ tool_from_sensor[:3, :3].T + tool_from_sensor[:3, 3]
+    out: np.ndarray = pts @ tool_from_sensor[:3, :3].T + tool_from_sensor[:3, 3]
     return out.astype(np.float32)
 
 

@@ -26,6 +26,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal
+
+# What happened to the grasp at a sample (``GraspState.event`` on the wire).
+GraspEvent = Literal["", "stable", "released"]
 
 SENSORS = ("left", "right")
 
@@ -106,7 +110,7 @@ class GraspStatus:
     """
 
     stable: bool
-    event: str
+    event: GraspEvent
     contact_left: bool
     contact_right: bool
     pressure_rise_left_pa: float
@@ -189,7 +193,7 @@ class GraspMonitor:
             self._width = width_m
         return self._step(stamp_nanos)
 
-    def status(self, event: str = "") -> GraspStatus:
+    def status(self, event: GraspEvent = "") -> GraspStatus:
         """The current state without a new sample."""
         left, right = self._bubbles["left"], self._bubbles["right"]
         return GraspStatus(
@@ -211,7 +215,7 @@ class GraspMonitor:
         contact = all(b.contact for b in self._bubbles.values())
         speed = self._speed
         still = speed is not None and speed < p.still_speed_m_per_s
-        event = ""
+        event: GraspEvent = ""
         if self.stable:
             if not math.isfinite(self._tightest) or self._width < self._tightest:
                 self._tightest = self._width

@@ -3,8 +3,9 @@
 :class:`InputCounters` live in each node process (``runtime.runner``), which reports
 them with every heartbeat. The table, per topic: messages published, the rate, and what
 its subscribers lost (``dropped``), skipped on purpose (``superseded``), could not
-decode (``bad``) and received with a NaN or infinity where the type says a number is
-finite (``nonfinite``). Per node: restarts, CPU seconds, the last exit code.
+decode (``bad``), and how many its publisher sent with a NaN or infinity where the type
+says a number is finite (``nonfinite``, counted once per message where it is published).
+Per node: restarts, CPU seconds, the last exit code.
 
 ``dropped`` is what the receivers counted from sequence gaps, but never more than what
 the publisher sent and the receiver did not take off its socket: a corrupted
@@ -29,7 +30,6 @@ class InputCounters:
     dropped: int = 0
     superseded: int = 0
     bad_frames: int = 0
-    nonfinite: int = 0
     last_seq: int | None = None
     unseq: int = 0  # frames since ``last_seq`` that may hold a seq of their own: bad ones
     suspect: tuple[int, int] | None = None  # (seq, unseq) of a message off the sequence
@@ -133,13 +133,18 @@ def edge_rows(stats: dict[str, dict[str, Any]]) -> dict[str, dict[str, int]]:
     (published, never taken off the subscriber's socket: still queued when the run
     stopped, or lost at a high-water mark after its last message) + ``superseded``
     (skipped on purpose by a ``latest`` input) + ``bad_frames`` (could not be decoded).
-    ``nonfinite`` counts delivered messages with a NaN or infinity, not a loss. A topic
-    published on another host: ``messages`` is what arrived here, so nothing is unreceived.
+    ``nonfinite`` counts the topic's messages published with a NaN or infinity where the
+    type says finite (the publisher checks each once), not a loss. A topic
+    published on another host: ``messages`` is what arrived here, so nothing is unreceived,
+    and its ``nonfinite`` is in that host's table (its publisher counted them).
     """
     published: dict[str, int] = {}
+    nonfinite: dict[str, int] = {}
     for node_stats in stats.values():
         for topic, count in node_stats.get("published", {}).items():
             published[topic] = published.get(topic, 0) + count
+        for topic, count in node_stats.get("nonfinite", {}).items():
+            nonfinite[topic] = nonfinite.get(topic, 0) + count
     rows: dict[str, dict[str, int]] = {}
     read: set[str] = set()
     for node in sorted(stats):
@@ -158,26 +163,32 @@ def edge_rows(stats: dict[str, dict[str, Any]]) -> dict[str, dict[str, int]]:
                 "unreceived": lost - dropped,
                 "superseded": inp["superseded"],
                 "bad_frames": inp["bad_frames"],
-                "nonfinite": inp.get("nonfinite", 0),
+                "nonfinite": nonfinite.get(topic, 0),
             }
     for topic, count in published.items():
         if topic not in read:
-            none = dict.fromkeys((*_EDGE_COLUMNS, "nonfinite"), 0)
-            rows[f"{topic} (no reader here)"] = {**none, "messages": count}
+            none = dict.fromkeys(_EDGE_COLUMNS, 0)
+            rows[f"{topic} (no reader here)"] = {
+                **none,
+                "messages": count,
+                "nonfinite": nonfinite.get(topic, 0),
+            }
     return rows
 
 
 def topic_totals(stats: dict[str, dict[str, Any]]) -> dict[str, dict[str, int]]:
     """Per topic, for a live view (``runtime.status``): messages published (on another
-    host: the most any edge here received) and its edges' ``dropped``, ``superseded``,
-    ``bad_frames`` and ``nonfinite`` summed; ``unreceived`` is left out, as in a running
+    host: the most any edge here received), its ``nonfinite`` and its edges' ``dropped``,
+    ``superseded`` and ``bad_frames`` summed; ``unreceived`` is left out, as in a running
     graph it is mostly in flight."""
     out: dict[str, dict[str, int]] = {}
     for name, row in edge_rows(stats).items():
         total = out.setdefault(name.split(" ", 1)[0], dict.fromkeys(_LIVE_COLUMNS, 0))
-        total["messages"] = max(total["messages"], row["messages"])
-        for key in _LIVE_COLUMNS[1:]:
-            total[key] += row[key]
+        for key in _LIVE_COLUMNS:
+            if key in ("messages", "nonfinite"):  # the topic's own, in every edge's row
+                total[key] = max(total[key], row[key])
+            else:
+                total[key] += row[key]
     return out
 
 

@@ -62,8 +62,11 @@ class IO(Protocol):
         object in the wrong bin): the launcher exits with it once the graph has stopped
         cleanly (messages in flight still reach the recorder)."""
 
-    def publish_raw(self, topic: str, frames: list[Any]) -> None:
-        """Publish already-encoded frames verbatim on one of the node's output topics."""
+    def publish_raw(self, topic: str, frames: list[Any], decoded: Message | None = None) -> None:
+        """Publish already-encoded frames verbatim on one of the node's output topics.
+
+        ``decoded``: the message the frames carry, if the caller has it (the replay
+        decodes each one): its finite fields are then checked as :meth:`publish` checks."""
 
     def wait_idle(self, timeout_secs: float) -> bool:
         """Block until every message published so far has been handled downstream

@@ -37,7 +37,7 @@ REFUSED_LOG_EVERY = 100
 SECRET_BYTES = 32
 TAG_BYTES = 16
 # Counters of one input in a node's stats (see ``runtime.runner.InputCounters``).
-INPUT_COUNTERS = ("received", "dropped", "superseded", "bad_frames", "nonfinite")
+INPUT_COUNTERS = ("received", "dropped", "superseded", "bad_frames")
 
 _encoder = msgspec.msgpack.Encoder()
 
@@ -96,11 +96,14 @@ def unpack(secret: bytes, frames: Sequence[bytes], *, from_node: bool) -> Contro
 
 
 def _check_stats(kind: str, stats: dict[str, Any]) -> None:
-    """A node's counters: ``{published: {topic: n}, inputs: {port: {topic, counters}}}``."""
-    published = stats.get("published", {})
+    """A node's counters: ``{published: {topic: n}, nonfinite: {topic: n},
+    inputs: {port: {topic, counters}}}``."""
+    per_topic = [stats.get("published", {}), stats.get("nonfinite", {})]
     inputs = stats.get("inputs", {})
-    ok = isinstance(published, dict) and isinstance(inputs, dict)
-    ok = ok and all(isinstance(t, str) and _count(n) for t, n in published.items())
+    ok = all(isinstance(counts, dict) for counts in per_topic) and isinstance(inputs, dict)
+    ok = ok and all(
+        isinstance(t, str) and _count(n) for counts in per_topic for t, n in counts.items()
+    )
     ok = ok and all(
         isinstance(port, str)
         and isinstance(row, dict)

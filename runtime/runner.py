@@ -31,7 +31,8 @@ as ``superseded``. Frames that fail to decode are counted as ``bad_frames`` (not
 as dropped) and logged, and never stop the node; a seq that breaks the sequence is
 believed only once the next message follows it (see :meth:`InputCounters.note_seq`).
 Messages whose finite-by-meaning fields (``Message.finite_fields``) hold NaN or
-infinity are counted as ``nonfinite`` and warned about once per input, and delivered.
+infinity are counted as ``nonfinite`` per topic by their publisher (``IO.publish``),
+warned about once there, and delivered: the receivers do not read the pixels again.
 
 Handshake. hello (endpoint) -> connect (peers' endpoints) -> wait until every
 expected subscription has arrived on the XPUB -> setup done -> ready -> start. No
@@ -332,17 +333,6 @@ class Runner:
         header = getattr(msg, "header", None)
         if header is not None:
             counters.note_seq(header.seq, skipped)
-        if msg.finite_fields and (bad := msg.nonfinite_fields()):
-            counters.nonfinite += 1
-            if counters.nonfinite == 1:
-                self.io.log.warning(
-                    "input %r (%s): non-finite %s in a %s; such messages are counted "
-                    "(the 'nonfinite' column at the end), this is the only warning",
-                    inp.port,
-                    inp.topic,
-                    ", ".join(bad),
-                    type(msg).__name__,
-                )
         if self.holds:
             self.io.held.append((inp, msg))
         else:

@@ -31,6 +31,9 @@ class FakeIO:
     def __init__(self, name: str = "test", now_nanos: int = 0) -> None:
         self.log = logging.getLogger(name)
         self.published: dict[str, list[Message]] = defaultdict(list)
+        # Per output or topic: published with a NaN or infinity where the type says
+        # finite, as the real IO counts them.
+        self.nonfinite: dict[str, int] = defaultdict(int)
         self.stop_reason: str | None = None
         self.stop_exit_code = 0
         self.stop_requested = False
@@ -53,14 +56,21 @@ class FakeIO:
         self._seq[output] += 1
         _, copy = decode(encode(output, msg))
         self.published[output].append(copy)
+        self._count_nonfinite(output, msg)
 
-    def publish_raw(self, topic: str, frames: list[Any]) -> None:
+    def publish_raw(self, topic: str, frames: list[Any], decoded: Message | None = None) -> None:
         """Record raw frames (decoded, so tests see messages) under their topic."""
         topics = {out if "/" in out else f"{self.log.name}/{out}" for out in self.outputs}
         if topic not in topics:
             raise KeyError(f"{topic!r} is not one of the output topics {sorted(topics)}")
         _, msg = decode([topic.encode(), *frames[1:]])
         self.published[topic].append(msg)
+        if decoded is not None:
+            self._count_nonfinite(topic, decoded)
+
+    def _count_nonfinite(self, key: str, msg: Message) -> None:
+        if msg.finite_fields and msg.nonfinite_fields():
+            self.nonfinite[key] += 1
 
     def wait_idle(self, timeout_secs: float) -> bool:
         return True

@@ -118,6 +118,7 @@ class ZmqIO:
         self.control.connect(spec["control"])
         self.inputs: list[Input] = []
         self.published: dict[str, int] = defaultdict(int)
+        self.nonfinite: dict[str, int] = defaultdict(int)  # per topic, see _check_finite
         self.timers: list[Timer] = []
         self.stop_requested = False
         self.waiting = False  # in wait_idle
@@ -151,12 +152,32 @@ class ZmqIO:
         frames = encode(topic, msg)
         self._count_ahead(topic)
         send_parts(self.pub, frames)
+        self._check_finite(topic, msg)  # after the send: not on the frame's way out
 
-    def publish_raw(self, topic: str, frames: list[Any]) -> None:
+    def publish_raw(self, topic: str, frames: list[Any], decoded: Message | None = None) -> None:
         if topic not in self.topics.values():
             raise KeyError(f"{self.name}: {topic!r} is not one of its output topics")
         self._count_ahead(topic)
         send_parts(self.pub, [topic.encode(), *frames[1:]])
+        if decoded is not None:
+            self._check_finite(topic, decoded)
+
+    def _check_finite(self, topic: str, msg: Message) -> None:
+        """Count (per topic) and warn once about a message whose ``finite_fields`` are not.
+
+        Checked once, where the message is published, while its arrays are in this
+        process's caches: not again by each subscriber, which would read every pixel of
+        every frame once per reader (docs/runtime.md, "Values that must be finite")."""
+        if msg.finite_fields and (bad := msg.nonfinite_fields()):
+            self.nonfinite[topic] += 1
+            if self.nonfinite[topic] == 1:
+                self.log.warning(
+                    "%s: non-finite %s in a %s; such messages are counted (the "
+                    "'nonfinite' column at the end), this is the only warning",
+                    topic,
+                    ", ".join(bad),
+                    type(msg).__name__,
+                )
 
     def _count_ahead(self, topic: str) -> None:
         """Count a message about to go out. A source (the replay) tells the launcher first
@@ -232,6 +253,7 @@ class ZmqIO:
     def stats(self) -> dict[str, Any]:
         return {
             "published": dict(self.published),
+            "nonfinite": dict(self.nonfinite),
             "inputs": {
                 i.port: {
                     "topic": i.topic,
@@ -239,7 +261,6 @@ class ZmqIO:
                     "dropped": i.counters.gaps(),
                     "superseded": i.counters.superseded,
                     "bad_frames": i.counters.bad_frames,
-                    "nonfinite": i.counters.nonfinite,
                 }
                 for i in self.inputs
             },

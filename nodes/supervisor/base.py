@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 from messages import GraspState, GripperCommand, Header, PoseEstimate, TaskEvent
 from messages.base import Message
+from messages.types import GripperAction
 from runtime.node import Node
 
 
@@ -98,7 +99,9 @@ class Task(Node):
         self.state = "done"
         self.io.request_stop(reason, exit_code=exit_code)
 
-    def command(self, command: str, width_m: float, *, force_n: float | None = None) -> None:
+    def command(
+        self, command: GripperAction, width_m: float, *, force_n: float | None = None
+    ) -> None:
         self.io.publish(
             "command",
             GripperCommand(

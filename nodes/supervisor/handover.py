@@ -7,8 +7,12 @@ decides, for as long as it holds the object, between letting go and holding on:
   the default; ``shear`` keeps the paper's rule below): when the bubbles' force on
   the object has changed since the stable grasp by ``release_force_n`` or more, in a
   direction other than straight up against ``gravity_in_tool`` (a person pulls), for
-  ``force_confirm_frames`` estimates (``perception.force.reflex.PullWatch``). Without
-  it, the paper's rule: when a bubble's shear magnitude (``ShearEstimate.magnitude_px``,
+  ``force_confirm_frames`` estimates (``perception.force.reflex.PullWatch``). The
+  baseline is the first estimate stamped at or after the stable grasp with both bubbles
+  in contact, and only such estimates count (a bubble that missed its free reference
+  sees no contact: half the grasp's force is no pull). Until then, while the newest
+  such estimate is more than ``force_max_lag_secs`` older than the shear's (the
+  ``wrench`` node behind on a loaded machine), and without ``wrench``, the paper's rule: when a bubble's shear magnitude (``ShearEstimate.magnitude_px``,
   the mean displacement of the membrane against the stable-grasp reference) stays at
   or above ``release_shear_px`` for ``confirm_frames`` frames.
 * **Squeeze on slip.** With the ``slip`` input wired and ``reflex`` on: a slip onset
@@ -49,6 +53,7 @@ class HandoverParams(TaskParams):
     confirm_frames: int = 3
     release_force_n: float = 0.6
     force_confirm_frames: int = 2
+    force_max_lag_secs: float = 0.2
     gravity_in_tool: tuple[float, float, float] = (0.0, -1.0, 0.0)
     reflex: bool = True
     max_grip_force_n: float = 40.0
@@ -68,6 +73,8 @@ class HandoverParams(TaskParams):
             )
         if not self.friction > 0:
             raise ValueError(f"`friction` must be > 0, got {self.friction!r}")
+        if not self.force_max_lag_secs > 0:
+            raise ValueError(f"`force_max_lag_secs` must be > 0, got {self.force_max_lag_secs!r}")
         ReflexParams(max_force_n=self.max_grip_force_n)
 
 
@@ -122,26 +129,40 @@ class HandoverSupervisor(SingleGraspTask):
         )
         self.uses_force = False
         self.object_force_n: np.ndarray | None = None
+        self.stable_stamp_nanos: int | None = None
+        self.wrench_nanos = 0  # the newest estimate the force rule counted
 
-    def on_stable(self) -> None:
-        if self.object_force_n is not None:
-            self.pull.start(self.object_force_n)
+    def on_grasp(self, msg: GraspState) -> None:
+        if msg.event == "stable" and self.state == "grasping":
+            self.stable_stamp_nanos = msg.header.stamp_nanos
+        super().on_grasp(msg)
 
     def on_shear(self, msg: ShearEstimate) -> None:
-        if self.state != "holding" or self.uses_force:
+        if self.state != "holding":
             return
+        lag = (msg.header.stamp_nanos - self.wrench_nanos) / 1e9
+        if self.uses_force and lag <= self.params.force_max_lag_secs:
+            return  # the force rule, current, decides alone
         if self.watch.update(msg):
             self.release(f"pull {describe_shear(msg)}")
 
     def on_wrench(self, msg: WrenchEstimate) -> None:
         self.object_force_n = msg.object_force_n
-        if self.params.release_on != "force":
+        if self.params.release_on != "force" or self.state != "holding":
             return
-        self.uses_force = True
-        if self.state != "holding":
+        # Only the grasp's force counts: both bubbles in contact (a bubble without its
+        # free reference, or whose frame was dropped, sees none: half the grasp's force
+        # is no pull), measured at or after the stable grasp (an estimate from the
+        # closing, still in flight when the grasp turned stable, is no baseline). Until
+        # such an estimate comes the shear rule stands in.
+        stable = self.stable_stamp_nanos
+        if not all(msg.in_contact) or (stable is not None and msg.header.stamp_nanos < stable):
             return
-        if self.pull.reference is None:
+        self.wrench_nanos = max(self.wrench_nanos, msg.header.stamp_nanos)
+        if not self.uses_force:
+            self.uses_force = True
             self.pull.start(msg.object_force_n)
+            return
         if self.pull.update(msg.object_force_n):
             change = self.pull.change_n
             self.release(

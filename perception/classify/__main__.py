@@ -23,13 +23,20 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
 from perception.classify.autolabel import end_distance_m
 from perception.classify.checkpoint import ModelMeta, load_checkpoint, save_checkpoint
-from perception.classify.dataset import MANIFEST, concat_samples, load_samples, read_manifest
+from perception.classify.dataset import (
+    MANIFEST,
+    Samples,
+    concat_samples,
+    load_samples,
+    read_manifest,
+)
 from perception.classify.distributed import join_from_env, leave
 from perception.classify.preprocess import MODALITIES, InputSpec
 from perception.classify.train import (
@@ -71,7 +78,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
     if init is not None:  # before the datasets load (minutes): its inputs must fit
         check_init(init[1], ModelMeta.for_spec(spec, init[1].classes, config.width))
     started = time.monotonic()
-    parts, sources = [], []
+    parts: list[Samples] = []
+    sources: list[dict[str, Any]] = []
     for name in args.dataset:
         root = Path(name)
         manifest = read_manifest(root)
@@ -114,7 +122,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         )
         append_log(log_path, record)
 
-    record = {
+    record: dict[str, Any] = {
         "command": "python -m perception.classify " + shlex.join(args.argv),
         "datasets": sources,
         "torch": torch.__version__,

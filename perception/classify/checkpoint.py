@@ -62,7 +62,11 @@ class ModelMeta:
 
     @classmethod
     def for_spec(
-        cls, spec: InputSpec, classes: Sequence[str], width: float, training: Mapping | None = None
+        cls,
+        spec: InputSpec,
+        classes: Sequence[str],
+        width: float,
+        training: Mapping[str, Any] | None = None,
     ) -> ModelMeta:
         """Meta of a model trained on inputs of ``spec``."""
         return cls(
@@ -194,4 +198,5 @@ class Classifier:
             ir_left=ir_left,
             ir_right=ir_right,
         )
-        return self.probabilities(x[None])[0].astype(np.float32)
+        probabilities: np.ndarray = self.probabilities(x[None])[0].astype(np.float32)
+        return probabilities

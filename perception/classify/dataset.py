@@ -64,7 +64,7 @@ def read_manifest(root: str | Path) -> dict[str, Any]:
     path = Path(root) / MANIFEST
     if not path.is_file():
         raise DatasetError(f"{root}: no {MANIFEST}; not a tactile dataset")
-    manifest = json.loads(path.read_text())
+    manifest: dict[str, Any] = json.loads(path.read_text())
     if manifest.get("format") != FORMAT or manifest.get("version") != VERSION:
         raise DatasetError(
             f"{path}: format/version must be {FORMAT!r}/{VERSION}, "
@@ -76,7 +76,9 @@ def read_manifest(root: str | Path) -> dict[str, Any]:
     return manifest
 
 
-def counts_per_class(classes: Sequence[str], grasps: Sequence[Mapping[str, Any]]) -> dict:
+def counts_per_class(
+    classes: Sequence[str], grasps: Sequence[Mapping[str, Any]]
+) -> dict[str, dict[str, int]]:
     """``{class: {"grasps": g, "frames": f}}`` over the grasp entries of a manifest."""
     counts = {name: {"grasps": 0, "frames": 0} for name in classes}
     for entry in grasps:
@@ -218,7 +220,8 @@ class DatasetWriter:
         relative = f"grasps/grasp_{grasp_id:06d}.npz"
         path = self.root / relative
         tmp = path.with_name(path.stem + ".tmp.npz")
-        np.savez_compressed(tmp, **arrays)
+        # numpy's stub types ** as possibly its allow_pickle flag; these are array names.
+        np.savez_compressed(tmp, **arrays)  # type: ignore[arg-type]
         os.replace(tmp, path)
         self.manifest["grasps"].append(
             {

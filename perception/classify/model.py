@@ -46,7 +46,8 @@ class BasicBlock(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         out = self.relu(self.bn1(self.conv1(x)))
         out = self.bn2(self.conv2(out))
-        return self.relu(out + self.shortcut(x))
+        result: torch.Tensor = self.relu(out + self.shortcut(x))
+        return result
 
 
 class ResNet18(nn.Module):
@@ -61,6 +62,8 @@ class ResNet18(nn.Module):
             weights) and subtracts it first: the bubbles' rest shape and shading are the
             same in every frame, so what is left is what the object did to them.
     """
+
+    input_mean: torch.Tensor  # a buffer (register_buffer below)
 
     def __init__(
         self,
@@ -111,7 +114,8 @@ class ResNet18(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Logits ``(N, num_classes)`` for images ``(N, in_channels, H, W)``."""
         x = self.stages(self.stem(x - self.input_mean))
-        return self.fc(torch.flatten(self.pool(x), 1))
+        logits: torch.Tensor = self.fc(torch.flatten(self.pool(x), 1))
+        return logits
 
 
 def parameter_count(model: nn.Module) -> int:

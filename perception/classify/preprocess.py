@@ -78,7 +78,8 @@ def normalise_depth(depth_m: np.ndarray, spec: InputSpec) -> np.ndarray:
     """Depth in metres (NaN invalid) to the network's scale; NaN becomes 0."""
     out = (depth_m.astype(np.float32) - spec.depth_center_m) / spec.depth_scale_m
     out = np.nan_to_num(out, nan=0.0, posinf=CLIP, neginf=-CLIP)
-    return np.clip(out, -CLIP, CLIP, out=out)
+    clipped: np.ndarray = np.clip(out, -CLIP, CLIP, out=out)
+    return clipped
 
 
 def normalise_ir(ir_left: np.ndarray, ir_right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

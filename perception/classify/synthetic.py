@@ -23,6 +23,8 @@ NOISE_M = 0.0007
 
 def _indentation(shape: str, h: int, w: int, rng: np.random.Generator) -> np.ndarray:
     """A 0..1 indentation mask of ``shape``, placed and sized at random."""
+    yy: np.ndarray
+    xx: np.ndarray
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     cy, cx = h * rng.uniform(0.35, 0.65), w * rng.uniform(0.35, 0.65)
     r = min(h, w) * rng.uniform(0.2, 0.3)

@@ -26,6 +26,7 @@ from torch import nn
 from perception.classify.checkpoint import ModelMeta, build_model
 from perception.classify.dataset import Samples
 from perception.classify.distributed import Group
+from perception.classify.model import ResNet18
 from perception.classify.preprocess import check_modality
 
 
@@ -198,7 +199,7 @@ def train(
     progress_stream: IO[str] | None = None,
     on_epoch: Callable[[dict[str, float]], None] | None = None,
     training_record: dict[str, Any] | None = None,
-    init: tuple[nn.Module, ModelMeta] | None = None,
+    init: tuple[ResNet18, ModelMeta] | None = None,
     group: Group | None = None,
 ) -> TrainResult:
     """Train a ResNet18 on ``samples`` (inputs already of ``config``'s modality and size).
@@ -244,8 +245,8 @@ def train(
     if init is None and config.subtract_mean and len(x_train):
         # The mean training image, in float64 chunks (the inputs are float16).
         total = np.zeros(x_train.shape[1:], np.float64)
-        for start in range(0, len(x_train), 256):
-            total += x_train[start : start + 256].astype(np.float64).sum(axis=0)
+        for first in range(0, len(x_train), 256):
+            total += x_train[first : first + 256].astype(np.float64).sum(axis=0)
         model.input_mean.copy_(torch.from_numpy((total / len(x_train)).astype(np.float32)))
     optimizer = torch.optim.SGD(
         model.parameters(),
@@ -277,7 +278,8 @@ def train(
         model.train()
         order = rng.permutation(len(x_train))
         bar = Progress(steps_per_epoch, f"epoch {epoch}/{config.epochs}", progress_stream)
-        loss_sum, correct, seen = 0.0, 0, 0
+        # Floats: the group sums them across processes (group.total).
+        loss_sum, correct, seen = 0.0, 0.0, 0.0
         epoch_start = time.monotonic()
         for batch_index in range(steps_per_epoch):
             idx = np.sort(

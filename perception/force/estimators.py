@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from perception.force.features import ContactFeatures
+from perception.force.features import ContactFeatures, shift_per_pressure
 
 METHODS = ("physics", "ridge")
 SIDES = ("left", "right")
@@ -82,16 +82,30 @@ class RidgeCalibration:
 
 @dataclass(frozen=True, kw_only=True)
 class Calibration:
-    """A rig's force calibration: both methods' constants and the friction coefficient
-    the slip detector compares loads against (``friction``: tangential over normal force
-    when the whole patch slips, fitted from slipping frames when there are any)."""
+    """A rig's force calibration: both methods' constants, the friction coefficient
+    (``friction``: tangential over normal force when the whole patch slips, fitted from
+    slipping frames when there are any) and the slip detector's limits: the core's
+    tangential shift per pascal of gauge pressure at which the patch's edge
+    (``slip_edge_m_per_pa``), then the whole patch (``slip_patch_m_per_pa``), began to
+    slip (medians over ``slip_onsets`` onsets of each; the defaults, ``world.sim``'s,
+    where there were none)."""
 
     rig: str = "uncalibrated"
     source: str = ""
     physics: PhysicsCalibration = field(default_factory=PhysicsCalibration)
     ridge: RidgeCalibration = field(default_factory=RidgeCalibration)
     friction: float = 0.8
+    slip_edge_m_per_pa: float = 0.7e-6
+    slip_patch_m_per_pa: float = 0.95e-6
+    slip_onsets: tuple[int, int] = (0, 0)
     samples: int = 0
+
+    def __post_init__(self) -> None:
+        if not (self.slip_edge_m_per_pa > 0 and self.slip_patch_m_per_pa > 0):
+            raise ValueError(
+                "`slip_edge_m_per_pa` and `slip_patch_m_per_pa` must be > 0, got"
+                f" {self.slip_edge_m_per_pa!r}, {self.slip_patch_m_per_pa!r}"
+            )
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=1, sort_keys=True)
@@ -102,16 +116,17 @@ class Calibration:
         if not isinstance(data, dict):
             raise ValueError(f"{where}: a calibration must be a JSON object")
         try:
-            physics = PhysicsCalibration(
-                **{
-                    k: tuple(v) if isinstance(v, list) else v
-                    for k, v in data.get("physics", {}).items()
-                }
-            )
+            physics_fields: dict[str, Any] = {
+                k: tuple(v) if isinstance(v, list) else v
+                for k, v in data.get("physics", {}).items()
+            }
+            physics = PhysicsCalibration(**physics_fields)
             ridge = RidgeCalibration(**data.get("ridge", {}))
             rest = {k: v for k, v in data.items() if k not in ("physics", "ridge")}
+            if isinstance(rest.get("slip_onsets"), list):
+                rest["slip_onsets"] = tuple(rest["slip_onsets"])
             return cls(physics=physics, ridge=ridge, **rest)
-        except TypeError as err:
+        except (TypeError, ValueError) as err:
             raise ValueError(f"{where}: {err}") from err
 
     @classmethod
@@ -215,11 +230,12 @@ class Sample:
     features: ContactFeatures
     force_n: np.ndarray
     torque_nm: np.ndarray
-    slipping: bool = False
+    slipping: float = 0.0  # the share of the patch's area slipping (1: the whole patch)
 
 
 def _lstsq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.linalg.lstsq(a, b, rcond=None)[0]
+    solution: np.ndarray = np.linalg.lstsq(a, b, rcond=None)[0]
+    return solution
 
 
 def calibrate_physics(samples: list[Sample]) -> PhysicsCalibration:
@@ -249,9 +265,9 @@ def calibrate_physics(samples: list[Sample]) -> PhysicsCalibration:
     base = PhysicsCalibration(
         gain=gain,
         unseen_gain=unseen,
-        stiffness_n_per_m3=tuple(stiffness),
-        indent_bias_n_per_m3=tuple(bias),
-    )  # type: ignore[arg-type]
+        stiffness_n_per_m3=(stiffness[0], stiffness[1]),
+        indent_bias_n_per_m3=(bias[0], bias[1]),
+    )
     # Torsion: what the centroid's moment leaves of the torque about x.
     rest = np.array([s.torque_nm[0] - physics_wrench(s.features, base).torque_nm[0] for s in used])
     twist = np.array([s.features.area_m2 * s.features.torsion_rad for s in used])
@@ -295,9 +311,37 @@ def calibrate_friction(samples: list[Sample], default: float = 0.8) -> float:
     ratios = [
         float(np.hypot(*s.force_n[1:]) / abs(s.force_n @ s.features.normal_in_tool))
         for s in samples
-        if s.slipping and s.features.in_contact and abs(s.force_n @ s.features.normal_in_tool) > 0.2
+        if s.slipping >= 1.0
+        and s.features.in_contact
+        and abs(s.force_n @ s.features.normal_in_tool) > 0.2
     ]
     return float(np.median(ratios)) if ratios else default
+
+
+def calibrate_slip(samples: list[Sample]) -> dict[str, Any]:
+    """The slip detector's limits: the median core shift per pascal at the frames the
+    truth's slip began, at the edge (some of the patch slips after none did) and over
+    the whole patch (all of it after not all); ``samples`` in time order per side (as
+    :func:`bench.force_data.samples` lists a grasp's frames). Calibration's defaults
+    for a limit no onset measured."""
+    last: dict[str, float] = {}
+    onsets: dict[str, list[float]] = {"edge": [], "patch": []}
+    for s in samples:
+        before = last.get(s.side)
+        last[s.side] = s.slipping
+        q = shift_per_pressure(s.features)
+        if before is None or q <= 0.0:
+            continue
+        if before == 0.0 < s.slipping:
+            onsets["edge"].append(q)
+        if before < 1.0 <= s.slipping:
+            onsets["patch"].append(q)
+    out: dict[str, Any] = {"slip_onsets": (len(onsets["edge"]), len(onsets["patch"]))}
+    if onsets["edge"]:
+        out["slip_edge_m_per_pa"] = float(np.median(onsets["edge"]))
+    if onsets["patch"]:
+        out["slip_patch_m_per_pa"] = float(np.median(onsets["patch"]))
+    return out
 
 
 def calibrate(samples: list[Sample], *, rig: str, source: str) -> Calibration:
@@ -308,5 +352,6 @@ def calibrate(samples: list[Sample], *, rig: str, source: str) -> Calibration:
         physics=calibrate_physics(samples),
         ridge=calibrate_ridge(samples),
         friction=calibrate_friction(samples),
+        **calibrate_slip(samples),
         samples=len(samples),
     )

@@ -99,6 +99,15 @@ class ContactFeatures:
         )  # fmt: skip
 
 
+def shift_per_pressure(f: ContactFeatures, min_pressure_pa: float = 100.0) -> float:
+    """The core's tangential shift per pascal of gauge pressure (m/Pa; 0 untracked or
+    under ``min_pressure_pa``): how near the patch is to slipping, since a point of the
+    membrane slips past the shift ``friction p / k`` (``perception.force.slip``)."""
+    if not f.tracked or f.pressure_pa < min_pressure_pa:
+        return 0.0
+    return float(np.hypot(*f.core_shift_m)) / f.pressure_pa
+
+
 def inward_normal_in_tool(tool_from_sensor: np.ndarray) -> np.ndarray:
     """The plate's inward normal: towards the other finger (tool -x for the left plate)."""
     return np.array([-1.0 if tool_from_sensor[0, 3] > 0 else 1.0, 0.0, 0.0])
@@ -121,7 +130,9 @@ def rim_correction(indent_m: np.ndarray, threshold_m: float) -> float:
     return math.sqrt(deepest / (deepest - threshold_m))
 
 
-def footprint_m2(depth_m: np.ndarray, camera: PinholeCamera, normal_in_sensor: np.ndarray):
+def footprint_m2(
+    depth_m: np.ndarray, camera: PinholeCamera, normal_in_sensor: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Each pixel's footprint projected on a plane normal to ``normal_in_sensor``, and
     its range (m); NaN where the depth is invalid."""
     rays = camera.unit_rays()

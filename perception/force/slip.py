@@ -2,20 +2,31 @@
 
 Two observations, both from what the bubble measures (docs/force.md):
 
-* **The edge lags the core.** While the patch sticks, its dots move with the object, the
-  edge as the core. The edge is stiffer (the stretched free membrane pulls on it) and
-  reaches its friction limit first: from then on its dots stop following while the
-  core's go on. Over the last ``window`` frames, the edge's displacement along the
-  core's, divided by the core's (``edge_follow``), drops from its stick value.
-* **The load nears the friction cone.** The tangential force over the normal force,
-  divided by the rig's friction coefficient (``use``; from the wrench estimate and the
-  calibration), rises towards 1; the whole patch slips at 1 (``patch_use`` is lower:
-  the estimate reads large shifts short).
+* **The dots near the pressure's limit.** A point of the membrane sticks while its
+  tangential traction, the latex's stiffness times its shift, stays under the friction
+  coefficient times its normal traction, which is the gauge pressure ``p`` (a thin
+  membrane transmits its pressure): it slips past the shift ``friction p / k``. The
+  edge, stiffened by the stretched free membrane, gets there first; the deepest point
+  last. So the core's tangential shift (the object's displacement on the latex) over
+  ``p`` says how near each part of the patch is to slipping, with no force estimate:
+  its area, the unseen part and the tangential stiffness of the object's shape do not
+  enter. The rig's two limits (the core's shift per pascal at which the edge, then the
+  whole patch, begins to slip) come from the calibration (``edge_m_per_pa``,
+  ``patch_m_per_pa``); ``strain`` is the core's shift over the edge's limit.
+* **The edge lags the core.** Once the edge slips its dots stop following while the
+  core's go on: over the last ``window`` frames, the edge's displacement along the
+  core's, divided by the core's (``edge_follow``), drops. A confirmation near the edge's
+  limit (``edge_min_strain``), not a cue alone (small increments are noisy).
 
 ``state`` is ``stick``, ``edge`` (incipient: the edge slips, the core holds) or
 ``patch`` (the whole patch slides). Onsets are reported once per episode; an episode
-ends when ``use`` falls back under ``release_use`` for ``settle_frames``. Everything is
-relative to the stable-grasp reference (:meth:`SlipDetector.reference`).
+ends when ``strain`` falls back under ``release_strain`` for ``settle_frames`` (a firmer
+grip raises ``p``, hence the limit). Everything is relative to the stable-grasp
+reference (:meth:`SlipDetector.reference`) and the dots' tare (the jaws just closed).
+``use``, the estimated tangential force over ``friction`` times the normal force, is
+reported beside (the load's share of the friction cone, for the reflex's log); it does
+not decide: the force estimate's error (10-35% of the tangential load, object by
+object) is larger than the margin between a firm hold and the edge's slip.
 
 Slip speed: once the whole patch slides its dots stop (the membrane stays at its
 limit) while the object moves on, so the dots cannot give the speed. It is the speed of
@@ -32,51 +43,65 @@ from typing import Literal
 
 import numpy as np
 
-from perception.force.features import ContactFeatures
+from perception.force.estimators import Calibration
+from perception.force.features import ContactFeatures, shift_per_pressure
 
 SlipPhase = Literal["stick", "edge", "patch"]
 
 
 @dataclass(frozen=True, kw_only=True)
 class SlipParams:
-    """Thresholds of the slip detector (``use``: tangential / (friction * normal)).
+    """Thresholds of the slip detector.
+
+    ``strain`` is the core's tangential shift over the shift at which the rig's patch
+    edge begins to slip at this pressure (``edge_m_per_pa * p``, from the calibration);
+    ``use`` the estimated tangential force over ``friction`` times the normal force.
+
+    The limits are medians over the calibration's onsets, which spread by about 10%
+    (0.63-0.78 um/Pa for the edge over ``world.sim``'s calibration grasps): both
+    thresholds sit at 0.9 of them, so a low one fires a frame early rather than late.
 
     Attributes:
-        edge_use: ``use`` from which the patch's edge counts as slipping.
-        patch_use: ``use`` from which the whole patch counts as slipping.
+        edge_strain: ``strain`` from which the patch's edge counts as slipping.
+        patch_strain: the core's shift over the whole patch's limit
+            (``patch_m_per_pa * p``) from which the whole patch counts as slipping.
         edge_follow: an edge following the core by less than this (over ``window``
-            frames) slips.
+            frames) slips ...
+        edge_min_strain: ... when ``strain`` is at least this (the edge's lag alone is
+            noise under a light load; a patch that grows or settles moves its edge for
+            other reasons).
         min_core_shift_m: the core must move at least this over ``window`` frames for
             the edge's lag to mean anything (noise otherwise).
-        edge_min_use: ... and the load must fill at least this share of the cone (the
-            edge cannot slip under a light load; a patch that grows or settles moves
-            its edge for other reasons).
         squeeze_change: a change of the normal force by more than this fraction within
             ``window`` frames (the grip was raised or eased) restarts the window: the
             patch changes shape, which is no slip.
         window: frames over which the edge's lag is measured.
-        release_use: an episode ends when ``use`` falls under this ...
+        release_strain: an episode ends when ``strain`` falls under this ...
         settle_frames: ... for this many frames.
         min_normal_n: under this normal force there is no grip to slip from.
+        min_pressure_pa: under this gauge pressure there is no limit to compare with.
     """
 
-    edge_use: float = 0.65
-    patch_use: float = 0.8
+    edge_strain: float = 0.9
+    patch_strain: float = 0.9
     edge_follow: float = 0.5
+    edge_min_strain: float = 0.8
     min_core_shift_m: float = 0.00025
-    edge_min_use: float = 0.5
     squeeze_change: float = 0.15
     window: int = 4
-    release_use: float = 0.6
+    release_strain: float = 0.8
     settle_frames: int = 5
     min_normal_n: float = 0.3
+    min_pressure_pa: float = 100.0
 
     def __post_init__(self) -> None:
-        if not 0 < self.release_use <= self.edge_use <= self.patch_use:
+        if not 0 < self.release_strain <= self.edge_strain:
             raise ValueError(
-                "`release_use`, `edge_use`, `patch_use` must satisfy 0 < release <= edge"
-                f" <= patch, got {self.release_use}, {self.edge_use}, {self.patch_use}"
+                "`release_strain`, `edge_strain` must satisfy 0 < release <= edge, got"
+                f" {self.release_strain}, {self.edge_strain}"
             )
+        if not self.patch_strain > 0:
+            raise ValueError(f"`patch_strain` must be > 0, got {self.patch_strain!r}")
         if self.window < 2:
             raise ValueError(f"`window` must be >= 2, got {self.window!r}")
         if self.settle_frames < 1:
@@ -103,15 +128,32 @@ class SlipReport:
 class SlipDetector:
     """One bubble's slip detector (see the module docstring)."""
 
-    def __init__(self, params: SlipParams | None = None, friction: float = 0.8) -> None:
+    def __init__(
+        self,
+        params: SlipParams | None = None,
+        friction: float = 0.8,
+        edge_m_per_pa: float = 0.7e-6,
+        patch_m_per_pa: float = 0.95e-6,
+    ) -> None:
+        if not (edge_m_per_pa > 0 and patch_m_per_pa > 0):
+            raise ValueError(
+                f"slip limits must be > 0, got {edge_m_per_pa!r} and {patch_m_per_pa!r}"
+            )
         self.params = params or SlipParams()
         self.friction = friction
+        self.edge_m_per_pa = edge_m_per_pa
+        self.patch_m_per_pa = patch_m_per_pa
         self.phase: SlipPhase = "stick"
         self._history: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray, float]] = deque(
             maxlen=self.params.window + 1
         )
         self._calm = 0
         self._referenced = False
+
+    @classmethod
+    def for_rig(cls, cal: Calibration, params: SlipParams | None = None) -> SlipDetector:
+        """A detector with the rig's friction and slip limits (its calibration)."""
+        return cls(params, cal.friction, cal.slip_edge_m_per_pa, cal.slip_patch_m_per_pa)
 
     def reference(self) -> None:
         """A stable grasp began: what moved before it is not slip."""
@@ -151,15 +193,17 @@ class SlipDetector:
             )
         )
         follow = self._edge_follow()
+        shift_per_pa = shift_per_pressure(features, p.min_pressure_pa)
+        strain = shift_per_pa / self.edge_m_per_pa
         phase: SlipPhase = "stick"
-        if use >= p.patch_use:
+        if shift_per_pa >= p.patch_strain * self.patch_m_per_pa:
             phase = "patch"
-        elif use >= p.edge_use or (follow < p.edge_follow and use >= p.edge_min_use):
+        elif strain >= p.edge_strain or (follow < p.edge_follow and strain >= p.edge_min_strain):
             phase = "edge"
         onset = ""
         if phase == "stick" and self.phase != "stick":
-            # Hold the episode until the load has settled back inside the cone.
-            self._calm = self._calm + 1 if use < p.release_use else 0
+            # Hold the episode until the shift has settled back inside the limit.
+            self._calm = self._calm + 1 if strain < p.release_strain else 0
             phase = self.phase if self._calm < p.settle_frames else "stick"
         else:
             self._calm = 0

@@ -1,9 +1,11 @@
-"""The cloud before a solve: finite rows, a fixed subsample, and its noise measured from
-the data alone."""
+"""The cloud before a solve: finite rows, a fixed subsample, its noise measured from the
+data alone, and the camera rays the noise lies along."""
 
 from __future__ import annotations
 
 import numpy as np
+
+from geometry.gripper import DEFAULT_GRIPPER, GripperGeometry
 
 
 def clean_cloud(
@@ -61,3 +63,27 @@ def estimate_noise_m(
     resid = w - np.einsum("qki,qi->qk", design, coef)
     var = np.sum(resid * resid, axis=1) / (k - 6)
     return float(np.sqrt(np.median(var)))
+
+
+def camera_rays(
+    points: np.ndarray, bubble: np.ndarray | None, gripper: GripperGeometry = DEFAULT_GRIPPER
+) -> np.ndarray | None:
+    """Unit directions (N, 3) from each point's camera to the point, in the tool frame:
+    the direction its depth noise lies along (``None`` without one bubble per point).
+
+    Each bubble's plate is placed from its own points (the apex of its membrane at the
+    innermost point it touches: ``cap_height_m`` outboard of it), so the opening need
+    not be known; an error of a few millimetres turns the rays by a degree or two."""
+    if bubble is None or len(bubble) != len(points) or not np.all(np.isin(bubble, (0, 1))):
+        return None
+    rays = np.empty_like(points)
+    for k, side in enumerate(("left", "right")):
+        sel = bubble == k
+        if not np.any(sel):
+            continue
+        inner = float(np.min(points[sel, 0])) if k == 0 else -float(np.max(points[sel, 0]))
+        plate_x = inner + gripper.bubble.cap_height_m
+        width = 2.0 * (plate_x - gripper.plate_outset_m)
+        rays[sel] = points[sel] - gripper.tool_from_sensor(side, width)[:3, 3]
+    unit: np.ndarray = rays / np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
+    return unit

@@ -19,18 +19,22 @@ asks for around it:
   full cloud.
 - Judgement (``judge``), the same whatever solver found the answer, with the noise
   measured from the cloud itself (``cloud.estimate_noise_m``) unless ``noise_m`` is
-  configured. The uncertainty of the answer (``judge.uncertainty``: a covariance from
-  the fit's curvature and residuals at the answer, calibrated so its 95% region holds
-  the truth 95% of the time) decides: ``suspect``, with the reasons in ``message``,
-  when the 95% region is wider than ``tolerance_deg`` or ``tolerance_m`` along the
-  observable directions, when the answer is not at the minimum of the fit (a
-  Gauss-Newton step beyond ``step_limit`` of the region remains: a solver stopped
-  early), when the fit is worse than ``accept_ratio`` times the noise or biased, when
-  another minimum that fits about as well (``ambiguity_ratio``) differs from it along
-  an observable direction by more than the tolerance, or when fewer than
-  ``min_observable`` directions are observable; else ``ok`` when the first seed's
-  minimum won and ``recovered`` when another seed's did. Directions the patch does not
-  observe (``observable``) and other minima that agree on every observable direction
+  configured. An answer short of the minimum of the fit (ICP, a loose tolerance: a
+  Gauss-Newton step beyond ``step_limit`` of the 95% region remains) is first taken
+  one Gauss-Newton step further, kept if the cost does not rise. The uncertainty of
+  the answer (``judge.uncertainty``: a covariance from the fit's curvature and
+  residuals at the answer and the bias that noise along the camera rays leaves,
+  calibrated so its 95% region holds the truth 95% of the time) decides, and the
+  answer is moved by the bias it predicts (``judge.Uncertainty.correction``):
+  ``suspect``, with the reasons in ``message``, when the 95% region is wider than
+  ``tolerance_deg`` or ``tolerance_m`` along the observable directions, when the
+  answer is still not at the minimum of the fit after that step, when the fit is
+  worse than ``accept_ratio`` times the noise or biased, when another minimum that
+  fits about as well (``ambiguity_ratio``) differs from it along an observable
+  direction by more than the tolerance, or when fewer than ``min_observable``
+  directions are observable; else ``ok`` when the first seed's minimum won and
+  ``recovered`` when another seed's did. Directions the patch does not observe
+  (``observable``) and other minima that agree on every observable direction
   (``alternatives``: a box face's slide or turn within the face, a bottle end over end)
   are reported, not held against the answer.
 - Unobservable directions: the local solvers keep them at their seed. When the winner
@@ -55,9 +59,9 @@ import numpy as np
 from geometry import se3
 from geometry.fields import Field
 from perception.pose import judge
-from perception.pose.cloud import clean_cloud, clean_points, estimate_noise_m
+from perception.pose.cloud import camera_rays, clean_cloud, clean_points, estimate_noise_m
+from perception.pose.params import EstimatorParams
 from perception.pose.problem import (
-    MIN_POINTS,
     FitResult,
     check_rigid,
     flatness_m,
@@ -73,97 +77,6 @@ class LocalSolver(Protocol):
     field: Field
 
     def solve(self, points_in_tool: np.ndarray, object_from_tool: np.ndarray) -> FitResult: ...
-
-
-@dataclass(frozen=True, kw_only=True)
-class EstimatorParams:
-    """Knobs of the robust wrapper.
-
-    Attributes:
-        noise_m: the depth noise sigma; 0 (default) estimates it from each cloud
-            (``cloud.estimate_noise_m``, the spread about local quadric fits).
-        min_noise_m: floor under the estimated noise (a noiseless cloud still has
-            model and sampling error).
-        accept_ratio: a minimum whose residual RMS exceeds ``accept_ratio * noise`` is
-            taken as wrong. The right pose leaves about 1.0-1.25 times the estimated
-            noise; the 75-90 degree wrong minima about 2 and more.
-        ambiguity_ratio: two distinct minima (further apart than ``distinct_deg`` or
-            ``distinct_m``, up to the object's symmetry) whose mean squared residuals
-            differ by less than ``ambiguity_ratio * noise^2`` cannot be told apart: the
-            answer is ``suspect``.
-        distinct_deg, distinct_m: how far apart two minima must be to count as distinct.
-        bias_ratio: a mean residual beyond ``(bias_ratio + 2 / sqrt(N)) * noise``
-            (either sign; the second term is two standard errors of a mean of N points)
-            is ``suspect``: noise along the rays averages out at the right pose (under
-            0.05 of the noise on synthetic and simulated clouds of 3000 points or more),
-            a model of the wrong size leaves the points on one side (a radius 1 mm off:
-            0.1-3 times the noise).
-        min_observable: fewer observable directions than this is ``suspect``.
-        tolerance_deg, tolerance_m: ``ok`` needs the 95% region within this rotation
-            and this displacement of the object's origin (the benches call an answer
-            right within 2 degrees and 2 mm).
-        step_limit: the Gauss-Newton step left at the answer, as a fraction of the 95%
-            region along it, beyond which the answer is not at the minimum of the fit.
-        observability_floor: information per point (scaled, as the solvers' floors)
-            under which the judgement counts a direction unobservable (from the points
-            where the field is smooth across the noise: ``judge.uncertainty``).
-        warm_deg: a prior's single solve stands only if its answer is within this
-            angle of the prior.
-        warm_accept_ratio: ... and its residual RMS within this times the noise.
-        min_points: below this many finite points there is no estimate.
-        max_points: the cloud is subsampled (fixed seed) to at most this many points.
-        screen_points: seeds are screened on a subsample of this many points; the best
-            minima are then polished on the full cloud.
-        max_seeds: at most this many screening solves per estimate.
-        track: warm-start from the last accepted estimate.
-        track_rise_ratio: a tracking solve also needs its RMS at most this times the
-            last accepted one.
-    """
-
-    noise_m: float = 0.0
-    min_noise_m: float = 0.0002
-    accept_ratio: float = 1.5
-    ambiguity_ratio: float = 0.05
-    distinct_deg: float = 2.0
-    distinct_m: float = 0.002
-    bias_ratio: float = 0.07
-    min_observable: int = 3
-    min_points: int = 10
-    max_points: int = 10000
-    screen_points: int = 500
-    max_seeds: int = 16
-    track: bool = True
-    track_rise_ratio: float = 1.25
-    tolerance_deg: float = 2.0
-    tolerance_m: float = 0.002
-    step_limit: float = 0.5
-    observability_floor: float = 1e-4
-    warm_deg: float = 10.0
-    warm_accept_ratio: float = 1.3
-
-    def __post_init__(self) -> None:
-        for name in ("noise_m", "min_noise_m", "ambiguity_ratio", "bias_ratio"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0.0):
-                raise ValueError(f"{name} must be >= 0, got {value}")
-        positive = ("accept_ratio", "distinct_deg", "distinct_m", "track_rise_ratio")
-        positive += ("tolerance_deg", "tolerance_m", "step_limit", "observability_floor")
-        for name in (*positive, "warm_deg", "warm_accept_ratio"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be > 0, got {value}")
-        if self.min_points < MIN_POINTS:
-            raise ValueError(
-                f"min_points must be >= {MIN_POINTS} (six unknowns), got {self.min_points}"
-            )
-        if self.max_points < self.min_points:
-            raise ValueError(f"max_points must be >= min_points, got {self.max_points}")
-        if self.screen_points < self.min_points:
-            raise ValueError(f"screen_points must be >= min_points, got {self.screen_points}")
-        if self.max_seeds < 1:
-            raise ValueError(f"max_seeds must be >= 1, got {self.max_seeds}")
-        if not 0 <= self.min_observable <= 6:
-            raise ValueError(f"min_observable must be in [0, 6], got {self.min_observable}")
 
 
 @dataclass
@@ -259,16 +172,17 @@ class PoseEstimator:
         # while tracking.
         kept = self.last_noise_m if tracking else 0.0
         noise = prm.noise_m or kept or max(estimate_noise_m(pts), prm.min_noise_m)
+        rays = camera_rays(pts, sides)
         if prior is not None:
             first = self._solve(pts, prior)
             if self._warm_stands(first, prior, tracking, noise):
                 judged = self._judge(
-                    pts, [_Minimum(first, 0)], first.iterations, 1, True, noise, start
+                    pts, rays, [_Minimum(first, 0)], first.iterations, 1, True, noise, start
                 )
                 if judged.status == "ok":
                     return judged
         minima, iterations, tried = self._search(pts, sides, prior, noise)
-        return self._judge(pts, minima, iterations, tried, prior is not None, noise, start)
+        return self._judge(pts, rays, minima, iterations, tried, prior is not None, noise, start)
 
     def _warm_stands(
         self, first: FitResult, prior: np.ndarray, tracking: bool, noise: float
@@ -356,6 +270,7 @@ class PoseEstimator:
     def _judge(
         self,
         pts: np.ndarray,
+        rays: np.ndarray | None,
         minima: list[_Minimum],
         iterations: int,
         tried: int,
@@ -374,7 +289,7 @@ class PoseEstimator:
         if best.rank != 0 or not had_prior:
             result = self._centre_unobservable(result, pts)
         fld = self.solver.field.resized(**result.dims_m)
-        unc = judge.uncertainty(fld, result.object_from_tool, pts, floor=prm.observability_floor)
+        result, unc = self._at_minimum(fld, result, pts, rays)
         reasons = []
         if unc.region95_deg > prm.tolerance_deg or unc.region95_m > prm.tolerance_m:
             reasons.append(
@@ -386,7 +301,8 @@ class PoseEstimator:
             stopped = f" (the solver did not converge: {result.message})"
             reasons.append(
                 f"not at the minimum of the fit: a step of {unc.step_sigma:.2f} of the 95% "
-                f"region remains{stopped if result.status == 'not_converged' else ''}"
+                "region remains after one Gauss-Newton step"
+                f"{stopped if result.status == 'not_converged' else ''}"
             )
         accept = prm.accept_ratio * noise
         if result.residual_rms_m > accept:
@@ -430,7 +346,7 @@ class PoseEstimator:
         else:
             status = "ok" if best.rank == 0 else "recovered"
         result = replace(
-            result,
+            _moved(fld, result, se3.exp_se3(unc.correction) @ result.object_from_tool, pts),
             observable=unc.observable,
             covariance=unc.covariance,
             region95_deg=unc.region95_deg,
@@ -439,8 +355,28 @@ class PoseEstimator:
         )
         return self._finish(result, status, "; ".join(reasons), iterations, tried, noise, start)
 
+    def _at_minimum(
+        self, fld: Field, result: FitResult, pts: np.ndarray, rays: np.ndarray | None
+    ) -> tuple[FitResult, judge.Uncertainty]:
+        """The answer and its uncertainty at the minimum of the fit: a solver that stopped
+        short (ICP, a loose tolerance) is taken one Gauss-Newton step further, kept if
+        the cost does not rise; the judgement then says whether that reached it."""
+        prm = self.params
+        unc = judge.uncertainty(
+            fld, result.object_from_tool, pts, rays_in_tool=rays, floor=prm.observability_floor
+        )
+        if unc.step_sigma <= prm.step_limit:
+            return result, unc
+        stepped = _moved(fld, result, se3.exp_se3(unc.step) @ result.object_from_tool, pts)
+        if not stepped.cost <= result.cost:
+            return result, unc
+        return stepped, judge.uncertainty(
+            fld, stepped.object_from_tool, pts, rays_in_tool=rays, floor=prm.observability_floor
+        )
+
     def _bias_limit_m(self, noise: float, n: int) -> float:
-        return (self.params.bias_ratio + 2.0 / np.sqrt(max(n, 1))) * noise
+        limit: float = (self.params.bias_ratio + 2.0 / np.sqrt(max(n, 1))) * noise
+        return limit
 
     def _centre_unobservable(self, result: FitResult, pts: np.ndarray) -> FitResult:
         """Move the pose along its unobservable translations so the patch's centroid
@@ -452,17 +388,8 @@ class PoseEstimator:
         pose = result.object_from_tool.copy()
         centroid = pose[:3, :3] @ pts.mean(axis=0) + pose[:3, 3]
         pose[unseen, 3] -= centroid[unseen]
-        r = residuals(self.solver.field.resized(**result.dims_m), pose, pts)
-        cost = float(r @ r)
-        if not cost <= result.cost * (1.0 + 1e-6) + 1e-12:
-            return result
-        return replace(
-            result,
-            object_from_tool=pose,
-            cost=cost,
-            residual_rms_m=float(np.sqrt(cost / max(len(pts), 1))),
-            residual_mean_m=float(np.mean(r)),
-        )
+        moved = _moved(self.solver.field.resized(**result.dims_m), result, pose, pts)
+        return moved if moved.cost <= result.cost * (1.0 + 1e-6) + 1e-12 else result
 
     def _finish(
         self,
@@ -514,3 +441,16 @@ class PoseEstimator:
             solver=self.solver.name,
             message=message,
         )
+
+
+def _moved(fld: Field, result: FitResult, pose: np.ndarray, pts: np.ndarray) -> FitResult:
+    """``result`` at another pose, with the fit's cost, RMS and mean there."""
+    r = residuals(fld, pose, pts)
+    cost = float(r @ r)
+    return replace(
+        result,
+        object_from_tool=pose,
+        cost=cost,
+        residual_rms_m=float(np.sqrt(cost / max(len(pts), 1))),
+        residual_mean_m=float(np.mean(r)),
+    )

@@ -55,6 +55,7 @@ from __future__ import annotations
 import functools
 import time
 from dataclasses import dataclass
+from typing import Any, TypeVar, cast
 
 import casadi as ca
 import numpy as np
@@ -147,7 +148,11 @@ def jit_available(compiler: str = "gcc") -> bool:
     return jit_cache.jit_available(compiler)
 
 
-def _rotation(q: ca.MX | ca.SX) -> ca.MX | ca.SX:
+# A CasADi expression of one kind: the rotation is built once of SX, once of MX.
+_Sym = TypeVar("_Sym", ca.MX, ca.SX)
+
+
+def _rotation(q: _Sym) -> _Sym:
     w, x, y, z = q[0], q[1], q[2], q[3]
     return ca.vertcat(
         ca.horzcat(1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
@@ -178,8 +183,9 @@ class _Compiled:
         theta = ca.SX.sym("theta", nx)
         p = ca.SX.sym("p", 3)
         w = ca.SX.sym("w")
-        dims = {k: theta[7 + i] for i, k in enumerate(keys)}
-        phi = fld.casadi_sized(ca.mtimes(_rotation(theta[3:7]), p) + theta[:3], dims)
+        dims: dict[str, ca.SX | ca.MX] = {k: theta[7 + i] for i, k in enumerate(keys)}
+        # Of SX symbols in, an SX expression out (the field declares either kind).
+        phi = cast(ca.SX, fld.casadi_sized(ca.mtimes(_rotation(theta[3:7]), p) + theta[:3], dims))
         grad = ca.gradient(phi, theta)
         point_cost = ca.Function("point_cost", [theta, p, w], [w * phi * phi])
         point_gn = ca.Function("point_gn", [theta, p, w], [w * ca.mtimes(grad, grad.T)])
@@ -206,7 +212,7 @@ class _Compiled:
             + ca.dot(dd, ca.DM(prior) * dd)
         )
         g = ca.dot(x[3:7], x[3:7])
-        opts: dict = {
+        opts: dict[str, Any] = {
             "ipopt.print_level": 0,
             "print_time": False,
             "ipopt.tol": prm.tol,
@@ -314,7 +320,7 @@ class IpoptSolver:
         seed: np.ndarray,
         dims: np.ndarray,
         weak: np.ndarray,
-    ) -> tuple[np.ndarray, np.ndarray, dict]:
+    ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
         model = np.array([self.field.dims_m[k] for k in comp.keys])
         theta0 = np.concatenate([seed[:3, 3], se3.quat_from_matrix(seed[:3, :3]), model])
         start = theta0.copy()
@@ -354,7 +360,7 @@ class IpoptSolver:
         fld = self.field
         weak = self._weak_directions(fld, pose, pts)
         iterations = 0
-        stats: dict = {}
+        stats: dict[str, Any] = {}
         # The gauge is fixed where the solve starts; far from the answer the seed's weak
         # directions can differ from the answer's (a 60-degree seed sees the caps), and
         # a prior on a direction the answer needs biases it by degrees. So re-solve from

@@ -58,7 +58,8 @@ def compiler_id(compiler: str) -> str | None:
 def cache_key(source: str, compiler: str, flags: tuple[str, ...]) -> str:
     """The key of one library: source, CasADi version, compiler identity and flags."""
     digest = hashlib.sha256()
-    for part in (ca.__version__, str(compiler_id(compiler)), " ".join(flags), source):
+    version: str = ca.__version__  # type: ignore[attr-defined]  # not in casadi's stub
+    for part in (version, str(compiler_id(compiler)), " ".join(flags), source):
         digest.update(part.encode())
         digest.update(b"\0")
     return digest.hexdigest()[:24]

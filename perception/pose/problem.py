@@ -186,7 +186,8 @@ def scaled_information(jac: np.ndarray, length_m: float) -> np.ndarray:
     n = max(len(jac), 1)
     scale = np.array([1.0, 1.0, 1.0, 1.0 / length_m, 1.0 / length_m, 1.0 / length_m])
     js = jac * scale
-    return (js.T @ js) / n
+    info: np.ndarray = (js.T @ js) / n
+    return info
 
 
 def observability(
@@ -209,4 +210,4 @@ def observability(
 def characteristic_length(fld: Field) -> float:
     """Half the diagonal of the field's bounding box: the lever arm of a rotation."""
     lo, hi = fld.bounds_m()
-    return float(max(0.5 * np.linalg.norm(hi - lo), 1e-3))
+    return max(0.5 * float(np.linalg.norm(hi - lo)), 1e-3)

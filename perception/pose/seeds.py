@@ -11,7 +11,7 @@ from geometry import se3
 def frame_from_axis(axis: np.ndarray, centre: np.ndarray) -> np.ndarray:
     """A ``tool_from_object`` whose z is ``axis`` (normalized) at ``centre``; x arbitrary."""
     z = np.asarray(axis, dtype=np.float64)
-    z = z / max(np.linalg.norm(z), 1e-300)
+    z = z / max(float(np.linalg.norm(z)), 1e-300)
     helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     x = np.cross(helper, z)
     x /= np.linalg.norm(x)

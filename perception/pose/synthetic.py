@@ -58,9 +58,9 @@ def grasp_cloud(
         foot = (np.abs(pts[:, 1]) < foot_y) & (np.abs(pts[:, 2]) < foot_z)
         left = foot & (pts[:, 0] > x_hi - depth_m) & (normal_x > 0.2)
         right = foot & (pts[:, 0] < x_lo + depth_m) & (normal_x < -0.2)
-        for mask, side in ((left, 0), (right, 1)):
+        for mask, label in ((left, 0), (right, 1)):
             chunks.append(pts[mask])
-            sides.append(np.full(int(mask.sum()), side, np.uint8))
+            sides.append(np.full(int(mask.sum()), label, np.uint8))
             got += int(mask.sum())
     points = np.concatenate(chunks) if chunks else np.zeros((0, 3))
     bubble = np.concatenate(sides) if sides else np.zeros(0, np.uint8)
@@ -123,4 +123,5 @@ def tilted_seed(
     seed = tool_from_object @ se3.make_pose(rot)
     shift = rng.normal(size=3)
     seed[:3, 3] += offset_m * shift / np.linalg.norm(shift)
-    return seed
+    pose: np.ndarray = seed
+    return pose

@@ -31,9 +31,39 @@ def test_quick_json_has_every_sweep() -> None:
     reflex = {r["setting"]: r for r in rows if r["sweep"] == "reflex"}
     assert set(reflex) == {"off", "on"}
     assert all(r["kept"] + r["dropped"] == r["samples"] for r in reflex.values())
+    assert all(0 <= r["dropped_at_bound"] <= r["dropped"] for r in reflex.values())
     handover = {r["method"]: r for r in rows if r["sweep"] == "handover"}
     assert set(handover) == {"shear", "force"}
     assert all(0.0 <= r["false_release_rate"] <= 1.0 for r in handover.values())
     slip = [r for r in rows if r["sweep"] == "slip"]
-    assert {r["method"] for r in slip} == {"onset_edge", "onset_patch"}
+    assert {(r["world"], r["method"]) for r in slip} == {
+        (w, m) for w in ("sim", "mujoco") for m in ("onset_edge", "onset_patch")
+    }
     assert all(r["still_secs"] > 0 for r in slip)
+
+
+def test_mujoco_slip_truth_and_its_calibration_file() -> None:
+    from bench.force_mujoco import CALIBRATION, slipping_share
+    from perception.force.estimators import Calibration
+
+    # The rim alone at its cone (under half the contacts) is no slip; past 0.9 the whole
+    # patch slides; between, the share is the slipping area's.
+    assert [slipping_share(f) for f in (0.0, 0.25, 0.5, 0.7, 0.9, 1.0)] == [
+        0.0, 0.0, 0.5, 0.7, 1.0, 1.0,
+    ]  # fmt: skip
+    cal = Calibration.load(CALIBRATION)
+    assert cal.rig == "mujoco" and min(cal.slip_onsets) > 0
+    assert 0 < cal.slip_edge_m_per_pa < cal.slip_patch_m_per_pa
+
+
+def test_recorded_frames_carry_the_default_settings_features() -> None:
+    # The slip sweep reads each frame's own features with limits calibrated on the
+    # default setting's: they must be that setting's (they were the first setting's,
+    # Farneback, scored against a DIS calibration: every edge onset 6-15 frames early).
+    from bench.force import record_all
+    from bench.force_data import DEFAULT_SETTING
+
+    rec = record_all(0, 0.2)
+    assert len(rec.by_setting) == 3 and rec.frames
+    for frame, feats in zip(rec.frames, rec.by_setting[DEFAULT_SETTING], strict=True):
+        assert frame.features is feats

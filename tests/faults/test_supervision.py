@@ -88,21 +88,26 @@ def test_corrupted_seqs_and_bad_frames_are_not_counted_as_dropped() -> None:
     assert row["dropped"] == 0
 
 
-def test_non_finite_inputs_are_counted_and_warned_about_once() -> None:
+def test_non_finite_messages_are_counted_and_warned_about_once_where_published() -> None:
+    # Checked once per message by the publisher, not once per subscriber: every edge of
+    # the topic shows the topic's count, and only the publisher warns.
     launcher, out = launcher_for(
         {
             "p": {"impl": f"{FAULTS}:BadPressure", "params": {"count": 40}},
             "s": {"impl": f"{FAULTS}:PressureSink", "inputs": {"pressure": "p/pressure"}},
+            "t": {"impl": f"{FAULTS}:PressureSink", "inputs": {"pressure": "p/pressure"}},
         }
     )
     code = launcher.run()
     log = out.getvalue()
     assert code == 0, log
-    row = table_row(log, "p/pressure -> s.pressure")
-    assert row["messages"] == 40
-    assert row["nonfinite"] == 20
-    warnings = [line for line in log.splitlines() if "non-finite" in line and "[s]" in line]
+    for edge in ("p/pressure -> s.pressure", "p/pressure -> t.pressure"):
+        row = table_row(log, edge)
+        assert row["messages"] == 40
+        assert row["nonfinite"] == 20
+    warnings = [line for line in log.splitlines() if "non-finite" in line]
     assert len(warnings) == 1, log
+    assert "[p]" in warnings[0], log
     assert "pressure_pa" in warnings[0] and "p/pressure" in warnings[0]
 
 

@@ -137,6 +137,20 @@ def test_replay_fast_publishes_everything_at_once_in_file_order(bag: Path) -> No
     assert io.stop_reason is not None
 
 
+def test_replay_counts_the_non_finite_messages_it_publishes(tmp_path: Path) -> None:
+    # The replay is where a replayed message is published: a bag of broken pressures
+    # is counted there (the subscribers do not check again).
+    path = tmp_path / "nan.mcap"
+    with BagWriter(path) as w:
+        for i, value in enumerate((1200.0, float("nan"), 1300.0, float("inf"))):
+            msg = Pressure(header=Header(seq=i), sensor="left", pressure_pa=value)
+            w.write_message("p/pressure", msg, log_time_nanos=1_000 * MS + i * MS)
+    node, io = make_replay({"path": str(path), "fast": True})
+    io.advance(0.001)
+    assert len(io.published["p/pressure"]) == 4
+    assert io.nonfinite == {"p/pressure": 2}
+
+
 def test_replay_keeps_recorded_seq_and_stamps(bag: Path) -> None:
     node, io = make_replay({"path": str(bag), "fast": True, "topics": "a/tick"})
     io.advance(0.001)

@@ -10,7 +10,7 @@ import pytest
 import sim
 from messages.base import Header
 from messages.force import BubbleContact, SlipState, WrenchEstimate
-from messages.types import GraspState, GripperState, Pressure
+from messages.types import GraspState, GripperState, Pressure, ShearEstimate
 from nodes.slip import SlipNode
 from nodes.supervisor.handover import HandoverSupervisor
 from nodes.wrench import WrenchNode
@@ -82,8 +82,8 @@ def test_slip_node_reports_an_onset_once_the_patch_slips(fill_frames: list[sim.I
         for i in fill_frames
         if i.snapshot.wrench and i.snapshot.wrench["left"].slipping_fraction > 0
     )
-    # Not late: by two frames after the truth's first slipping point. It may warn early
-    # (the estimate reads the mug's shear high: the load looks closer to the cone).
+    # Not late: by two frames after the truth's first slipping point. It may warn a
+    # little early (it fires at 0.9 of the calibration's median limit).
     assert onsets[0][0] <= true_edge + 2 * int(1e9 / 30)
     # No onset while the mug was not yet being filled (a constant load, well inside).
     filling = next(i.stamp_nanos for i in fill_frames if i.snapshot.time_secs >= 1.0)
@@ -96,7 +96,9 @@ def test_wrench_node_refuses_a_missing_calibration_naming_the_field() -> None:
         make_node(WrenchNode, {"calibration": "models/force/none.json"})
 
 
-def _wrench(stamp: int, fz: float, fy: float = 3.4) -> WrenchEstimate:
+def _wrench(
+    stamp: int, fz: float, fy: float = 3.4, in_contact: tuple[bool, bool] = (True, True)
+) -> WrenchEstimate:
     z3 = np.zeros(3)
     return WrenchEstimate(
         header=Header(stamp_nanos=stamp),
@@ -109,7 +111,7 @@ def _wrench(stamp: int, fz: float, fy: float = 3.4) -> WrenchEstimate:
         object_torque_nm=z3,
         object_force_sigma_n=z3,
         object_torque_sigma_nm=z3,
-        in_contact=[True, True],
+        in_contact=list(in_contact),
         area_m2=[0.002, 0.002],
     )
 
@@ -119,6 +121,7 @@ def _holding_handover() -> tuple[HandoverSupervisor, object]:
     feed(node, "wrench", _wrench(10, 0.0))
     feed(node, "grasp", GraspState(header=Header(stamp_nanos=20), stable=True, event="stable"))
     assert node.state == "holding"
+    feed(node, "wrench", _wrench(25, 0.0))  # the baseline: after the stable grasp
     return node, io
 
 
@@ -129,6 +132,69 @@ def test_handover_releases_on_a_pull_in_the_force() -> None:
     feed(node, "wrench", _wrench(40, -0.9))
     assert node.state == "releasing"
     assert io.published["command"][-1].command == "release"
+
+
+def test_handover_takes_no_baseline_from_before_the_stable_grasp() -> None:
+    # On a loaded machine the wrench stream lags the grasp monitor's: when the grasp
+    # turns stable, the newest estimate (and some still in flight) are from the
+    # closing. Taken as the baseline, a steady hold after it read as a pull.
+    node, io = make_node(HandoverSupervisor, {"grasp_width_m": 0.07, "start_delay_secs": 0.0})
+    feed(node, "wrench", _wrench(10, -1.0))
+    feed(node, "grasp", GraspState(header=Header(stamp_nanos=20), stable=True, event="stable"))
+    feed(node, "wrench", _wrench(15, -1.0))  # in flight from before the stable grasp
+    for k in range(5):
+        feed(node, "wrench", _wrench(30 + k, 0.0))
+    assert node.state == "holding"
+    assert "release" not in [e.event for e in io.published["event"]]
+
+
+def test_handover_counts_only_estimates_with_both_bubbles_in_contact() -> None:
+    # A bubble that missed its free reference (or whose frame was dropped) sees no
+    # contact: an estimate of half the grasp is no pull.
+    node, io = _holding_handover()
+    for k in range(5):
+        feed(node, "wrench", _wrench(30 + k, -2.0, in_contact=(True, False)))
+    assert node.state == "holding"
+    feed(node, "wrench", _wrench(40, -0.9))
+    feed(node, "wrench", _wrench(41, -0.9))
+    assert node.state == "releasing"
+
+
+def test_handover_uses_the_shear_rule_until_the_force_has_a_baseline() -> None:
+    node, _ = make_node(HandoverSupervisor, {"grasp_width_m": 0.07, "start_delay_secs": 0.0})
+    feed(node, "grasp", GraspState(header=Header(stamp_nanos=20), stable=True, event="stable"))
+    feed(node, "wrench", _wrench(25, 0.0, in_contact=(False, True)))  # one bubble: no baseline
+    for k in range(3):
+        feed(node, "shear", _shear(30 + k, 2.0))
+    assert node.state == "releasing"
+
+
+def test_handover_lets_the_shear_rule_stand_in_while_the_force_lags() -> None:
+    # The wrench node behind (a loaded machine): its newest estimate is 0.3 s older than
+    # the shear's, more than `force_max_lag_secs`; the shear rule answers the pull.
+    node, _ = _holding_handover()  # the force's baseline at 25 ns
+    lagging = int(0.3e9)
+    for k in range(3):
+        feed(node, "shear", _shear(lagging + k, 2.0))
+    assert node.state == "releasing"
+    # A current force rule decides alone: the same shear does nothing.
+    node, _ = _holding_handover()
+    for k in range(3):
+        feed(node, "shear", _shear(30 + k, 2.0))
+    assert node.state == "holding"
+
+
+def _shear(stamp: int, magnitude_px: float) -> ShearEstimate:
+    direction = np.array([0.0, 1.0])
+    return ShearEstimate(
+        header=Header(stamp_nanos=stamp),
+        sensor="left",
+        shear_px=direction * magnitude_px,
+        magnitude_px=magnitude_px,
+        direction=direction,
+        direction_defined=True,
+        shear_m=direction * magnitude_px * 0.2e-3,
+    )
 
 
 def test_handover_squeezes_on_slip_when_the_load_grows_under_gravity() -> None:

@@ -16,12 +16,13 @@ from perception.force.estimators import (
     Sample,
     calibrate,
     calibrate_physics,
+    calibrate_slip,
     estimate,
     physics_wrench,
 )
 from perception.force.features import BubbleFeatures, ContactFeatures, rim_correction
 from perception.force.reflex import GripReflex, PullWatch, ReflexParams
-from perception.force.slip import SlipDetector, SlipParams
+from perception.force.slip import SlipDetector
 
 LEFT_NORMAL = np.array([-1.0, 0.0, 0.0])
 
@@ -98,6 +99,12 @@ def test_calibration_file_round_trips_and_a_bad_one_names_the_file(tmp_path: Pat
         )
     with pytest.raises(ValueError, match="unknown method"):
         estimate(f, "left", cal, "oracle")
+    # A file from before the slip limits: world.sim's defaults.
+    old = json.loads(cal.to_json())
+    for key in ("slip_edge_m_per_pa", "slip_patch_m_per_pa", "slip_onsets"):
+        del old[key]
+    older = Calibration.from_dict(old)
+    assert older.slip_edge_m_per_pa == Calibration().slip_edge_m_per_pa > 0
     path.write_text(json.dumps({"physics": {"stiffness": 1}}))
     with pytest.raises(ValueError, match=str(path)):
         Calibration.load(path)
@@ -134,27 +141,44 @@ def test_rim_correction_is_the_cylinder_band_ratio_and_finite_when_shallow() -> 
     assert rim_correction(np.array([np.nan]), 0.001) == 1.0
 
 
-def run_detector(shifts: list[tuple[float, float]], forces: list[float]) -> list[str]:
-    det = SlipDetector(SlipParams(), friction=0.8)
+def run_detector(
+    shifts: list[tuple[float, float]], forces: list[float], pressure_pa: float = 2000.0
+) -> list[str]:
+    """Onsets of a detector whose rig's edge slips at 0.7 um/Pa of the core's shift and
+    its whole patch at 0.95 um/Pa (at 2 kPa: 1.4 mm and 1.9 mm; it fires at 0.9 of them)."""
+    cal = Calibration(slip_edge_m_per_pa=0.7e-6, slip_patch_m_per_pa=0.95e-6, friction=0.8)
+    det = SlipDetector.for_rig(cal)
     det.reference()
     onsets = []
     for i, ((core, edge), ft) in enumerate(zip(shifts, forces, strict=True)):
-        f = features(core=(core, 0.0), edge=(edge, 0.0), shift_m=(core, 0.0))
+        f = features(
+            core=(core, 0.0), edge=(edge, 0.0), shift_m=(core, 0.0), pressure_pa=pressure_pa
+        )
         report = det.update(f, np.array([4.0, ft, 0.0]), i / 30)
         onsets.append(report.onset)
     return onsets
 
 
-def test_slip_detector_sees_the_edge_lag_then_the_whole_patch() -> None:
-    # Stick: the edge follows the core; then the edge stalls; then the load reaches
-    # the friction cone (4 N normal, friction 0.8: 3.2 N).
-    shifts = [(-0.0001 * i, -0.0001 * i) for i in range(10)]
-    shifts += [(-0.001 - 0.0002 * i, -0.001) for i in range(10)]
-    forces = [0.1 * i for i in range(20)] + [3.2] * 3
-    shifts += [shifts[-1]] * 3
-    onsets = run_detector(shifts, forces)
+def test_slip_detector_fires_at_the_pressures_limit_edge_then_patch() -> None:
+    # The core's shift grows 0.1 mm a frame: 1.26 mm (0.9 x 0.7 um/Pa x 2 kPa) at frame
+    # 13, 1.71 mm (0.9 x 0.95 um/Pa x 2 kPa) at frame 18; the force estimate says
+    # nothing of it (a light, constant load).
+    shifts = [(0.0001 * i, 0.0001 * i) for i in range(25)]
+    onsets = run_detector(shifts, [0.5] * 25)
+    assert onsets.index("edge") == 13 and onsets.index("patch") == 18
     assert onsets.count("edge") == 1 and onsets.count("patch") == 1
-    assert onsets.index("edge") >= 10 and onsets.index("patch") == 20
+    # A firmer grip (twice the pressure) doubles the limits: the same shifts stick.
+    assert not any(run_detector(shifts, [0.5] * 25, pressure_pa=4000.0))
+
+
+def test_slip_detector_sees_the_edge_lag_near_the_limit() -> None:
+    # The edge stalls while the core goes on, at 0.85 of the edge's limit (1.19 mm):
+    # the lag confirms an edge slip the strain alone has not reached.
+    shifts = [(0.0001 * i, 0.0001 * i) for i in range(10)]
+    shifts += [(0.00112 + 0.00002 * i, 0.00100) for i in range(5)]
+    onsets = run_detector(shifts, [0.5] * 15)
+    assert onsets.count("edge") == 1 and 11 <= onsets.index("edge") <= 14
+    assert "patch" not in onsets
 
 
 def test_slip_detector_stays_quiet_while_held_still_with_noise() -> None:
@@ -162,6 +186,35 @@ def test_slip_detector_stays_quiet_while_held_still_with_noise() -> None:
     noise = rng.normal(0, 0.00003, (300, 2))
     onsets = run_detector([tuple(n) for n in noise], [1.0] * 300)
     assert not any(onsets)
+
+
+def test_slip_detector_ignores_a_force_estimate_that_reads_the_load_high() -> None:
+    # A firm hold (the dots 0.6 mm off, half the edge's limit) whose force estimate
+    # reads the tangential load at 0.73 of the friction cone (4 N normal, friction 0.8):
+    # the bench's still holds of a PET bottle, where the force estimate read 35% high.
+    # The detector judged by that estimate called it a slip every time.
+    onsets = run_detector([(0.0006, 0.0006)] * 100, [0.73 * 0.8 * 4.0] * 100)
+    assert not any(onsets)
+
+
+def test_slip_limits_are_calibrated_at_the_truths_onsets() -> None:
+    # A bubble whose edge begins to slip at a core shift of 0.8 um/Pa and its whole
+    # patch at 1.1 um/Pa (pressure 2 kPa), two grasps in time order.
+    data = []
+    for _ in range(2):
+        for i in range(30):
+            shift = 0.0001 * i
+            q = shift / 2000.0
+            slipping = 0.0 if q < 0.8e-6 - 1e-12 else (1.0 if q >= 1.1e-6 - 1e-12 else 0.4)
+            f = features(shift_m=(shift, 0.0), pressure_pa=2000.0)
+            data.append(Sample("left", f, np.zeros(3), np.zeros(3), slipping))
+    out = calibrate_slip(data)
+    assert out["slip_onsets"] == (2, 2)
+    assert out["slip_edge_m_per_pa"] == pytest.approx(0.8e-6)
+    assert out["slip_patch_m_per_pa"] == pytest.approx(1.1e-6)
+    assert calibrate_slip(data[:10]) == {"slip_onsets": (0, 0)}  # no onset: the defaults
+    with pytest.raises(ValueError, match="slip_edge_m_per_pa"):
+        Calibration(slip_edge_m_per_pa=0.0)
 
 
 def test_reflex_raises_to_what_the_load_needs_bounded_and_not_twice_at_once() -> None:

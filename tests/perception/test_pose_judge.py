@@ -9,9 +9,10 @@ import pytest
 from bench import pose_hard
 from geometry import fields
 from geometry.objects import ObjectModel
-from perception.pose import judge, metrics, synthetic
+from perception.pose import cloud, metrics, synthetic
 from perception.pose.estimator import EstimatorParams, PoseEstimator
 from perception.pose.icp import IcpSolver
+from perception.pose.ipopt import IpoptParams, IpoptSolver
 from perception.pose.lm import LMSolver
 
 CYL = ObjectModel(
@@ -103,23 +104,72 @@ def test_box_faces_are_not_suspect_for_what_they_cannot_see() -> None:
         assert not all(result.observable)
 
 
-def test_the_verdict_does_not_depend_on_the_solver() -> None:
-    """ICP's answer is judged by the same fit as LM's: at its minimum and determined, or
-    ``suspect``; never wrong and ``ok``."""
+@pytest.mark.parametrize("name", ["icp", "ipopt_loose"])
+def test_the_verdict_does_not_depend_on_the_solver(name: str) -> None:
+    """ICP and IPOPT at a loose tolerance stop short of the minimum of the fit; the
+    judgement takes them the rest of the way, so their right answers from a near seed
+    are ``ok`` after one solve, as LM's are (on main ICP's were searched and some
+    ``suspect``)."""
     model = pose_hard.OBJECTS["cylinder_r40"]
-    for k in range(3):
+    solver = (
+        IcpSolver(model.field)
+        if name == "icp"
+        else IpoptSolver(model.field, IpoptParams(jit="off", tol=1e-4))
+    )
+    est = PoseEstimator(solver, EstimatorParams(track=False))
+    for k in range(4):
         rng = np.random.default_rng(800 + k)
         truth = pose_hard.truth_pose("cylinder_r40", rng)
         pts, bubble = synthetic.grasp_cloud(model, truth, n_points=1500, noise_m=0.001, rng=rng)
         seed = synthetic.tilted_seed(truth, 3.0, rng, offset_m=0.002)
-        est = PoseEstimator(IcpSolver(model.field), EstimatorParams(track=False))
         result = est.estimate(pts, bubble, seed_tool_from_object=seed)
-        if result.status in GOOD:
-            assert metrics.right(model.field, result, truth)
-            unc = judge.uncertainty(model.field, result.object_from_tool, pts)
-            assert unc.step_sigma <= EstimatorParams().step_limit
-        else:
-            assert result.message
+        assert result.status == "ok", (k, result.message)
+        assert result.seeds_tried == 1
+        assert metrics.right(model.field, result, truth)
+
+
+@pytest.mark.parametrize("kind", ["cylinder_r30", "bottle"])
+def test_the_95_percent_region_holds_the_truth_under_oblique_ray_noise(kind: str) -> None:
+    """3 mm of noise along the cameras' oblique rays biases a fit on a curved surface by
+    up to a few times the statistical spread (second order in the noise: more points do
+    not remove it); the judgement predicts the bias from the rays and undoes it. On
+    main the 95% region held the truth in 9 (cylinder) and 8 (bottle) of these 12."""
+    model = pose_hard.OBJECTS[kind]
+    est = PoseEstimator(
+        LMSolver(model.field),
+        EstimatorParams(track=False),
+        symmetric_about_z=model.symmetric_about_z,
+    )
+    held = []
+    for k in range(12):
+        rng = np.random.default_rng(300 + k)
+        truth = pose_hard.truth_pose(kind, rng)
+        pts, bubble = synthetic.grasp_cloud(model, truth, n_points=2000, noise_m=0.003, rng=rng)
+        seed = synthetic.tilted_seed(truth, 3.0, rng, offset_m=0.002)
+        result = est.estimate(pts, bubble, seed_tool_from_object=seed)
+        held.append(metrics.covered(model.field, result, truth, ends_alike=kind == "bottle"))
+    assert sum(held) >= 11, held
+
+
+def test_the_camera_rays_come_from_the_points_alone() -> None:
+    """Each bubble's camera is placed from its own points; the rays agree with those the
+    synthetic cloud put its noise along."""
+    model = pose_hard.OBJECTS["cylinder_r40"]
+    truth = pose_hard.truth_pose("cylinder_r40", np.random.default_rng(3))
+    clean, bubble = synthetic.grasp_cloud(
+        model, truth, n_points=500, noise_m=0.0, rng=np.random.default_rng(5)
+    )
+    nudged, _ = synthetic.grasp_cloud(
+        model, truth, n_points=500, noise_m=1e-6, rng=np.random.default_rng(5)
+    )
+    true_rays = nudged - clean
+    true_rays /= np.linalg.norm(true_rays, axis=1, keepdims=True)
+    rays = cloud.camera_rays(clean, bubble)
+    assert rays is not None
+    angle = np.degrees(np.arccos(np.clip(np.abs(np.sum(rays * true_rays, axis=1)), 0.0, 1.0)))
+    assert angle.max() < 0.5
+    assert cloud.camera_rays(clean, None) is None
+    assert cloud.camera_rays(clean, np.full(len(clean), 2, np.uint8)) is None
 
 
 def test_a_warm_seed_costs_one_solve_unless_the_residual_says_otherwise() -> None:

@@ -12,9 +12,8 @@ other registered one of its family (``pose_estimator.*``) that the graph check a
 in its place. To keep it affordable each graph takes a few rounds, not one per node:
 round 0 reruns every such node at once with its own implementation (the whole pipeline
 downstream of the world, live in lockstep), round k the nodes that have a k-th
-implementation, swapped to it. ``graphs/hardware.yaml`` needs the devices:
-``graphs/handover_wsg50.yaml`` (the gripper driver against the world's WSG 50 emulator)
-stands in for it.
+implementation, swapped to it. ``graphs/hardware.yaml`` is recorded on the emulated
+devices (``--emulate``). The two replays of a case run at the same time.
 """
 
 from __future__ import annotations
@@ -37,6 +36,7 @@ from runtime.bag.diff import diff_bags
 from runtime.graph import check
 from runtime.registry import known, resolve
 from runtime.replaygraph import ReplayOptions, build_replay_graph
+from sim.rig_launch import DEVICE_IMPLS
 from tests import launching
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -46,15 +46,14 @@ launch_py = functools.partial(launching.launch_py, timeout=300)
 
 
 def replay_twice(bag: Path, out: Path, *swaps: str) -> tuple[Path, Path]:
-    """Two lockstep replays of ``bag`` through ``swaps`` (``NODE=IMPL``), recorded."""
-    outputs = []
-    for run in ("a", "b"):
-        path = out / f"{run}.mcap"
-        flags = [f for swap in swaps for f in ("--swap", swap)]
-        done = launch_py("replay", bag, *flags, "--lockstep", "--record", path)
+    """Two lockstep replays of ``bag`` through ``swaps`` (``NODE=IMPL``), recorded, run at
+    the same time (each loads the machine for the other)."""
+    flags = [f for swap in swaps for f in ("--swap", swap)]
+    paths = [out / "a.mcap", out / "b.mcap"]
+    runs = [["replay", bag, *flags, "--lockstep", "--record", p] for p in paths]
+    for done in launching.launch_py_together(*runs, timeout=300):
         assert done.returncode == 0, done.stdout + done.stderr
-        outputs.append(path)
-    return outputs[0], outputs[1]
+    return paths[0], paths[1]
 
 
 def counts(path: Path) -> dict[str, int]:
@@ -96,7 +95,9 @@ SETS: dict[str, Callable[[Path], list[str]]] = {
 # A graph with a hosts table replays graph.yaml's recording (the same nodes) on this
 # machine (--no-hosts); tests/hosts replays across hosts in lockstep.
 RECORDED_AS = {"handover_hosts": "graph"}
-NOT_RUNNABLE = {"hardware": "needs the real devices; graphs/handover_wsg50.yaml stands in"}
+# The hardware graph is recorded on the emulated devices (their drivers are clocked: the
+# replay stands in for them).
+RECORD_FLAGS = {"hardware": ["--emulate"]}
 
 
 def graph_files() -> dict[str, Path]:
@@ -141,22 +142,9 @@ def rounds(path: Path) -> list[list[str]]:
     return out
 
 
-# Whole pipelines rerun in lockstep that still differ between two replays (not fixed yet):
-# the shear tracker's output in these, near the release; every other case holds.
-OPEN = {
-    ("handover_wsg50", 0): "shear flow and overlay differ slightly between two replays",
-    ("stacking", 0): "the shear tracker's reference differs at the release",
-}
 CASES = [
-    pytest.param(
-        name,
-        k,
-        swaps,
-        id=f"{name}-round{k}",
-        marks=[pytest.mark.xfail(reason=OPEN[name, k], strict=False)] if (name, k) in OPEN else [],
-    )
+    pytest.param(name, k, swaps, id=f"{name}-round{k}")
     for name, path in graph_files().items()
-    if name not in NOT_RUNNABLE
     for k, swaps in enumerate(rounds(path))
 ]
 
@@ -172,7 +160,10 @@ def recordings(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str], Path
             tmp = tmp_path_factory.mktemp(f"rec-{name}")
             sets = [f for value in SETS.get(name, lambda _: [])(tmp) for f in ("--set", value)]
             path = tmp / "run.mcap"
-            run = launch_py(graph_files()[name], "--record", path, "--duration", RECORD_SECS, *sets)
+            flags = RECORD_FLAGS.get(name, [])
+            run = launch_py(
+                graph_files()[name], *flags, "--record", path, "--duration", RECORD_SECS, *sets
+            )
             # A task's verdict may be non-zero (a dropped object); the recording stands.
             assert path.exists() and "Traceback" not in run.stdout + run.stderr, run.stdout
             done[name] = path
@@ -191,24 +182,29 @@ def test_two_lockstep_replays_of_every_graph_are_the_same(
     extra: list[str | Path] = []
     if name in RECORDED_AS:
         extra = ["--graph", graph_files()[name], "--no-hosts"]
-    outputs = []
-    for run in ("a", "b"):
+    flags = [f for swap in swaps for f in ("--swap", swap)]
+    outputs = [tmp_path / "a.mcap", tmp_path / "b.mcap"]
+    runs = []
+    for out in outputs:
         # Each replay its own dataset folder: a writer that finds one resumes from it.
-        sets = [f for v in SETS.get(name, lambda _: [])(tmp_path / run) for f in ("--set", v)]
-        out = tmp_path / f"{run}.mcap"
-        flags = [f for swap in swaps for f in ("--swap", swap)]
-        done = launch_py("replay", bag, *extra, *flags, "--lockstep", "--record", out, *sets)
+        tmp = tmp_path / out.stem
+        sets = [f for v in SETS.get(name, lambda _: [])(tmp) for f in ("--set", v)]
+        runs.append(["replay", bag, *extra, *flags, "--lockstep", "--record", out, *sets])
+    for done, out in zip(launching.launch_py_together(*runs, timeout=600), outputs, strict=True):
         assert out.exists(), done.stdout + done.stderr
         assert "Traceback" not in done.stdout + done.stderr, done.stdout + done.stderr
-        outputs.append(out)
     diffs = diff_bags(*outputs)
     assert diffs == [], "\n".join(map(str, diffs[:20]))
     assert sum(counts(outputs[0]).values()) > 0
 
 
-def test_hardware_graph_is_listed_as_not_runnable_here() -> None:
-    # Keep this list honest: the hardware graph is the only one left out.
-    assert set(NOT_RUNNABLE) == {"hardware"} and "hardware" in graph_files()
+def test_the_hardware_graph_replays_without_its_devices() -> None:
+    # Its drivers follow their devices (clocked): the replay stands in for them.
+    rerun = {n for swaps in rounds(graph_files()["hardware"]) for n in swaps}
+    doc = yaml.safe_load(graph_files()["hardware"].read_text())
+    drivers = {n for n, body in doc["nodes"].items() if body["impl"] in DEVICE_IMPLS}
+    assert drivers == {"gripper", "left_camera", "right_camera", "left_pressure", "right_pressure"}
+    assert not {n.split("=")[0] for n in rerun} & drivers
 
 
 def test_a_replay_that_reruns_a_clocked_node_says_lockstep_cannot_hold(
