@@ -40,6 +40,10 @@ than it does within one repeat), ``throughput_vs_raw_min``/``_max`` their range;
 ``sink_cpu_vs_raw`` are the CPU per frame of each side against raw's, paired by repeat
 as the throughput is.
 
+Where the runtime's extra CPU per frame goes, step by step (message, encode, finite
+check, send; receive, decode, delivery), side by side with the raw pair's in one
+process: ``python -m bench.transport_steps``.
+
     python -m bench.transport [--quick] [--json] [--no-plot]
 """
 
