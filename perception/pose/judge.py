@@ -289,8 +289,15 @@ def observed_difference(
 ) -> np.ndarray:
     """``other`` relative to the estimate ``object_from_tool`` in the observable
     coordinates of ``unc``, after motion along the unobservable directions is removed."""
-    scale = unc.scale
-    basis = unc.basis
+    return difference_along(unc.basis, unc.scale, object_from_tool, other)
+
+
+def difference_along(
+    basis: np.ndarray, scale: np.ndarray, object_from_tool: np.ndarray, other: np.ndarray
+) -> np.ndarray:
+    """``other`` relative to ``object_from_tool`` in the coordinates of ``basis`` (6, k),
+    orthonormal directions in scaled twist coordinates (``scale``: scaled to twist),
+    after motion along the directions orthogonal to them is removed."""
     null = np.linalg.svd(basis, full_matrices=True)[0][:, basis.shape[1] :]
     rel = other @ se3.invert(object_from_tool)
     for _ in range(20):
