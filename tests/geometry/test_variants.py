@@ -3,14 +3,10 @@ and drawn by the auto-labeller only from the split it is asked for."""
 
 from __future__ import annotations
 
-import msgspec
 import numpy as np
 import pytest
 
 from geometry import objects, variants
-from messages.base import Header
-from messages.classify import GraspRequest
-from nodes.autolabel import AutolabelWorldParams
 from perception.classify.autolabel import GraspGenerator, GraspGeneratorParams
 from sim.scene import SceneError, scene_from_dict
 
@@ -94,28 +90,6 @@ def test_the_autolabeller_draws_held_out_variants_only_when_asked() -> None:
     assert "variant" not in plain.sample(3).to_params()
     with pytest.raises(ValueError, match="variants"):
         GraspGeneratorParams(variants="test")
-
-
-def test_the_autolabelling_world_builds_the_requested_variant() -> None:
-    sample = GraspGenerator(GraspGeneratorParams(seed=5, variants="held_out")).sample(0)
-    request = GraspRequest(
-        header=Header(),
-        grasp_id=0,
-        object_name=sample.object_name,
-        class_label=sample.class_label,
-        tool_from_object=sample.tool_from_object,
-        open_width_m=0.11,
-        grasp_width_m=sample.grasp_width_m,
-        force_n=sample.force_n,
-        variant=int(sample.variant or 0),
-    )
-    scene = AutolabelWorldParams().scene_for(request)
-    assert scene.object.variant == sample.variant
-    expected = variants.variant_dims(sample.object_name, int(sample.variant or 0))
-    assert dict(scene.object.dims_m) == expected
-    reference = AutolabelWorldParams().scene_for(msgspec.structs.replace(request, variant=-1))
-    assert reference.object.variant is None
-    assert reference.object.model().dims_m == objects.make(sample.object_name).dims_m
 
 
 def test_a_scene_names_a_variant() -> None:
