@@ -184,7 +184,7 @@ SETTINGS = {
     "fb_quarter": ShearParams(scale=0.25, warm_start=True),
     "dis_half": ShearParams(method="dis", scale=0.5, warm_start=True),
 }
-DEFAULT_SETTING = "dis_half"  # FeatureParams' default
+DEFAULT_SETTING = "fb_half"  # FeatureParams' default
 
 
 @dataclass
