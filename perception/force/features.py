@@ -52,12 +52,6 @@ class FeatureParams:
             where no shift limit could see the slide coming (``bench.force``'s
             ``shift_err`` column).
         edge_px: working-resolution pixels from the patch's border that count as its edge.
-        core_depth: the patch's core is where the membrane is pressed in at least this
-            fraction of the patch's deepest (its 95th percentile), away from the edge:
-            the material that slips last (a point slips past ``friction p / (k g)``, and
-            ``g``, the stiffening of the stretched free membrane, is least where the
-            indentation is deepest). Until the whole patch slips the core moves with
-            the object, whatever the patch's shape.
         min_patch_px: fewer working pixels of tracked patch than this: no tangential
             measurement (the patch is too small to measure).
     """
@@ -65,18 +59,13 @@ class FeatureParams:
     contact: ContactParams = field(
         default_factory=lambda: ContactParams(threshold_m=0.0015, min_component_px=40)
     )
-    flow: ShearParams = field(
-        default_factory=lambda: ShearParams(scale=0.5, warm_start=True)
-    )
+    flow: ShearParams = field(default_factory=lambda: ShearParams(scale=0.5, warm_start=True))
     edge_px: int = 3
-    core_depth: float = 0.8
     min_patch_px: int = 12
 
     def __post_init__(self) -> None:
         if self.edge_px < 1:
             raise ValueError(f"`edge_px` must be >= 1, got {self.edge_px!r}")
-        if not 0.0 <= self.core_depth < 1.0:
-            raise ValueError(f"`core_depth` must be in [0, 1), got {self.core_depth!r}")
         if self.min_patch_px < 3:
             raise ValueError(f"`min_patch_px` must be >= 3, got {self.min_patch_px!r}")
 
@@ -234,10 +223,7 @@ class BubbleFeatures:
         good = np.isfinite(points).all(axis=1) & np.isfinite(weights)
         centroid_s = (points[good] * weights[good, None]).sum(0) / max(weights[good].sum(), 1e-12)
         centroid = rot @ centroid_s + tool_from_sensor[:3, 3]
-        shifts = None
-        if self.tared:
-            indent_img = np.where(mask, free_rng - rng, 0.0)
-            shifts = self._shifts(ir, depth_m, mask, indent_img)
+        shifts = self._shifts(ir, depth_m, mask) if self.tared else None
         if shifts is None:
             zero2 = np.zeros(2)
             return ContactFeatures(
@@ -251,10 +237,9 @@ class BubbleFeatures:
         )  # fmt: skip
 
     def _shifts(
-        self, ir: np.ndarray, depth_m: np.ndarray, mask: np.ndarray, indent_m: np.ndarray
+        self, ir: np.ndarray, depth_m: np.ndarray, mask: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, int] | None:
-        """Mean, core and edge tangential shift of the patch's dots, their torsion
-        (``indent_m``: the membrane's indentation, 0 off the patch)."""
+        """Mean, core and edge tangential shift of the patch's dots, their torsion."""
         result = self._tracker.update(ir, depth_m, keep_fields=True)
         geometry = self._tracker.reference_geometry
         if result.flow is None or result.mask is None or geometry is None:
@@ -274,12 +259,9 @@ class BubbleFeatures:
         if s1.size < self.params.min_patch_px:
             return None
         edge = dist.reshape(-1)[kept] <= self.params.edge_px
-        work_indent = resize_for_flow(np.nan_to_num(indent_m).astype(np.float32), scale)
-        depth = work_indent.reshape(-1)[kept]
-        deep = ~edge & (depth >= self.params.core_depth * float(np.percentile(depth, 95)))
         disp = np.stack([d1, d2], axis=1)
         mean = disp.mean(axis=0)
-        core = disp[deep].mean(axis=0) if deep.sum() >= 3 else mean
+        core = disp[~edge].mean(axis=0) if (~edge).sum() >= 3 else mean
         rim = disp[edge].mean(axis=0) if edge.sum() >= 3 else mean
         torsion, _ = rotation_about_centroid(s1, s2, d1, d2)
         return mean, core, rim, float(torsion), int(s1.size)
