@@ -47,10 +47,10 @@ class FeatureParams:
             pose's patch: a force needs the whole pressed area, rim included).
         flow: the dot flow (Farneback at half resolution, warm-started). DIS's ``fast``
             preset at half resolution is faster but estimates its finest flow at an
-            eighth of the image: it read the core's shift 23% short at the median on
-            ``world.sim``'s grasps, and a third of it on the square bottle's flat face,
-            where no shift limit could see the slide coming (``bench.force``'s
-            ``shift_err`` column).
+            eighth of the image: on ``world.sim``'s grasps it missed the object's slide
+            on the latex by 0.26 mm at the median (Farneback: 0.018 mm; ``bench.force``,
+            ``shift_err_mm_median``), and read a third of it on the square bottle's
+            flat face, where no shift limit could see the slide coming.
         edge_px: working-resolution pixels from the patch's border that count as its edge.
         min_patch_px: fewer working pixels of tracked patch than this: no tangential
             measurement (the patch is too small to measure).
