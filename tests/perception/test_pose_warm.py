@@ -17,6 +17,7 @@ from perception.pose.problem import FitResult
 
 GOOD = ("ok", "recovered")
 KIND = "cylinder_r40"
+N = 3000  # points per cloud
 
 
 class CountingSolver:
@@ -38,7 +39,7 @@ def _cloud(k: int, truth: np.ndarray | None = None) -> tuple[np.ndarray, np.ndar
     if truth is None:
         truth = pose_hard.truth_pose(KIND, rng)
     pts, bubble = synthetic.grasp_cloud(
-        pose_hard.OBJECTS[KIND], truth, n_points=3000, noise_m=0.001, rng=rng
+        pose_hard.OBJECTS[KIND], truth, n_points=N, noise_m=0.001, rng=rng
     )
     return truth, pts, bubble
 
@@ -48,29 +49,30 @@ def _estimator(track: bool) -> tuple[CountingSolver, PoseEstimator]:
     return solver, PoseEstimator(solver, EstimatorParams(track=track))
 
 
+def _seeded(k: int, tilt_deg: float, offset_m: float) -> tuple[list[int], FitResult, bool]:
+    """The solver's calls, the estimate and whether it is right, from a seed
+    ``tilt_deg`` and ``offset_m`` off the truth (no tracking)."""
+    truth, pts, bubble = _cloud(k)
+    solver, est = _estimator(track=False)
+    seed = synthetic.tilted_seed(truth, tilt_deg, np.random.default_rng(k), offset_m=offset_m)
+    result = est.estimate(pts, bubble, seed_tool_from_object=seed)
+    return solver.calls, result, metrics.right(pose_hard.OBJECTS[KIND].field, result, truth)
+
+
 def test_a_seed_near_the_answer_is_solved_once() -> None:
-    field = pose_hard.OBJECTS[KIND].field
     for k in range(3):
-        truth, pts, bubble = _cloud(k)
-        solver, est = _estimator(track=False)
-        seed = synthetic.tilted_seed(truth, 3.0, np.random.default_rng(k), offset_m=0.002)
-        result = est.estimate(pts, bubble, seed_tool_from_object=seed)
+        calls, result, right = _seeded(k, 3.0, 0.002)
         assert result.status == "ok", (k, result.message)
-        assert solver.calls == [len(pts)], k  # one solve, on the whole cloud
-        assert result.seeds_tried == 1
-        assert metrics.right(field, result, truth)
+        assert calls == [N], k  # one solve, on the whole cloud
+        assert result.seeds_tried == 1 and right
 
 
 def test_a_seed_far_off_runs_the_search_to_the_right_answer() -> None:
-    field = pose_hard.OBJECTS[KIND].field
     for k in range(3):
-        truth, pts, bubble = _cloud(k)
-        solver, est = _estimator(track=False)
-        far = synthetic.tilted_seed(truth, 80.0, np.random.default_rng(k), offset_m=0.005)
-        result = est.estimate(pts, bubble, seed_tool_from_object=far)
-        assert len(solver.calls) > 2 and result.seeds_tried > 1, k
+        calls, result, right = _seeded(k, 80.0, 0.005)
+        assert len(calls) > 2 and result.seeds_tried > 1, k
         assert result.status in GOOD, (k, result.message)
-        assert metrics.right(field, result, truth), k
+        assert right, k
 
 
 def test_a_lost_track_runs_the_search_to_the_right_answer() -> None:
