@@ -21,7 +21,8 @@ holds are skipped. A line per grasp shows progress (done, frames, rate, time lef
 
 ``world.autolabel`` is the simulated world of this graph: ``world.sim``'s world
 (``sim.World``) whose object and pose are set by each ``GraspRequest`` (the scene file
-of that object gives the bubbles, cameras and noise) instead of a scripted trajectory.
+of that object gives the bubbles, cameras and noise; the request's variant, if any, the
+object's dimensions) instead of a scripted trajectory.
 
 Ports:
     inputs: ``place`` (GraspRequest), ``command`` (GripperCommand).
@@ -58,7 +59,7 @@ from runtime.node import Node
 from runtime.registry import register
 from sim import World, ground_truth, load_scene, stamp_of
 from sim.effects import resolve
-from sim.scene import Keyframe, Scene, SceneError, rpy_deg_from_rotation
+from sim.scene import Keyframe, ObjectSpec, Scene, SceneError, rpy_deg_from_rotation
 from sim.wire import apply_command, to_message
 
 TASK = "autolabel"
@@ -75,6 +76,9 @@ class AutolabelParams:
             says which grasps are done.
         resume: skip grasps already in the dataset.
         objects: object names to grasp.
+        variants: ``none`` (each class's reference shape), ``train`` or ``held_out``
+            (a variant of its class from that split, ``geometry.variants``: a test set
+            asks for ``held_out``, a training set for ``train``).
         open_width_m: opening before each grasp and after each release.
         close_speed_m_per_s: finger speed of the grasp.
         settle_secs: wait after placing an object before closing.
@@ -95,6 +99,7 @@ class AutolabelParams:
     dataset: str = "out/datasets/autolabel"
     resume: bool = True
     objects: tuple[str, ...] = DEFAULT_OBJECTS
+    variants: str = "none"
     open_width_m: float = 0.11
     close_speed_m_per_s: float = 0.1
     settle_secs: float = 0.2
@@ -131,6 +136,7 @@ class AutolabelParams:
     def generator_params(self) -> GraspGeneratorParams:
         return GraspGeneratorParams(
             objects=tuple(self.objects),
+            variants=self.variants,
             seed=self.seed,
             approach_tilt_deg=self.approach_tilt_deg,
             skew_deg=self.skew_deg,
@@ -243,6 +249,7 @@ class AutolabelSupervisor(Node):
                 open_width_m=self.params.open_width_m,
                 grasp_width_m=sample.grasp_width_m,
                 force_n=sample.force_n,
+                variant=-1 if sample.variant is None else sample.variant,
             ),
         )
         self.phase = "settle"
@@ -366,6 +373,10 @@ class AutolabelWorldParams:
         if request.object_name not in self.scenes:
             raise ValueError(f"no scene for object {request.object_name!r}: {sorted(self.scenes)}")
         base = load_scene(self.scenes[request.object_name])
+        if request.variant >= 0:
+            base = dataclasses.replace(
+                base, object=ObjectSpec.of(request.object_name, request.variant)
+            )
         pose = np.asarray(request.tool_from_object, dtype=np.float64)
         keyframe = Keyframe(
             t_secs=0.0,
