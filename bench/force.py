@@ -17,7 +17,9 @@ every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` e
   Errors per bubble and frame in contact while the object is held (slid less than
   ``DROP_M``): force (N), torque (N m), force in percent of
   the bubble's true load; median and p90; plus the share of frames within the goal
-  (10% or 0.3 N, whichever is larger). Time: features and estimate of both bubbles per
+  (10% or 0.3 N, whichever is larger); and on ``world.sim`` the dots' error
+  (``shift_err``: the core's shift against the object's slide in the hand since the
+  tare, while the patch sticks, mm). Time: features and estimate of both bubbles per
   frame on one core (the least of ``TIMING_REPEATS`` runs of the first test grasp's
   frames, thread CPU time), and the rate it allows.
 * ``slip``: per bubble and held-out grasp whose patch slipped (truth), the detector's
@@ -78,6 +80,7 @@ from bench.force_data import (
     features_of,
     held,
     samples,
+    shift_errors_m,
 )
 from geometry.camera import PinholeCamera
 from geometry.gripper import SIDES
@@ -146,6 +149,11 @@ def wrench_rows(
             data += samples(frames)
         cal = calibrate(data, rig=world, source="bench.force")
         cals[setting] = cal
+        # The dots against the object's slide: world.sim's truth (MuJoCo's has none).
+        shift_err = [
+            e for rec in test_recs if world == "sim"
+            for e in shift_errors_m(rec.frames, rec.by_setting[setting])
+        ]  # fmt: skip
         for method in METHODS:
             ferr, terr, pct, within = [], [], [], []
             for rec in test_recs:
@@ -173,6 +181,7 @@ def wrench_rows(
                     "torque_err_nm_median": median(terr),
                     "torque_err_nm_p90": percentile(terr, 90),
                     "within_goal_fraction": float(np.mean(within)) if within else float("nan"),
+                    "shift_err_mm_median": median(shift_err) * 1000.0,
                     "ms_per_frame": secs[setting] * 1000.0,
                     "rate_hz": 1.0 / secs[setting],
                 }
@@ -477,7 +486,8 @@ def run(quick: bool, sizes: Sizes | None = None) -> list[Row]:
 
 COLUMNS = [
     "sweep", "world", "setting", "method", "samples", "force_err_n_median", "force_err_pct_median",
-    "torque_err_nm_median", "within_goal_fraction", "ms_per_frame", "rate_hz",
+    "torque_err_nm_median", "within_goal_fraction", "shift_err_mm_median", "ms_per_frame",
+    "rate_hz",
     "detected_fraction", "onset_frames_median", "onset_ms_median", "false_alarms_per_min",
     "kept", "dropped", "dropped_at_bound", "release_latency_ms_median", "false_release_rate",
 ]  # fmt: skip

@@ -184,7 +184,7 @@ SETTINGS = {
     "fb_quarter": ShearParams(scale=0.25, warm_start=True),
     "dis_half": ShearParams(method="dis", scale=0.5, warm_start=True),
 }
-DEFAULT_SETTING = "dis_half"  # FeatureParams' default
+DEFAULT_SETTING = "fb_half"  # FeatureParams' default
 
 
 @dataclass
@@ -258,6 +258,25 @@ def held(frame: Frame) -> bool:
     return float(np.hypot(*frame.slide_m)) < DROP_M
 
 
+def shift_errors_m(frames: list[Frame], features: list[dict[str, ContactFeatures]]) -> list[float]:
+    """Per bubble and frame while all of its patch sticks: how far the core's dots'
+    shift is from the object's slide in the hand since the tare (``world.sim`` renders
+    the stuck material moving with the object, so the two are the same motion)."""
+    errors: list[float] = []
+    for side in SIDES:
+        tare: np.ndarray | None = None
+        for frame, feats in zip(frames, features, strict=True):
+            f = feats[side]
+            if not f.tracked:
+                tare = None
+                continue
+            if tare is None:
+                tare = frame.slide_m
+            if frame.slipping[side] == 0.0:
+                errors.append(float(np.linalg.norm(f.core_shift_m - (frame.slide_m - tare))))
+    return errors
+
+
 def samples(frames: list[Frame]) -> list[Sample]:
     """Every bubble of every frame while the object is held, as a calibration sample."""
     return [
@@ -308,5 +327,5 @@ if __name__ == "__main__":
 
 __all__ = [
     *("CALIBRATION", "DEFAULT_SETTING", "SETTINGS", "Bubbles", "Frame", "GraspSpec"),
-    *("Recorded", "calibrate_on", "draw", "features_of", "record", "samples"),
+    *("Recorded", "calibrate_on", "draw", "features_of", "record", "samples", "shift_errors_m"),
 ]

@@ -27,7 +27,8 @@ shape; accuracy rows also the right answers called ``suspect`` (``right_suspect_
 and the coverage of the stated 95% region (``coverage95``, ``coverage95_ok``), as
 ``bench.pose_hard`` defines them; ``default`` marks the default graph's settings (IPOPT,
 tight tolerance). ``warm_cost`` rows: a seed 3 degrees off given to the estimator,
-beside one local solve from it and a cold start (CPU time and its ratio to one solve).
+beside one local solve from it, the judgement alone at that solve's answer and a cold
+start (CPU time and its ratio to one solve).
 The rows of ``bench.pose_hard`` follow (other shapes and sizes, box edges and corners,
 noise 0.5-3 mm, bad seeds, tracking and cold-start time by solver, size mismatch with
 and without ``fit_dims``, degenerate clouds); see its docstring.
@@ -55,7 +56,7 @@ from geometry import objects, se3
 from geometry.camera import PinholeCamera
 from geometry.fields import Field
 from perception.contact import ContactParams, ContactPatcher
-from perception.pose import metrics, problem, synthetic
+from perception.pose import cloud, judge, metrics, problem, synthetic
 from perception.pose.estimator import EstimatorParams, PoseEstimator
 from perception.pose.icp import IcpParams, IcpSolver
 from perception.pose.ipopt import IpoptParams, IpoptSolver, jit_available
@@ -255,13 +256,20 @@ def _tight_estimator(name: str, n: int, use_jit: bool) -> tuple[Any, PoseEstimat
 
 def warm_cost_rows(cases: list[Case], n: int, solvers: list[str], use_jit: bool) -> list[Row]:
     """What a seed 3 degrees and 2 mm off costs the estimator (``warm_seed``), beside one
-    local solve from the same seed (``one_solve``) and a cold start (``cold``): process
-    CPU time on one thread, and its ratio to one solve."""
+    local solve from the same seed (``one_solve``), the judgement alone at that solve's
+    answer (``judgement``: the noise measured from the cloud, the camera rays and the
+    uncertainty, which every estimate pays) and a cold start (``cold``): process CPU
+    time on one thread, and its ratio to one solve."""
     synth = [c for c in cases if c["source"] == "synthetic"]
     rows: list[Row] = []
     for name in progress(solvers, "bench.pose", label=lambda s: f"warm seed cost, {s}, {n} points"):
         solver, est = _tight_estimator(name, n, use_jit)
-        cpu: dict[str, list[float]] = {"one_solve": [], "warm_seed": [], "cold": []}
+        cpu: dict[str, list[float]] = {
+            "one_solve": [],
+            "judgement": [],
+            "warm_seed": [],
+            "cold": [],
+        }
         seeds: dict[str, list[int]] = {k: [] for k in cpu}
         for case in synth:
             pts, bub = _subsample(case, n)
@@ -270,8 +278,17 @@ def warm_cost_rows(cases: list[Case], n: int, solvers: list[str], use_jit: bool)
             for start in cpu:
                 c0 = time.process_time()
                 if start == "one_solve":
-                    solver.solve(pts, se3.invert(seed))
+                    answer = solver.solve(pts, se3.invert(seed))
                     tried = 1
+                elif start == "judgement":
+                    cloud.estimate_noise_m(pts)
+                    judge.uncertainty(
+                        solver.field.resized(**answer.dims_m),
+                        answer.object_from_tool,
+                        pts,
+                        rays_in_tool=cloud.camera_rays(pts, bub),
+                    )
+                    tried = 0
                 else:
                     prior = seed if start == "warm_seed" else None
                     tried = est.estimate(pts, bub, seed_tool_from_object=prior).seeds_tried

@@ -45,8 +45,12 @@ class FeatureParams:
     Attributes:
         contact: the contact filter against the free bubble (a lower threshold than the
             pose's patch: a force needs the whole pressed area, rim included).
-        flow: the dot flow (DIS at half resolution, warm-started: in ``bench.force``
-            more accurate than Farneback at half resolution, and faster).
+        flow: the dot flow (Farneback at half resolution, warm-started). DIS's ``fast``
+            preset at half resolution is faster but estimates its finest flow at an
+            eighth of the image: on ``world.sim``'s grasps it missed the object's slide
+            on the latex by 0.26 mm at the median (Farneback: 0.018 mm; ``bench.force``,
+            ``shift_err_mm_median``), and read a third of it on the square bottle's
+            flat face, where no shift limit could see the slide coming.
         edge_px: working-resolution pixels from the patch's border that count as its edge.
         min_patch_px: fewer working pixels of tracked patch than this: no tangential
             measurement (the patch is too small to measure).
@@ -55,9 +59,7 @@ class FeatureParams:
     contact: ContactParams = field(
         default_factory=lambda: ContactParams(threshold_m=0.0015, min_component_px=40)
     )
-    flow: ShearParams = field(
-        default_factory=lambda: ShearParams(method="dis", scale=0.5, warm_start=True)
-    )
+    flow: ShearParams = field(default_factory=lambda: ShearParams(scale=0.5, warm_start=True))
     edge_px: int = 3
     min_patch_px: int = 12
 

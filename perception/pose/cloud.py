@@ -54,13 +54,14 @@ def estimate_noise_m(
     _, idx = cKDTree(pts).query(centres, k=k)
     hood = pts[idx]  # (Q, k, 3)
     hood = hood - hood.mean(axis=1, keepdims=True)
-    _, vecs = np.linalg.eigh(np.einsum("qki,qkj->qij", hood, hood))
-    local = np.einsum("qki,qij->qkj", hood, vecs)  # coordinates in the principal frame
+    # Batched matrix products: several times faster than the equivalent einsums.
+    _, vecs = np.linalg.eigh(hood.transpose(0, 2, 1) @ hood)
+    local = hood @ vecs  # coordinates in the principal frame
     u, v, w = local[..., 2], local[..., 1], local[..., 0]  # w along the least spread
     design = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=-1)
-    gram = np.einsum("qki,qkj->qij", design, design) + 1e-18 * np.eye(6)
-    coef = np.linalg.solve(gram, np.einsum("qki,qk->qi", design, w)[..., None])[..., 0]
-    resid = w - np.einsum("qki,qi->qk", design, coef)
+    gram = design.transpose(0, 2, 1) @ design + 1e-18 * np.eye(6)
+    coef = np.linalg.solve(gram, design.transpose(0, 2, 1) @ w[..., None])
+    resid = w - (design @ coef)[..., 0]
     var = np.sum(resid * resid, axis=1) / (k - 6)
     return float(np.sqrt(np.median(var)))
 

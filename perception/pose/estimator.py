@@ -319,8 +319,7 @@ class PoseEstimator:
         seen = sum(unc.observable)
         if seen < prm.min_observable:
             reasons.append(f"only {seen} of 6 directions observable")
-        flat = flatness_m(pts)
-        if not had_prior and flat < 2.0 * noise:
+        if not had_prior and (flat := flatness_m(pts)) < 2.0 * noise:
             # One flat patch fits any flat face of the object equally well; the search
             # need not find every face, so without a prior it is never trusted.
             reasons.append(

@@ -28,6 +28,9 @@ def test_quick_json_has_every_sweep() -> None:
         for key in ("force_err_n_median", "torque_err_nm_median", "ms_per_frame", "rate_hz"):
             assert math.isfinite(r[key]) and r[key] >= 0, (key, r)
         assert 0.0 <= r["within_goal_fraction"] <= 1.0
+        # The dots against the object's slide: world.sim has that truth, MuJoCo not.
+        shift_err = r["shift_err_mm_median"]
+        assert (math.isfinite(shift_err) and shift_err >= 0) == (r["world"] == "sim"), r
     reflex = {r["setting"]: r for r in rows if r["sweep"] == "reflex"}
     assert set(reflex) == {"off", "on"}
     assert all(r["kept"] + r["dropped"] == r["samples"] for r in reflex.values())

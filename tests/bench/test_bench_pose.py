@@ -38,8 +38,9 @@ def test_pose_quick_plot(tmp_path, capsys: pytest.CaptureFixture[str]) -> None: 
     estimator_rows = [r for r in rows if r["kind"] in ("accuracy", "basin", "hard")]
     assert all("silent_wrong" in r for r in estimator_rows)
     assert all("coverage95" in r for r in rows if r["kind"] == "accuracy")
-    # A warm seed beside one solve and a cold start, each with its cost ratio.
+    # A warm seed beside one solve, the judgement alone and a cold start, each with its
+    # cost ratio; the warm seed near the answer is solved once.
     warm = {r["start"]: r for r in rows if r["kind"] == "warm_cost"}
-    assert set(warm) == {"one_solve", "warm_seed", "cold"}
+    assert set(warm) == {"one_solve", "judgement", "warm_seed", "cold"}
     assert warm["one_solve"]["cost_vs_one_solve"] == 1.0
-    assert warm["warm_seed"]["seeds_mean"] <= warm["cold"]["seeds_mean"]
+    assert warm["warm_seed"]["seeds_mean"] == 1.0 < warm["cold"]["seeds_mean"]
