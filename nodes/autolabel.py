@@ -173,6 +173,7 @@ class AutolabelSupervisor(Node):
         self.failed = 0
         self.frames_written = 0
         self.writer_acked: set[int] = set()
+        self.writer_skipped = 0
         self.ended: set[int] = set()
         self.wall_start = time.monotonic()
         self.end_wait_start: float | None = None
@@ -223,8 +224,18 @@ class AutolabelSupervisor(Node):
             pending = {g for g in self.ended if g not in self.writer_acked}
             if not pending or waited > self.params.end_grace_secs:
                 self.phase = "stopped"
+                if pending:
+                    self.io.log.warning(
+                        "%s: the writer confirmed no grasp of %d held (%s) within "
+                        "end_grace_secs; their frames may be lost",
+                        self.name,
+                        len(pending),
+                        sorted(pending)[:20],
+                    )
                 self.io.request_stop(
-                    f"autolabel: {self.finished} grasps recorded, {self.failed} failed, "
+                    f"autolabel: {self.finished} grasps held, {self.failed} failed, "
+                    f"{self.writer_skipped} skipped by the writer (no stable frame), "
+                    f"{len(pending)} not confirmed; "
                     f"{self.frames_written} frames written to {self.params.dataset}"
                 )
 
@@ -291,6 +302,7 @@ class AutolabelSupervisor(Node):
         elif msg.event == "grasp_skipped":
             detail = json.loads(msg.detail or "{}")
             self.writer_acked.add(int(detail.get("grasp_id", -1)))
+            self.writer_skipped += 1
 
     def _enter(self, phase: str, now: int) -> None:
         self.phase = phase

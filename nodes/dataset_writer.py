@@ -51,7 +51,9 @@ TASK = "autolabel"
 class DatasetWriterParams:
     """``dataset``: directory; ``classes``: label order; ``resume``: continue a dataset
     that exists (else it is an error); ``max_skew_secs``: largest stamp difference of a
-    left/right pair."""
+    left/right pair; ``max_history``: most grasp states and ground truths kept while an
+    open grasp's frames are awaited (frames that trail by more lose their state);
+    ``max_unpaired``: most frames of one camera kept waiting for the other camera's."""
 
     dataset: str = "out/datasets/autolabel"
     classes: tuple[str, ...] = DEFAULT_OBJECTS
@@ -59,6 +61,8 @@ class DatasetWriterParams:
     frame_stride: int = 3
     max_frames_per_grasp: int = 10
     max_skew_secs: float = 0.001
+    max_history: int = 100_000
+    max_unpaired: int = 2000
 
     def __post_init__(self) -> None:
         if not self.dataset:
@@ -71,6 +75,9 @@ class DatasetWriterParams:
             raise ValueError(
                 f"`max_frames_per_grasp` must be >= 1, got {self.max_frames_per_grasp!r}"
             )
+        for name in ("max_history", "max_unpaired"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)!r}")
         if not self.max_skew_secs >= 0:
             raise ValueError(f"`max_skew_secs` must be >= 0, got {self.max_skew_secs!r}")
 
@@ -110,7 +117,9 @@ class DatasetWriterNode(Node):
         # The grasp state over time: stamps (increasing) and whether stable from then on.
         self.state_stamps: list[int] = []
         self.state_stable: list[bool] = []
-        self.halves: OrderedDict[int, dict[str, ToFImage]] = OrderedDict()
+        # Each camera's frames not paired yet, in arrival (= stamp) order.
+        self.halves: dict[str, deque[ToFImage]] = {"left": deque(), "right": deque()}
+        self.unpaired = 0  # frames whose other half never came (lost upstream)
         self.waiting: deque[tuple[ToFImage, ToFImage]] = deque()
         # The simulator's ground truth at recent stamps.
         self.truth: OrderedDict[int, GroundTruth] = OrderedDict()
@@ -160,6 +169,15 @@ class DatasetWriterNode(Node):
         if self.writer is None:
             raise NodeError(f"{self.name}: grasp {grasp.grasp_id} ended before any run_start")
         if len(grasp.buffer) == 0:
+            # Not silent: a grasp the supervisor held and that keeps no frame is a loss
+            # to look into (no stable frame pair arrived: frames lost upstream?).
+            self.io.log.warning(
+                "%s: grasp %d skipped: none of its frame pairs was stable "
+                "(%d frames without their other half so far in this run)",
+                self.name,
+                grasp.grasp_id,
+                self.unpaired,
+            )
             self._progress("grasp_skipped", {"grasp_id": grasp.grasp_id}, stamp)
             return
         label = grasp.labels.most_common(1)[0][0]
@@ -209,9 +227,39 @@ class DatasetWriterNode(Node):
             return  # out of order: the timeline only moves forward
         self.state_stamps.append(stamp)
         self.state_stable.append(bool(msg.stable))
-        if len(self.state_stamps) > 4096:
-            del self.state_stamps[:1024], self.state_stable[:1024]
         self._decide()
+        self._trim()
+
+    def _trim(self) -> None:
+        """Forgets the grasp states and ground truth no frame to come can need: those
+        before the oldest open grasp's start (and before the oldest waiting pair), the
+        last state before it kept. Frames may trail by many grasps, so this is no fixed
+        window; ``max_history`` bounds it all the same (a camera that stopped), and is
+        the window while no grasp is open."""
+        cut = 0
+        if self.grasps:  # between grasps, the next one may start before the newest state
+            horizon = min(g.start_nanos for g in self.grasps)
+            if self.waiting:
+                horizon = min(horizon, max(p.header.stamp_nanos for p in self.waiting[0]))
+            cut = max(bisect.bisect_right(self.state_stamps, horizon) - 1, 0)
+        limit = self.params.max_history
+        over = len(self.state_stamps) - cut - limit
+        if over > 0:
+            if self.grasps:
+                self.io.log.warning(
+                    "%s: frames of open grasps trail the grasp state by more than "
+                    "max_history (%d) states; the oldest are forgotten",
+                    self.name,
+                    limit,
+                )
+            cut += over + limit // 4  # in batches: a list's head is costly to delete
+        if cut:
+            del self.state_stamps[:cut], self.state_stable[:cut]
+        oldest = self.state_stamps[0] if self.state_stamps else 0
+        while self.truth and (
+            next(iter(self.truth)) < oldest or len(self.truth) > self.params.max_history
+        ):
+            self.truth.popitem(last=False)
 
     def _stable_at(self, stamp: int) -> bool | None:
         """Whether the grasp was stable at ``stamp``; None while that is not known yet."""
@@ -222,8 +270,8 @@ class DatasetWriterNode(Node):
 
     def on_truth(self, msg: GroundTruth) -> None:
         self.truth[msg.header.stamp_nanos] = msg
-        while len(self.truth) > 1024:
-            self.truth.popitem(last=False)
+        if len(self.truth) > self.params.max_history:
+            self._trim()
 
     def on_left(self, msg: ToFImage) -> None:
         self._image("left", msg)
@@ -235,18 +283,33 @@ class DatasetWriterNode(Node):
         stamp = msg.header.stamp_nanos
         skew = self.params.max_skew_secs * 1e9
         other = "right" if port == "left" else "left"
-        match = next(
-            (s for s, h in self.halves.items() if other in h and abs(s - stamp) <= skew), None
-        )
-        if match is None:
-            self.halves.setdefault(stamp, {})[port] = msg
-            while len(self.halves) > 64:
-                self.halves.popitem(last=False)
+        # Each camera's stamps increase, however far one camera trails the other: the
+        # other's frames older than this one lost their partner upstream (a dropped frame).
+        others = self.halves[other]
+        while others and others[0].header.stamp_nanos < stamp - skew:
+            others.popleft()
+            self._lost_half(other)
+        if not others or others[0].header.stamp_nanos > stamp + skew:
+            mine = self.halves[port]
+            mine.append(msg)
+            if len(mine) > self.params.max_unpaired:  # the other camera sends nothing
+                mine.popleft()
+                self._lost_half(port)
             return
-        half = self.halves.pop(match)[other]
+        half = others.popleft()
         pair = (msg, half) if port == "left" else (half, msg)
         self.waiting.append(pair)
         self._decide()
+
+    def _lost_half(self, port: str) -> None:
+        self.unpaired += 1
+        if self.unpaired == 1 or self.unpaired % 100 == 0:
+            self.io.log.warning(
+                "%s: %d frames without their other half so far (the latest: %s)",
+                self.name,
+                self.unpaired,
+                port,
+            )
 
     def _decide(self) -> None:
         """Settle every waiting pair whose grasp state is known, in stamp order."""

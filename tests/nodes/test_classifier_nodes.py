@@ -195,9 +195,7 @@ def test_supervisor_runs_grasps_in_order(tmp_path: Path) -> None:
             TaskEvent(header=Header(), task="autolabel", event="grasp_written", detail=detail),
         )
     io.advance(1.0)
-    assert (
-        io.stop_reason and "3 grasps recorded" in io.stop_reason and "12 frames" in io.stop_reason
-    )
+    assert io.stop_reason and "3 grasps held" in io.stop_reason and "12 frames" in io.stop_reason
 
 
 def test_supervisor_gives_up_on_unstable_grasps(tmp_path: Path) -> None:
@@ -443,3 +441,84 @@ def test_committed_model_fits_the_node_defaults_and_classifies_sim_grasps() -> N
         correct += io.published["probabilities"][-1].best == request.class_label
     assert len(io.published["probabilities"]) == 8
     assert correct >= 7
+
+
+def test_writer_pairs_frames_when_one_camera_trails_the_other(tmp_path: Path) -> None:
+    """Under load one camera's frames can trail the other's by many frames: the pairs are
+    still made by stamp, and no grasp loses its frames for it."""
+    node, io = make_node(
+        DatasetWriterNode,
+        {"dataset": str(tmp_path / "d"), "frame_stride": 1, "max_frames_per_grasp": 100},
+        name="writer",
+    )
+    feed(node, "event", _event("run_start", {"seeds": {}, "scene": {}}))
+    stamps = list(range(10, 10 + 33 * 200, 33))
+    for grasp_id in range(4):  # four grasps of 50 frames each, all stable
+        t0 = stamps[50 * grasp_id] - 5
+        feed(node, "event", _event("grasp_start", {"grasp_id": grasp_id, "class_label": "mug"}, t0))
+        for t in stamps[50 * grasp_id : 50 * grasp_id + 50]:
+            feed(node, "grasp", _grasp(True, t))
+            feed(node, "truth", _truth("mug", t))
+        feed(node, "event", _event("grasp_end", {"grasp_id": grasp_id}, t0 + 33 * 50 - 1))
+    feed(node, "grasp", _grasp(False, stamps[-1] + 33))
+    for t in stamps:  # the right camera's frames all come first ...
+        feed(node, "right", _image("right", t))
+    for t in stamps:  # ... then the left's (a camera process that got no CPU for a while)
+        feed(node, "left", _image("left", t))
+    feed(node, "right", _image("right", stamps[-1] + 33))
+    feed(node, "left", _image("left", stamps[-1] + 33))
+    progress = [json.loads(e.detail) for e in io.published["progress"]]
+    assert [e.event for e in io.published["progress"]] == ["grasp_written"] * 4
+    assert [p["frames"] for p in progress] == [50] * 4
+
+
+def test_writer_keeps_the_grasp_state_of_frames_that_trail_far_behind(tmp_path: Path) -> None:
+    """Frames that trail the grasp state by thousands of states still find theirs."""
+    node, io = make_node(
+        DatasetWriterNode,
+        {"dataset": str(tmp_path / "d"), "frame_stride": 1, "max_frames_per_grasp": 5},
+        name="writer",
+    )
+    feed(node, "event", _event("run_start", {"seeds": {}, "scene": {}}))
+    feed(node, "event", _event("grasp_start", {"grasp_id": 0, "class_label": "mug"}, 0))
+    for t in range(1, 6001):  # a grasp state per ms, stable from 1 ms to 99 ms
+        feed(node, "grasp", _grasp(t < 100, t))
+        if t == 100:
+            feed(node, "event", _event("grasp_end", {"grasp_id": 0}, t))
+    for t in (10, 20, 30, 40, 50, 6000):  # the frames, 6000 states late
+        feed(node, "truth", _truth("mug", t))
+        feed(node, "left", _image("left", t))
+        feed(node, "right", _image("right", t))
+    progress = [json.loads(e.detail) for e in io.published["progress"]]
+    assert progress == [{"frames": 5, "grasp_id": 0, "object_class": "mug"}]
+
+
+def test_writer_says_what_it_lost(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """A frame whose other half was dropped upstream is counted, a grasp that keeps no
+    frame is logged, and the history kept between grasps stays bounded."""
+    params = {"dataset": str(tmp_path / "d"), "frame_stride": 1, "max_history": 8}
+    node, io = make_node(DatasetWriterNode, params, name="writer")
+    feed(node, "event", _event("run_start", {"seeds": {}, "scene": {}}))
+    for t in range(1, 40):
+        feed(node, "grasp", _grasp(False, t))
+        feed(node, "truth", _truth("mug", t))
+    assert len(node.state_stamps) <= 8 and len(node.truth) <= 8
+    feed(node, "event", _event("grasp_start", {"grasp_id": 0, "class_label": "mug"}, 40))
+    for t in range(41, 47):
+        feed(node, "grasp", _grasp(True, t))
+        feed(node, "truth", _truth("mug", t))
+    feed(node, "event", _event("grasp_end", {"grasp_id": 0}, 47))
+    feed(node, "grasp", _grasp(False, 60))
+    for t in (42, 44, 46):  # the left camera's frame at 44 was lost on its way
+        feed(node, "right", _image("right", t))
+    for t in (42, 46):
+        feed(node, "left", _image("left", t))
+    assert node.unpaired == 1
+    assert [len(g.buffer) for g in node.grasps] == [2]
+    feed(node, "event", _event("grasp_start", {"grasp_id": 1, "class_label": "mug"}, 61))
+    feed(node, "event", _event("grasp_end", {"grasp_id": 1}, 62))
+    with caplog.at_level("WARNING", logger="writer"):
+        node.teardown()
+    assert "max_history" not in caplog.text  # what the open grasp needed was kept
+    assert [e.event for e in io.published["progress"]] == ["grasp_written", "grasp_skipped"]
+    assert "grasp 1 skipped" in caplog.text
