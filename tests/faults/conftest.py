@@ -96,30 +96,27 @@ class Run:
             time.sleep(0.005)
         raise AssertionError("the launcher never caught SIGINT and SIGTERM")
 
-    def signal_and_time(self, signum: int, timeout: float = 30) -> tuple[int, float]:
-        """Send ``signum`` to the launcher; its exit code and seconds to exit."""
+    def signal_and_wait(self, signum: int, timeout: float = 30) -> int:
+        """Send ``signum`` to the launcher; its exit code."""
         self.note_kids()
-        sent = time.monotonic()
         self.proc.send_signal(signum)
-        code = self.proc.wait(timeout=timeout)
-        took = time.monotonic() - sent
-        self._reader.join(timeout=5)
-        return code, took
+        return self.finish(timeout)
 
     def finish(self, timeout: float = 60) -> int:
         code = self.proc.wait(timeout=timeout)
         self._reader.join(timeout=5)
         return code
 
-    def leftovers(self, timeout: float = 6.0) -> tuple[list[int], list[str]]:
-        """Children still alive and files left in the temp folder, after ``timeout``."""
+    def leftovers(self, timeout: float = 60.0) -> tuple[list[int], list[str]]:
+        """Children still alive and files left in the temp folder, once every child has
+        gone: they end on their own (a node of a killed launcher removes the run folder
+        before it exits), however loaded the machine; ``timeout`` only makes one that
+        never ends a failure rather than a hang."""
         end = time.monotonic() + timeout
-        while True:
-            live = sorted(k for k in self.kids if alive(k))
-            files = sorted(p.name for p in self.tmpdir.iterdir())
-            if (not live and not files) or time.monotonic() > end:
-                return live, files
+        while any(alive(k) for k in self.kids) and time.monotonic() < end:
             time.sleep(0.05)
+        live = sorted(k for k in self.kids if alive(k))
+        return live, sorted(p.name for p in self.tmpdir.iterdir())
 
     def kill(self) -> None:
         if self.proc.poll() is None:
