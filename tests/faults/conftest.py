@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tests.runtime.conftest import alive, children_of, is_node
+from tests.runtime.conftest import alive, children_of, is_node, still_alive
 from tests.synthetic_nodes import IMPLS
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -107,16 +107,10 @@ class Run:
         self._reader.join(timeout=5)
         return code
 
-    def leftovers(self, timeout: float = 60.0) -> tuple[list[int], list[str]]:
+    def leftovers(self) -> tuple[list[int], list[str]]:
         """Children still alive and files left in the temp folder, once every child has
-        gone: they end on their own (a node of a killed launcher removes the run folder
-        before it exits), however loaded the machine; ``timeout`` only makes one that
-        never ends a failure rather than a hang."""
-        end = time.monotonic() + timeout
-        while any(alive(k) for k in self.kids) and time.monotonic() < end:
-            time.sleep(0.05)
-        live = sorted(k for k in self.kids if alive(k))
-        return live, sorted(p.name for p in self.tmpdir.iterdir())
+        ended (a node of a killed launcher removes the run folder before it exits)."""
+        return still_alive(self.kids), sorted(p.name for p in self.tmpdir.iterdir())
 
     def kill(self) -> None:
         if self.proc.poll() is None:
