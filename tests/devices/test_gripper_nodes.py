@@ -135,6 +135,10 @@ def test_task_graphs_run_with_the_wsg50_driver(graph: str, expected: list[str]) 
             sys.executable, "launch.py", graph, "--swap", "gripper=gripper.wsg50",
             "--set", f"world.wsg50_port={port}", "--set", "gripper.address=127.0.0.1",
             "--set", f"gripper.port={port}",
+            # Half real time: the task must end before the scene does, and the scene runs
+            # on the clock whether or not a loaded machine's perception kept up (under
+            # stress-ng --cpu 2 the release came too late in 1 of 8 runs).
+            "--set", "world.rate_scale=0.5",
         ],
         cwd=ROOT, capture_output=True, text=True, timeout=240,
     )  # fmt: skip
