@@ -55,6 +55,7 @@ class Task(Node):
         self.pose_statuses: dict[str, int] = {}
         self.first_nanos: int | None = None  # data time of the first message
         self.now_nanos = 0  # data time: the newest message's stamp
+        self.msg_nanos = 0  # the stamp of the message being handled
         self.wall_started = self.io.now_nanos()
         self.io.add_timer(0.5, self._watchdog)
 
@@ -69,6 +70,7 @@ class Task(Node):
         if self.first_nanos is None:
             self.first_nanos = stamp
         self.now_nanos = max(self.now_nanos, stamp)
+        self.msg_nanos = stamp
         self.advance(self.elapsed_secs)
         if self.state != "done" and self.elapsed_secs > self.params.timeout_secs:
             self.timeout()
@@ -158,14 +160,17 @@ class SingleGraspTask(Task):
     def release(self, detail: str) -> None:
         self.command("release", self.params.release_width_m)
         self.state = "releasing"
-        self.release_sent_nanos = self.now_nanos
+        # The time held runs between the stamps of the messages that decided (the stable
+        # grasp, the pull's frame), not the newest stamp seen at each: live, which other
+        # input's message came first is timing, and a lockstep replay orders by stamp.
+        self.release_sent_nanos = max(self.msg_nanos, self.grasp_stable_nanos or 0)
         self.release_detail = detail
         self.event("release", detail)
 
     def on_grasp(self, msg: GraspState) -> None:
         if msg.event == "stable" and self.state == "grasping":
             self.state = "holding"
-            self.grasp_stable_nanos = self.now_nanos
+            self.grasp_stable_nanos = msg.header.stamp_nanos
             self.event(
                 "stable",
                 f"pressure rise {msg.pressure_rise_left_pa:.0f}/{msg.pressure_rise_right_pa:.0f} Pa",
