@@ -53,7 +53,7 @@ class Task(Node):
         self.state = "idle"
         self.pose: PoseEstimate | None = None
         self.pose_statuses: dict[str, int] = {}
-        self.first_nanos: int | None = None  # data time of the first message
+        self.first_nanos: int | None = None  # data time of the earliest message
         self.now_nanos = 0  # data time: the newest message's stamp
         self.msg_nanos = 0  # the stamp of the message being handled
         self.wall_started = self.io.now_nanos()
@@ -67,7 +67,9 @@ class Task(Node):
     def handle(self, port: str, msg: Message) -> None:
         """Advance the data clock to ``msg``'s stamp, then hand it to ``on_<port>``."""
         stamp = msg.header.stamp_nanos  # type: ignore[attr-defined]
-        if self.first_nanos is None:
+        # The earliest stamp (0: none), not the first to arrive: live, which input's
+        # message comes first is timing; a lockstep replay hands them over in stamp order.
+        if self.first_nanos is None or (stamp and stamp < self.first_nanos):
             self.first_nanos = stamp
         self.now_nanos = max(self.now_nanos, stamp)
         self.msg_nanos = stamp
