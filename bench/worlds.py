@@ -23,7 +23,8 @@ on each, side by side:
   (``perception.pose``, each solver, cold start, the whole object's field) on that
   frame's grasp cloud against the world's object pose: axis error (degrees, up to the
   axis's sign), off-axis error (mm), and ``silent_wrong``: answers off by more than 2
-  degrees or 2 mm whose status was ``ok`` or ``recovered``; ``shear_*``: the shear
+  degrees or 2 mm along the directions observed whose status was ``ok`` or
+  ``recovered`` (:func:`pose_scores`); ``shear_*``: the shear
   tracker (``perception.shear``, default settings), referenced at the last held frame,
   at the end of the slide, against the world's own shear truth (direction error in
   degrees, magnitude error in mm, both bubbles); ``stable_*``: the grasp monitor
@@ -289,21 +290,7 @@ def score(frames: list[Instant], classifier: Classifier) -> dict[str, Any]:
     for side in SIDES:
         patcher.update_reference(side, first.images[side].depth_m)
     cloud = patcher.extract({s: _frame(held, s) for s in SIDES})
-    from geometry import objects
-
-    model = objects.make(name)
-    for solver_name, solver in (
-        ("lm", LMSolver(model.field)),
-        ("ipopt", IpoptSolver(model.field, IpoptParams(jit="off"))),
-    ):
-        estimator = PoseEstimator(solver, symmetric_about_z=model.symmetric_about_z)
-        result = estimator.estimate(cloud.points_in_tool.astype(np.float64), cloud.bubble)
-        axis = metrics.axis_error_deg(result.tool_from_object, truth, flip_symmetric=True)
-        off = metrics.offaxis_error_m(result.tool_from_object, truth)
-        right = axis < AXIS_OK_DEG and off < OFFAXIS_OK_M
-        out[f"{solver_name}_axis_deg"] = axis
-        out[f"{solver_name}_offaxis_mm"] = off * 1000.0
-        out[f"{solver_name}_silent_wrong"] = int(result.status in ("ok", "recovered") and not right)
+    out |= pose_scores(name, cloud.points_in_tool.astype(np.float64), cloud.bubble, truth)
     # Shear over the slide, against the world's own truth.
     dirs, mags = [], []
     for side in SIDES:
@@ -346,6 +333,45 @@ def score(frames: list[Instant], classifier: Classifier) -> dict[str, Any]:
     said = max(set(votes), key=votes.count) if votes else ""
     out["classifier_said"] = said
     out["classifier_right"] = int(said == name)
+    return out
+
+
+def pose_scores(
+    name: str, points_in_tool: np.ndarray, bubble: np.ndarray, truth: np.ndarray
+) -> dict[str, Any]:
+    """The pose estimator (each solver, cold start, the whole object's field) on one grasp
+    cloud against the world's ``tool_from_object``: axis and off-axis error, and
+    ``silent_wrong``: ``ok`` or ``recovered`` but off by more than :data:`AXIS_OK_DEG` or
+    :data:`OFFAXIS_OK_M` along the directions observed (``metrics.right`` with the
+    cloud: a slide or turn that neither the estimate nor the patch at the true pose
+    observes, a square bottle's within the faces the jaws hold, is no error; a bottle's
+    ends are alike)."""
+    from geometry import objects
+
+    model = objects.make(name)
+    out: dict[str, Any] = {}
+    for solver_name, solver in (
+        ("lm", LMSolver(model.field)),
+        ("ipopt", IpoptSolver(model.field, IpoptParams(jit="off"))),
+    ):
+        estimator = PoseEstimator(solver, symmetric_about_z=model.symmetric_about_z)
+        result = estimator.estimate(points_in_tool, bubble)
+        right = metrics.right(
+            model.field,
+            result,
+            truth,
+            angle_deg=AXIS_OK_DEG,
+            offset_m=OFFAXIS_OK_M,
+            ends_alike=True,
+            points_in_tool=points_in_tool,
+        )
+        out[f"{solver_name}_axis_deg"] = metrics.axis_error_deg(
+            result.tool_from_object, truth, flip_symmetric=True
+        )
+        out[f"{solver_name}_offaxis_mm"] = (
+            metrics.offaxis_error_m(result.tool_from_object, truth) * 1000.0
+        )
+        out[f"{solver_name}_silent_wrong"] = int(result.status in ("ok", "recovered") and not right)
     return out
 
 
