@@ -70,6 +70,8 @@ POLL_MS = 20
 # A hello refused for this long: the connection may be stuck (``HostLink._tend``), and is
 # made again (the wait doubles each time, while the peer is down).
 STUCK_SECS = 0.5
+# How long a stopping link still tries to send a hello that is due (within close()'s 2 s).
+FLUSH_HELLO_SECS = 1.5
 
 
 @dataclass
@@ -287,6 +289,7 @@ class HostLink:
         poller = zmq.Poller()
         poller.register(self.router, zmq.POLLIN)
         poller.register(self._wake_r, zmq.POLLIN)
+        stop_by: float | None = None
         while True:
             _drain_pipe(self._wake_r)
             stopping = self._stopping.is_set()
@@ -295,7 +298,13 @@ class HostLink:
                 for peer in self.peers.values():
                     self._send(peer, frames)
             if stopping:
-                return
+                # A hello still due goes out first (for FLUSH_HELLO_SECS at most): a
+                # launcher that stops on a peer's differing graph would otherwise leave
+                # the peer, which has not heard its own graph, waiting for it.
+                stop_by = stop_by or time.monotonic() + FLUSH_HELLO_SECS
+                due = [p for p in self.peers.values() if p.hello_due is not None]
+                if not due or time.monotonic() > stop_by:
+                    return
             now = time.monotonic()
             if now >= next_beat or self._beat_now.is_set():
                 self._beat_now.clear()

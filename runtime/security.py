@@ -263,12 +263,17 @@ class Guard:
 
 
 def _peer_of(fd: int) -> str:
+    """The address at the other end of the connection numbered ``fd``, for the log. By the
+    time the monitor's event is read the connection may be gone and its number reused:
+    by no socket, or a local one (whose peer is no address and port)."""
     try:
         with socket.fromfd(fd, socket.AF_INET, socket.SOCK_STREAM) as s:
-            host, port = s.getpeername()[:2]
-            return f"{host}:{port}"
+            peer = s.getpeername()
     except OSError:
         return "an unknown address"
+    if not isinstance(peer, tuple):  # a Unix socket's peer: a path, or '' when unnamed
+        return "an unknown address"
+    return f"{peer[0]}:{peer[1]}"
 
 
 def _handshake_error(code: int) -> str:

@@ -10,8 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from messages.types import TaskEvent
+from nodes.supervisor.handover import HandoverParams
 from nodes.supervisor.sort import DEFAULT_BINS
 from runtime.bag import BagReader
+from sim.scene import load_scene
+from tests.conftest import ROOT
 from tests.test_graphs import launch
 
 # Each test starts whole graphs (tens of seconds each on a shared machine, more under load).
@@ -76,8 +80,9 @@ def test_tracking_error_stays_bounded_through_the_perturbations() -> None:
 def recorded(
     tmp_path: Path, graph: str, *args: str
 ) -> tuple[subprocess.CompletedProcess[str], dict]:
-    """Run ``graph`` recording the supervisor's events, the truth and the world's
-    placement; returns the run and, per topic, ``(stamp, message)`` in order."""
+    """Run ``graph`` recording the supervisor's events, the truth, the world's placement
+    and the shear and wrench estimates; returns the run and, per topic, its messages in
+    order."""
     bag = tmp_path / "run.mcap"
     proc = launch(
         graph,
@@ -85,44 +90,88 @@ def recorded(
         "--record",
         str(bag),
         "--record-topics",
-        "^(supervisor/event|world/.*truth|world/placement)$",
+        "^(supervisor/event|world/.*truth|world/placement|shear/shear|wrench/wrench)$",
     )
     topics: dict[str, list] = {}
     for m in BagReader(bag).messages():
-        topics.setdefault(m.topic, []).append((m.publish_time_nanos, m.decode()))
+        topics.setdefault(m.topic, []).append(m.decode())
     return proc, topics
+
+
+# The handover scene's camera rate: a second of its frames bounds the release's delay.
+HANDOVER_FPS = load_scene(ROOT / "scenes/handover_task.yaml").camera.frame_rate_hz
+
+
+def pull_and_release(topics: dict) -> tuple[int, int, TaskEvent]:
+    """The data time (stamps, not the clock of the machine that ran it) at which the
+    person starts pulling (the first truth whose object moved in the tool) and the one
+    the supervisor's release answers to (the newest input it had), and the release."""
+    truth = topics["world/ground_truth"]
+    start = truth[0].tool_from_object
+    pull = next(
+        t.header.stamp_nanos for t in truth if not np.allclose(t.tool_from_object, start, atol=1e-9)
+    )
+    (release,) = [e for e in topics["supervisor/event"] if e.event == "release"]
+    return pull, release.header.stamp_nanos, release
 
 
 def test_handover_releases_only_after_the_pull_starts_within_a_bounded_delay(
     tmp_path: Path,
 ) -> None:
+    # Judged on the data alone, so a loaded machine cannot fail it: the release answers
+    # data stamped after the pull began, and the shear frames that decided it, the last
+    # `confirm_frames` of its bubble up to the release, are all from the pull and sheared
+    # past the threshold. Its delay, counted in that bubble's shear frames (a second of
+    # frames at the camera rate: with none dropped, the second of data the old wall-clock
+    # bound asked for; a busy tracker drops frames, which the count does not hold
+    # against the rule).
     proc, topics = recorded(tmp_path, "graph.yaml")
     assert proc.returncode == 0, proc.stdout[-3000:]
-    truth = topics["world/ground_truth"]
-    start = truth[0][1].tool_from_object
-    pull = next(s for s, t in truth if not np.allclose(t.tool_from_object, start, atol=1e-9))
-    (release,) = [s for s, e in topics["supervisor/event"] if e.event == "release"]
-    assert 0 < (release - pull) / 1e9 < 1.0, (release - pull) / 1e9
+    pull, release, event = pull_and_release(topics)
+    assert pull < release, (pull, release)
+    (side,) = re.findall(r"on the (\w+) bubble", event.detail)
+    params = HandoverParams()
+    frames = [
+        s
+        for s in topics["shear/shear"]
+        if s.sensor == side and s.has_reference and s.header.stamp_nanos <= release
+    ]
+    deciding = frames[-params.confirm_frames :]
+    assert all(s.header.stamp_nanos >= pull for s in deciding), (pull, deciding)
+    assert all(s.magnitude_px >= params.release_shear_px for s in deciding), deciding
+    since_pull = [s for s in frames if s.header.stamp_nanos >= pull]
+    assert len(since_pull) <= HANDOVER_FPS * 1.0, (len(since_pull), HANDOVER_FPS)
 
 
 def test_handover_by_force_releases_on_the_pull_and_not_before(tmp_path: Path) -> None:
     # The force rule on the default graph: the wrench node's estimates decide (the
-    # release says so), after the pull starts (not while the mug is held still before
-    # it) and within the shear rule's bound. Half real time: what is judged is the
-    # decision; the wrench node needs about half a core at the cameras' rate, which a
-    # machine shared by a load of 20 on 2 cores does not give it in real time.
+    # release says so), on data from after the pull starts (not while the mug is held
+    # still before it), within a second of the wrench node's frames at the camera rate
+    # (as the shear rule, judged on stamps, not on the machine's clock). Live, the shear
+    # rule stands in while the newest force estimate lags the shear's by more than
+    # `force_max_lag_secs`, which is how far behind a loaded machine leaves the wrench
+    # node (it drops frames): that, a matter of speed, is tested on fed messages
+    # (tests/nodes/test_force_nodes.py); here the force rule decides alone. Half real
+    # time: what is judged is the decision; the wrench node needs about half a core at
+    # the cameras' rate, and the scene ends (and the run with it) whether or not it
+    # kept up.
     proc, topics = recorded(
         tmp_path,
         "graph.yaml",
         *("--set", "supervisor.release_on=force", "--set", "world.rate_scale=0.5"),
+        *("--set", "supervisor.force_max_lag_secs=60"),
     )
     assert proc.returncode == 0, proc.stdout[-3000:]
-    truth = topics["world/ground_truth"]
-    start = truth[0][1].tool_from_object
-    pull = next(s for s, t in truth if not np.allclose(t.tool_from_object, start, atol=1e-9))
-    ((release, event),) = [(s, e) for s, e in topics["supervisor/event"] if e.event == "release"]
+    pull, release, event = pull_and_release(topics)
     assert " N along tool " in event.detail, event.detail  # the force rule's, not the shear's
-    assert 0 < (release - pull) / 1e9 < 1.0, (release - pull) / 1e9
+    assert pull < release, (pull, release)
+    estimates = [
+        w for w in topics["wrench/wrench"] if all(w.in_contact) and w.header.stamp_nanos <= release
+    ]
+    deciding = estimates[-HandoverParams().force_confirm_frames :]
+    assert all(w.header.stamp_nanos >= pull for w in deciding), (pull, deciding)
+    since_pull = [w for w in estimates if w.header.stamp_nanos >= pull]
+    assert len(since_pull) <= HANDOVER_FPS * 1.0, (len(since_pull), HANDOVER_FPS)
 
 
 def test_handover_never_releases_during_an_unperturbed_hold() -> None:
@@ -137,12 +186,10 @@ def test_stacking_releases_within_a_few_millimetres_of_contact(tmp_path: Path) -
     # the simulated arm travel while the shear tracker catches up.
     proc, topics = recorded(tmp_path, "graphs/stacking.yaml", "--set", "world.rate_scale=0.5")
     assert proc.returncode == 0, proc.stdout[-3000:]
-    ((_, placement),) = topics["world/placement"]
+    (placement,) = topics["world/placement"]
     assert placement.placed and placement.gap_m == 0.0, placement
     assert placement.push_m < 0.005, placement  # the arm went at most 5 mm past contact
-    (summary,) = [
-        json.loads(e.detail) for _, e in topics["supervisor/event"] if e.event == "summary"
-    ]
+    (summary,) = [json.loads(e.detail) for e in topics["supervisor/event"] if e.event == "summary"]
     assert summary["outcome"] == "placed"
 
 

@@ -53,8 +53,9 @@ class Task(Node):
         self.state = "idle"
         self.pose: PoseEstimate | None = None
         self.pose_statuses: dict[str, int] = {}
-        self.first_nanos: int | None = None  # data time of the first message
+        self.first_nanos: int | None = None  # data time of the earliest message
         self.now_nanos = 0  # data time: the newest message's stamp
+        self.msg_nanos = 0  # the stamp of the message being handled
         self.wall_started = self.io.now_nanos()
         self.io.add_timer(0.5, self._watchdog)
 
@@ -66,9 +67,12 @@ class Task(Node):
     def handle(self, port: str, msg: Message) -> None:
         """Advance the data clock to ``msg``'s stamp, then hand it to ``on_<port>``."""
         stamp = msg.header.stamp_nanos  # type: ignore[attr-defined]
-        if self.first_nanos is None:
+        # The earliest stamp (0: none), not the first to arrive: live, which input's
+        # message comes first is timing; a lockstep replay hands them over in stamp order.
+        if self.first_nanos is None or (stamp and stamp < self.first_nanos):
             self.first_nanos = stamp
         self.now_nanos = max(self.now_nanos, stamp)
+        self.msg_nanos = stamp
         self.advance(self.elapsed_secs)
         if self.state != "done" and self.elapsed_secs > self.params.timeout_secs:
             self.timeout()
@@ -158,14 +162,17 @@ class SingleGraspTask(Task):
     def release(self, detail: str) -> None:
         self.command("release", self.params.release_width_m)
         self.state = "releasing"
-        self.release_sent_nanos = self.now_nanos
+        # The time held runs between the stamps of the messages that decided (the stable
+        # grasp, the pull's frame), not the newest stamp seen at each: live, which other
+        # input's message came first is timing, and a lockstep replay orders by stamp.
+        self.release_sent_nanos = max(self.msg_nanos, self.grasp_stable_nanos or 0)
         self.release_detail = detail
         self.event("release", detail)
 
     def on_grasp(self, msg: GraspState) -> None:
         if msg.event == "stable" and self.state == "grasping":
             self.state = "holding"
-            self.grasp_stable_nanos = self.now_nanos
+            self.grasp_stable_nanos = msg.header.stamp_nanos
             self.event(
                 "stable",
                 f"pressure rise {msg.pressure_rise_left_pa:.0f}/{msg.pressure_rise_right_pa:.0f} Pa",

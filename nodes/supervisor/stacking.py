@@ -63,12 +63,10 @@ class StackingSupervisor(SingleGraspTask):
         super().setup()
         self.watch = ShearWatch(self.params.touch_shear_px, self.params.confirm_frames)
         self.placement: PlacementTruth | None = None
-        self.release_nanos = 0
         self.released_nanos: int | None = None
 
     def on_shear(self, msg: ShearEstimate) -> None:
         if self.state == "holding" and self.watch.update(msg):
-            self.release_nanos = self.now_nanos
             self.release(f"touch {describe_shear(msg)}")
 
     def on_placement(self, msg: PlacementTruth) -> None:
@@ -77,7 +75,7 @@ class StackingSupervisor(SingleGraspTask):
             self._summary()
 
     def on_released(self) -> None:
-        self.released_nanos = self.now_nanos
+        self.released_nanos = self.msg_nanos
         self.state = "placing"
         if self.placement is not None:
             self._summary()
@@ -93,7 +91,9 @@ class StackingSupervisor(SingleGraspTask):
 
     def _summary(self) -> None:
         summary: dict[str, object] = {
-            "release_secs": round((self.release_nanos - (self.first_nanos or 0)) / 1e9, 4)
+            "release_secs": round(
+                ((self.release_sent_nanos or 0) - (self.first_nanos or 0)) / 1e9, 4
+            )
         }
         if self.placement is None:
             outcome, failed = "unknown (no placement truth)", False

@@ -21,7 +21,7 @@ from messages.errors import NodeError
 from messages.types import GripperCommand
 from nodes.gripper import SimGripper, WSG50Gripper
 from runtime.testing import FakeIO, feed, make_node
-from tests.devices.wsg50_helpers import running_emulator
+from tests.devices.wsg50_helpers import running_emulator, until
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -33,7 +33,7 @@ def _command(name: str, width_m: float = 0.05, force_n: float = 12.0) -> Gripper
     )  # fmt: skip
 
 
-def _run_until(io: FakeIO, done: object, secs: float = 10.0) -> None:
+def _run_until(io: FakeIO, done: object, secs: float = 60.0) -> None:
     deadline = time.monotonic() + secs
     while not done() and time.monotonic() < deadline:  # type: ignore[operator]
         time.sleep(0.02)
@@ -85,7 +85,8 @@ def test_wsg50_node_homes_on_start_before_it_is_ready(caplog: pytest.LogCaptureF
         server.stepped(
             lambda: server.dynamics.command("move", width_m=0.03, speed_m_per_s=0.4, force_n=80.0)
         )
-        time.sleep(0.2)  # the jaws close to 30 mm first
+        # The jaws close first, onto the 50 mm part (the emulator steps them in real time).
+        assert until(lambda: server.dynamics.finger.width_m < 0.06)
         params = {"address": "127.0.0.1", "port": server.port, "home_on_start": True}
         node, _ = make_node(WSG50Gripper, params)
         try:
@@ -134,6 +135,10 @@ def test_task_graphs_run_with_the_wsg50_driver(graph: str, expected: list[str]) 
             sys.executable, "launch.py", graph, "--swap", "gripper=gripper.wsg50",
             "--set", f"world.wsg50_port={port}", "--set", "gripper.address=127.0.0.1",
             "--set", f"gripper.port={port}",
+            # Half real time: the task must end before the scene does, and the scene runs
+            # on the clock whether or not a loaded machine's perception kept up (under
+            # stress-ng --cpu 2 the release came too late in 1 of 8 runs).
+            "--set", "world.rate_scale=0.5",
         ],
         cwd=ROOT, capture_output=True, text=True, timeout=240,
     )  # fmt: skip

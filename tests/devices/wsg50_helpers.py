@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import socket
 import threading
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
@@ -75,3 +76,14 @@ def recv_exactly(sock: socket.socket, size: int, timeout_secs: float = 5.0) -> b
             raise AssertionError(f"connection closed after {len(data)} of {size} bytes")
         data += chunk
     return data
+
+
+def until(done: Callable[[], bool], timeout_secs: float = 60.0) -> bool:
+    """Whether ``done()`` came true (polled): the client's threads get there on their own,
+    however loaded the machine; the bound only makes one that never does a failure."""
+    end = time.monotonic() + timeout_secs
+    while not done():
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.01)
+    return True

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tests.runtime.conftest import alive, children_of, is_node
+from tests.runtime.conftest import alive, children_of, is_node, still_alive
 from tests.synthetic_nodes import IMPLS
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -96,30 +96,21 @@ class Run:
             time.sleep(0.005)
         raise AssertionError("the launcher never caught SIGINT and SIGTERM")
 
-    def signal_and_time(self, signum: int, timeout: float = 30) -> tuple[int, float]:
-        """Send ``signum`` to the launcher; its exit code and seconds to exit."""
+    def signal_and_wait(self, signum: int, timeout: float = 30) -> int:
+        """Send ``signum`` to the launcher; its exit code."""
         self.note_kids()
-        sent = time.monotonic()
         self.proc.send_signal(signum)
-        code = self.proc.wait(timeout=timeout)
-        took = time.monotonic() - sent
-        self._reader.join(timeout=5)
-        return code, took
+        return self.finish(timeout)
 
     def finish(self, timeout: float = 60) -> int:
         code = self.proc.wait(timeout=timeout)
         self._reader.join(timeout=5)
         return code
 
-    def leftovers(self, timeout: float = 6.0) -> tuple[list[int], list[str]]:
-        """Children still alive and files left in the temp folder, after ``timeout``."""
-        end = time.monotonic() + timeout
-        while True:
-            live = sorted(k for k in self.kids if alive(k))
-            files = sorted(p.name for p in self.tmpdir.iterdir())
-            if (not live and not files) or time.monotonic() > end:
-                return live, files
-            time.sleep(0.05)
+    def leftovers(self) -> tuple[list[int], list[str]]:
+        """Children still alive and files left in the temp folder, once every child has
+        ended (a node of a killed launcher removes the run folder before it exits)."""
+        return still_alive(self.kids), sorted(p.name for p in self.tmpdir.iterdir())
 
     def kill(self) -> None:
         if self.proc.poll() is None:

@@ -16,7 +16,7 @@ from runtime import launcher as launcher_module
 from runtime.graph import check
 from runtime.launcher import Launcher
 from tests.faults.conftest import FAULTS, sink, ticker
-from tests.runtime.conftest import comm, table_row
+from tests.runtime.conftest import comm, still_alive, table_row
 
 
 def launcher_for(nodes_doc: dict, **kwargs) -> tuple[Launcher, io.StringIO]:
@@ -124,7 +124,7 @@ def test_a_node_restarts_after_the_fork_server_died() -> None:
         seen["server"] = launcher.starter.server
         seen["name"] = comm(pid)  # each node is named after itself in ps and top
         os.kill(launcher.starter.server, signal.SIGKILL)
-        time.sleep(0.2)
+        assert still_alive([launcher.starter.server]) == []  # gone before the node goes
         os.kill(pid, signal.SIGKILL)
 
     when_running(launcher, "a", kill_server_then_node)

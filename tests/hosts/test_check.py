@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import os
+import socket
 from pathlib import Path
 
 import pytest
@@ -14,7 +15,7 @@ from cli.run import host_keys
 from messages.errors import GraphError
 from runtime.graph import check
 from runtime.hosts import without_hosts
-from runtime.security import load_key, make_key
+from runtime.security import _peer_of, load_key, make_key
 from tests.hosts.conftest import two_host_graph, write_graph
 from tests.launching import launch_py
 
@@ -142,3 +143,18 @@ def test_the_shared_command_line_is_the_same_on_every_host() -> None:
     b = shared_command_line(["launch.py", "g.yaml", "--keys=/k", "--record", "o.mcap"])
     assert a == b == "python launch.py g.yaml --record o.mcap"
     assert shared_command_line(["launch.py", "g.yaml"]).endswith(" launch.py g.yaml")
+
+
+def test_the_peer_of_a_connection_number_reused_by_a_local_socket_is_unknown() -> None:
+    # The monitor names an accepted connection by its file descriptor; by the time the
+    # guard reads it the connection can be gone and its number taken by a Unix socket
+    # (a getpeername of '' that once ended the guard's thread, and every later handshake
+    # of that launcher with it), or by no socket at all.
+    a, b = socket.socketpair()
+    with a, b:
+        assert _peer_of(a.fileno()) == "an unknown address"
+    with open(os.devnull) as f:
+        assert _peer_of(f.fileno()) == "an unknown address"
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        with socket.create_connection(server.getsockname()) as c:
+            assert _peer_of(c.fileno()) == f"127.0.0.1:{server.getsockname()[1]}"

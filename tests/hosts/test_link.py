@@ -74,34 +74,47 @@ links = {
 }
 events = []
 
-def collect(secs):
-    end = time.monotonic() + secs
-    while time.monotonic() < end:
+def has(*event):
+    return any(tuple(e[: len(event)]) == event for e in events)
+
+def refused(host):
+    return sum("link: refused message #" in t for h, t in log if h == host)
+
+# Gather the links' events until done(): each comes on its own, however loaded the
+# machine; the bound only ends a run where one never does, saying what came.
+def collect(done, what):
+    end = time.monotonic() + 60
+    while not done():
+        if time.monotonic() > end:
+            sys.exit(f"no {what} in 60 s: {json.dumps({'events': events, 'log': log})}")
         for h, link in links.items():
             events.extend([h, *e] for e in link.events())
         time.sleep(0.02)
 
+def joined():
+    return all(has(h, "joined", p) and has(h, "clock", p) for h, p in (("a", "b"), ("b", "a")))
+
 for link in links.values():
     link.start()
-collect(2.0)
+collect(joined, "join and clock of both")
 ctx = zmq.Context()
-for key, secret in (("a", b"x" * 32), ("b", b"y" * 32)):
+for n, (key, secret) in enumerate((("a", b"x" * 32), ("b", b"y" * 32)), 1):
     forger = ctx.socket(zmq.DEALER)
     connect_to(forger, load_key(keys / f"{key}.key"), hosts.table["a"].public_key)
     forger.connect(hosts.table["a"].link)
     forger.send_multipart(
         protocol.pack(secret, LinkStop(host="b", reason="forged", exit_code=9))
     )
-    collect(0.5)
+    collect(lambda n=n: refused("a") >= n, f"refusal #{n}")
     forger.close(linger=0)
 links["b"].send_stop("supervisor: done", 0)
-collect(0.5)
+collect(lambda: has("a", "stop", "b"), "stop")
 links["b"].close()
-collect(2.0)
+collect(lambda: has("a", "lost", "b"), "loss")
 # b's launcher again, with another graph: a does not let it in.
 other = HostLink(zmq.Context(), hosts, "b", load_key(keys / "b.key"), print, {"g": 2})
 other.start()
-collect(1.5)
+collect(lambda: has("a", "graph_differs", "b"), "graph_differs")
 other.close()
 links["a"].close()
 print(json.dumps({"events": events, "log": log}))
@@ -123,7 +136,7 @@ def test_the_link_joins_measures_refuses_forgeries_passes_stops_and_sees_a_loss(
         cwd=ROOT,
         capture_output=True,
         text=True,
-        timeout=60,
+        timeout=300,
         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
     )
     assert done.returncode == 0, done.stderr[-3000:]
@@ -132,7 +145,9 @@ def test_the_link_joins_measures_refuses_forgeries_passes_stops_and_sees_a_loss(
     assert ("a", "joined", "b") in events and ("b", "joined", "a") in events
     clocks = [e for e in out["events"] if e[1] == "clock"]
     assert {e[0] for e in clocks} == {"a", "b"}
-    assert all(abs(e[3]) < 0.005 and 0 < e[4] < 0.5 for e in clocks)  # one machine's clock
+    # One machine's clock: the offset measured is within half the round trip, however
+    # slow the round trip (t1 <= t2 <= t3 <= t4 on one clock).
+    assert all(e[4] > 0 and abs(e[3]) <= e[4] / 2 + 1e-9 for e in clocks), clocks
     log = "\n".join(text for _, text in out["log"])
     assert "link: refused message #1: claims to be host 'b', but its key is 'a''s" in log
     assert "link: refused message #2: from host 'b': tag does not match" in log

@@ -129,3 +129,34 @@ def test_params_check_themselves() -> None:
         build_params(SortSupervisor.Params, {"vote_frames": 0})
     with pytest.raises(ValueError, match="min_confidence"):
         build_params(SortSupervisor.Params, {"min_confidence": 1.5})
+
+
+def stamped_shear(t_secs: float, magnitude_px: float) -> ShearEstimate:
+    msg = shear("left", magnitude_px)
+    msg.header = Header(stamp_nanos=grasp(t_secs).header.stamp_nanos)
+    return msg
+
+
+@pytest.mark.parametrize("early", [False, True], ids=["in_stamp_order", "newer_first"])
+def test_the_time_held_is_the_data_of_the_grasp_and_the_pull_whatever_came_first(
+    early: bool,
+) -> None:
+    # Live, a message stamped later (a shear frame) can reach the task before the grasp
+    # monitor's stable grasp; a lockstep replay hands them over in stamp order. The time
+    # held is from the stable grasp's stamp to the stamp of the frame that decided the
+    # release, either way (it once took the newest stamp seen at each: 2.6 s live
+    # against 2.7 s in the replay of the same run).
+    node, io = make_node(HandoverSupervisor, {"confirm_frames": 2, "release_shear_px": 1.0})
+    feed(node, "grasp", grasp(0.0))
+    feed(node, "grasp", grasp(0.4))
+    if early:
+        feed(node, "shear", stamped_shear(0.9, 0.1))
+    feed(node, "grasp", grasp(0.5, "stable"))
+    if not early:
+        feed(node, "shear", stamped_shear(0.9, 0.1))
+    feed(node, "shear", stamped_shear(2.0, 2.0))
+    feed(node, "shear", stamped_shear(2.1, 2.0))
+    assert events(io)[-1] == "release"
+    feed(node, "grasp", grasp(2.6, "released"))
+    summary = json.loads(io.published["event"][-1].detail)
+    assert summary["held_secs"] == pytest.approx(1.6)  # 0.5 s to 2.1 s

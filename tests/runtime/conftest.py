@@ -6,6 +6,8 @@ import json
 import os
 import subprocess
 import sys
+import time
+from collections.abc import Iterable
 from pathlib import Path
 
 import pytest
@@ -138,3 +140,14 @@ def alive(pid: int) -> bool:
     except OSError:
         return False
     return state != "Z"
+
+
+def still_alive(pids: Iterable[int], timeout: float = 60.0) -> list[int]:
+    """Those of ``pids`` still alive once they have ended: processes whose launcher died
+    end on their own, however loaded the machine; ``timeout`` only makes one that never
+    does a failure rather than a hang."""
+    pids = sorted(set(pids))
+    end = time.monotonic() + timeout
+    while any(alive(p) for p in pids) and time.monotonic() < end:
+        time.sleep(0.05)
+    return [p for p in pids if alive(p)]

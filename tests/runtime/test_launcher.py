@@ -9,7 +9,15 @@ from pathlib import Path
 
 import pytest
 
-from tests.runtime.conftest import GraphRun, alive, children_of, nodes_of, sink, table_row
+from tests.runtime.conftest import (
+    GraphRun,
+    alive,
+    children_of,
+    nodes_of,
+    sink,
+    still_alive,
+    table_row,
+)
 
 FUZZER = "tests.runtime.nodes_for_tests:Fuzzer"
 
@@ -176,10 +184,7 @@ def test_sigkill_of_launcher_takes_children_down(graph_run: GraphRun) -> None:
     assert len(nodes_of(proc.pid)) == 2
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(timeout=10)
-    end = time.monotonic() + 10
-    while time.monotonic() < end and any(alive(k) for k in kids):
-        time.sleep(0.1)
-    assert not any(alive(k) for k in kids)
+    assert still_alive(kids) == []
 
 
 def test_hung_node_is_killed_and_restarted(graph_run: GraphRun, tmp_path: Path) -> None:

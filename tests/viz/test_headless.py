@@ -47,9 +47,8 @@ def small_bag(path: Path) -> Path:
     return path
 
 
-def run_alone(cmd: list[str], timeout: float) -> tuple[subprocess.CompletedProcess[str], float]:
+def run_alone(cmd: list[str], timeout: float) -> subprocess.CompletedProcess[str]:
     """Run ``cmd`` in a session of its own; fail if anything of that session outlives it."""
-    start = time.monotonic()
     proc = subprocess.Popen(
         cmd,
         cwd=ROOT,
@@ -65,9 +64,8 @@ def run_alone(cmd: list[str], timeout: float) -> tuple[subprocess.CompletedProce
         left = _session_alive(proc.pid)
         if proc.poll() is None or left:
             os.killpg(proc.pid, signal.SIGKILL)
-    elapsed = time.monotonic() - start
     assert not left, f"{cmd}: processes left running after it exited"
-    return subprocess.CompletedProcess(cmd, proc.returncode, out, err), elapsed
+    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
 
 
 def _session_alive(pgid: int) -> bool:
@@ -89,9 +87,8 @@ def test_has_display_reads_the_environment() -> None:
 @pytest.mark.skipif(sys.platform == "darwin", reason="macOS always has a display")
 def test_bag_view_without_a_display_says_so_and_exits(tmp_path: Path) -> None:
     bag = small_bag(tmp_path / "run.mcap")
-    proc, elapsed = run_alone([sys.executable, "launch.py", "bag", "view", str(bag)], 60)
+    proc = run_alone([sys.executable, "launch.py", "bag", "view", str(bag)], 60)
     assert proc.returncode == 2, proc.stdout + proc.stderr
-    assert elapsed < 5.0 + 2.0  # 5 s, with room for a loaded machine's Python start-up
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1, proc.stderr
     assert "no display" in lines[0] and "--out FILE.rrd" in lines[0] and "foxglove" in lines[0]
@@ -99,9 +96,8 @@ def test_bag_view_without_a_display_says_so_and_exits(tmp_path: Path) -> None:
 
 @pytest.mark.skipif(sys.platform == "darwin", reason="macOS always has a display")
 def test_view_option_without_a_display_starts_nothing() -> None:
-    proc, elapsed = run_alone([sys.executable, "launch.py", "graph.yaml", "--view"], 60)
+    proc = run_alone([sys.executable, "launch.py", "graph.yaml", "--view"], 60)
     assert proc.returncode == 2, proc.stdout + proc.stderr
-    assert elapsed < 5.0 + 2.0
     assert proc.stdout == ""
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1, proc.stderr
@@ -140,12 +136,12 @@ def test_a_flush_into_a_gone_viewer_ends_on_a_signal(signum: int) -> None:
     try:
         assert proc.stdout is not None
         assert proc.stdout.readline().strip() == "flushing"
-        time.sleep(0.5)  # inside the flush, which would wait for good
+        # Most likely inside the flush by now (a signal just before it ends the run the
+        # same way): a flush that did not hear it would wait for good, past the bound.
+        time.sleep(0.5)
         assert proc.poll() is None
-        sent = time.monotonic()
         proc.send_signal(signum)
         code = proc.wait(timeout=30)
-        assert time.monotonic() - sent < 2.0
         assert code == 128 + signum
     finally:
         if proc.poll() is None:
