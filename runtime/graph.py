@@ -36,9 +36,11 @@ from collections import defaultdict
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
+import msgspec
 import zmq
+from msgspec import Meta
 
 from messages.base import Message
 from messages.errors import GraphError
@@ -53,7 +55,6 @@ __all__ = ["Graph", "InputSpec", "NodeSpec", "RestartSpec", "check", "load"]
 __all__ += ["apply_overrides", "load_document", "parse_yaml"]  # the file side, for callers
 
 POLICIES = ("queue", "latest")
-RESTART_POLICIES = ("never", "on-failure")
 NODE_KEYS = {"impl", "params", "inputs", "restart", "required", "host", "hang_timeout_secs"}
 TOP_KEYS = {"nodes", "name", "description", *HOSTS_TOP_KEYS}
 MAX_QUEUE_SIZE = 2**31 - 1  # ZeroMQ's high-water mark is a C int
@@ -84,24 +85,19 @@ class InputSpec:
     queue_size: int = 1000
 
 
-@dataclass(frozen=True, kw_only=True)
-class RestartSpec:
+class RestartSpec(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """What the supervisor does when a node dies or stops answering."""
 
-    policy: str = "never"
-    max_restarts: int = 5
-    backoff_secs: float = 0.5
-    backoff_max_secs: float = 8.0
+    policy: Annotated[
+        Literal["never", "on-failure"], Meta(description="restart a node that fails, or not")
+    ] = "never"
+    max_restarts: Annotated[int, Meta(ge=0, le=MAX_RESTARTS)] = 5
+    backoff_secs: Annotated[float, Meta(ge=0, description="wait before the first restart")] = 0.5
+    backoff_max_secs: Annotated[
+        float, Meta(ge=0, description="the wait doubles up to this (>= backoff_secs)")
+    ] = 8.0
 
     def __post_init__(self) -> None:
-        if self.policy not in RESTART_POLICIES:
-            raise ValueError(f"`policy` must be one of {RESTART_POLICIES}, got {self.policy!r}")
-        if not 0 <= self.max_restarts <= MAX_RESTARTS:
-            raise ValueError(
-                f"`max_restarts` must be in [0, {MAX_RESTARTS}], got {self.max_restarts!r}"
-            )
-        if not self.backoff_secs >= 0:
-            raise ValueError(f"`backoff_secs` must be >= 0, got {self.backoff_secs!r}")
         if not self.backoff_max_secs >= self.backoff_secs:
             raise ValueError(
                 f"`backoff_max_secs` must be >= backoff_secs ({self.backoff_secs}), "

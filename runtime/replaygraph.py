@@ -59,15 +59,14 @@ def exact_topics(topics: Sequence[str]) -> str:
 
 def _keep_known_params(name: str, body: dict[str, Any]) -> None:
     """Drop the parameters a swapped-in implementation does not take (they were the old one's)."""
-    import dataclasses
-
+    from runtime.params import field_names
     from runtime.registry import resolve
 
     try:
         cls = resolve(body["impl"])
     except KeyError:
         return  # the checker reports the unknown implementation
-    known = {f.name for f in dataclasses.fields(cls.Params)}
+    known = set(field_names(cls.Params))
     params = body.get("params") or {}
     dropped = sorted(set(params) - known)
     if dropped:
