@@ -34,7 +34,10 @@ import bisect
 import json
 from collections import Counter, OrderedDict, deque
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Annotated, Any
+
+import msgspec
+from msgspec import Meta
 
 from messages.base import Header
 from messages.errors import NodeError
@@ -47,8 +50,7 @@ from runtime.registry import register
 TASK = "autolabel"
 
 
-@dataclass(frozen=True, kw_only=True)
-class DatasetWriterParams:
+class DatasetWriterParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """``dataset``: directory; ``classes``: label order; ``resume``: continue a dataset
     that exists (else it is an error); ``max_skew_secs``: largest stamp difference of a
     left/right pair."""
@@ -56,23 +58,15 @@ class DatasetWriterParams:
     dataset: str = "out/datasets/autolabel"
     classes: tuple[str, ...] = DEFAULT_OBJECTS
     resume: bool = True
-    frame_stride: int = 3
-    max_frames_per_grasp: int = 10
-    max_skew_secs: float = 0.001
+    frame_stride: Annotated[int, Meta(ge=1)] = 3
+    max_frames_per_grasp: Annotated[int, Meta(ge=1)] = 10
+    max_skew_secs: Annotated[float, Meta(ge=0)] = 0.001
 
     def __post_init__(self) -> None:
         if not self.dataset:
             raise ValueError("`dataset` must be a directory path, got ''")
         if len(self.classes) < 2 or len(set(self.classes)) != len(self.classes):
             raise ValueError(f"`classes` must be >= 2 distinct names, got {list(self.classes)}")
-        if self.frame_stride < 1:
-            raise ValueError(f"`frame_stride` must be >= 1, got {self.frame_stride!r}")
-        if self.max_frames_per_grasp < 1:
-            raise ValueError(
-                f"`max_frames_per_grasp` must be >= 1, got {self.max_frames_per_grasp!r}"
-            )
-        if not self.max_skew_secs >= 0:
-            raise ValueError(f"`max_skew_secs` must be >= 0, got {self.max_skew_secs!r}")
 
 
 @dataclass

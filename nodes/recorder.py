@@ -19,9 +19,11 @@ file and how much the bag keeps: everything written before the last flush.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
+
+import msgspec
+from msgspec import Meta
 
 from messages.errors import BagError, NodeError
 from runtime.bag import MAGIC, BagWriter
@@ -29,8 +31,7 @@ from runtime.node import Node
 from runtime.registry import register
 
 
-@dataclass(frozen=True, kw_only=True)
-class RecorderParams:
+class RecorderParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Where and how to record.
 
     ``graph_yaml`` and ``command_line`` are stored in the bag so it can be replayed through
@@ -42,9 +43,9 @@ class RecorderParams:
     graph_yaml: str = ""
     graph_source: str = ""
     command_line: str = ""
-    flush_period_secs: float = 0.5
-    compression: str = "none"
-    chunk_size_bytes: int = 4 << 20
+    flush_period_secs: Annotated[float, Meta(gt=0)] = 0.5
+    compression: Literal["none", "lz4", "zstd"] = "none"
+    chunk_size_bytes: Annotated[int, Meta(gt=0)] = 4 << 20
     overwrite: bool = False
 
     def __post_init__(self) -> None:
@@ -58,14 +59,6 @@ class RecorderParams:
                 f"path {self.path!r} is a finished bag; pass --overwrite (overwrite: true) "
                 "to replace it, or record to another path"
             )
-        if self.flush_period_secs <= 0:
-            raise ValueError(f"flush_period_secs must be > 0, got {self.flush_period_secs}")
-        if self.compression not in ("none", "lz4", "zstd"):
-            raise ValueError(
-                f"compression must be 'none', 'lz4' or 'zstd', got {self.compression!r}"
-            )
-        if self.chunk_size_bytes <= 0:
-            raise ValueError(f"chunk_size_bytes must be > 0, got {self.chunk_size_bytes}")
 
 
 def _interrupted(path: Path) -> bool:

@@ -17,9 +17,11 @@ Foxglove's live WebSocket server (``ws://HOST:PORT``; open it in the Foxglove ap
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
+
+import msgspec
+from msgspec import Meta
 
 from messages.codec import decode
 from messages.errors import FrameDecodeError
@@ -29,8 +31,7 @@ from runtime.registry import register
 TEARDOWN_FLUSH_SECS = 5.0  # a closed viewer window must not hold the graph's stop
 
 
-@dataclass(frozen=True, kw_only=True)
-class RerunViewerParams:
+class RerunViewerParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """``target``: ``spawn`` or a path ending in ``.rrd``; ``object``: the object drawn under
     the estimated pose until ground truth names one ("" for none)."""
 
@@ -44,16 +45,11 @@ class RerunViewerParams:
             )
 
 
-@dataclass(frozen=True, kw_only=True)
-class FoxgloveViewerParams:
+class FoxgloveViewerParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Where Foxglove's WebSocket server listens."""
 
     host: str = "127.0.0.1"
-    port: int = 8765
-
-    def __post_init__(self) -> None:
-        if not 0 <= self.port <= 65535:
-            raise ValueError(f"`port` must be in [0, 65535], got {self.port}")
+    port: Annotated[int, Meta(ge=0, le=65535)] = 8765
 
 
 class _DecodingViewer(Node):

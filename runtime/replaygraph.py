@@ -14,9 +14,11 @@ import copy
 import logging
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
+
+import msgspec
+from msgspec import Meta
 
 from messages.errors import GraphError
 from runtime.bag import BagReader, topic_filter
@@ -24,25 +26,20 @@ from runtime.bag import BagReader, topic_filter
 log = logging.getLogger(__name__)
 
 
-@dataclass(frozen=True, kw_only=True)
-class ReplayOptions:
+class ReplayOptions(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """How the replay node plays the bag (see :mod:`nodes.replay`)."""
 
-    rate: float = 1.0
+    rate: Annotated[float, Meta(gt=0)] = 1.0
     fast: bool = False
     loop: bool = False
-    start_secs: float = 0.0
+    start_secs: Annotated[float, Meta(ge=0)] = 0.0
     end_secs: float | None = None
     topics: str = ""
-    remap: dict[str, str] = field(default_factory=dict)
+    remap: dict[str, str] = msgspec.field(default_factory=dict)
     lockstep: bool = False
-    strict: bool = False  # stop at a message that cannot be decoded (default: skip, count)
+    strict: bool = False
 
     def __post_init__(self) -> None:
-        if self.rate <= 0:
-            raise ValueError(f"rate must be > 0, got {self.rate}")
-        if self.start_secs < 0:
-            raise ValueError(f"start_secs must be >= 0, got {self.start_secs}")
         if self.end_secs is not None and self.end_secs <= self.start_secs:
             raise ValueError(
                 f"end_secs must be > start_secs ({self.start_secs}), got {self.end_secs}"
