@@ -6,7 +6,7 @@ python launch.py [run] GRAPH [--check] [--set NODE.PARAM=VALUE ...] [--swap NODE
                        [--view [OUT.rrd | foxglove]] [--host NAME [--keys DIR]]
                        [--emulate [--rig FILE]]
 python launch.py nodes [IMPL]                list implementations, or one's ports and params
-python launch.py schema > graph.schema.json  the JSON Schema of graph files, for editors
+python launch.py schema [--out FILE]        the JSON Schema of graph files, for editors
 python launch.py graph GRAPH --draw OUT.svg  a picture of a graph file (docs/graphs.md)
 python launch.py bag info|echo|diff ...      inspect bags (see docs/bags.md)
 python launch.py bag view|export|video ...   look at bags (see docs/viewing.md)
@@ -117,8 +117,9 @@ def _schema(commands: Commands) -> None:
         "schema",
         help="print the JSON Schema of graph files (for an editor's YAML checking)",
         description="Print the JSON Schema of graph files, built from every node "
-        "implementation's parameter declaration (docs/runtime.md).",
+        "implementation's parameter declaration (docs/graphs.md).",
     )
+    parser.add_argument("--out", type=Path, help="write it to OUT (default: print it)")
     parser.set_defaults(handler="cli.schema")
 
 

@@ -1,4 +1,5 @@
-"""``launch.py schema``: the JSON Schema of graph files, for editors (docs/runtime.md)."""
+"""``launch.py schema [--out FILE]``: the JSON Schema of graph files, for editors
+(docs/graphs.md)."""
 
 from __future__ import annotations
 
@@ -12,5 +13,9 @@ def main(args: argparse.Namespace) -> int:
     from runtime.registry import known, resolve
 
     nodes.import_all()
-    print(json.dumps(graph_schema({name: resolve(name) for name in known()}), indent=1))
+    text = json.dumps(graph_schema({name: resolve(name) for name in known()}), indent=1)
+    if args.out is None:
+        print(text)
+    else:
+        args.out.write_text(text + "\n")
     return 0

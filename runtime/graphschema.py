@@ -1,7 +1,7 @@
 """A JSON Schema of graph files, from the node classes' parameter declarations.
 
 An editor with a YAML language server checks a graph file against it as one types
-(``launch.py schema > graph.schema.json``, docs/runtime.md): an unknown key, a value of
+(``launch.py schema --out graph.schema.json``, docs/graphs.md): an unknown key, a value of
 the wrong type or beyond its declared limits, a node's parameters for its ``impl``. The
 schema says what a declaration says; the checker (``launch.py GRAPH --check``) says
 more: that edges fit, that files exist, the cross-field checks.

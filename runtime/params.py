@@ -153,7 +153,7 @@ def _type_name(t: Any) -> str:
         mi.StrType: "str",
     }
     if isinstance(t, mi.LiteralType):
-        return "str"
+        return " | ".join(dict.fromkeys(type(v).__name__ for v in t.values))
     if isinstance(t, mi.ListType | mi.VarTupleType):
         return f"list of {_type_name(_decl(t.item_type).type)}"
     if isinstance(t, mi.TupleType):
@@ -188,7 +188,7 @@ def check_finite(values: Mapping[str, Any], prefix: str = "") -> None:
 
 
 # What a run can do with a time or a rate (a timer's period, a back-off, a timeout): a
-# field whose name says seconds or hertz (``unit_of``) is checked against these.
+# field whose name says seconds or hertz (``param_unit``) is checked against these.
 MAX_SECS = 1e6  # 11.6 days: the longest wait, period or timeout a run takes
 MIN_PERIOD_SECS = 1e-6  # a rate above 1 MHz is no rate a timer or a device keeps
 
@@ -206,10 +206,18 @@ def timer_period_nanos(period_secs: float) -> int:
     return round(period_secs * 1e9)
 
 
+_COUNTS = ("poly_n", "every_n")  # parameter names whose ``_n`` is a count, not newtons
+
+
+def param_unit(name: str) -> str:
+    """The unit a parameter's name ends in (``messages.meaning``), or ""."""
+    return "" if name.endswith(_COUNTS) else unit_of(name) or ""
+
+
 def _check_units(name: str, value: Any, path: str) -> None:
     if not isinstance(value, float | int) or isinstance(value, bool):
         return
-    unit = unit_of(name)
+    unit = param_unit(name)
     if unit == "s" and not abs(value) <= MAX_SECS:
         raise ParamError(path, f"must be at most {MAX_SECS:g} s in size", value)
     if unit == "Hz" and value and not 1 / MAX_SECS <= abs(value) <= 1 / MIN_PERIOD_SECS:
@@ -451,7 +459,7 @@ def describe(cls: Any, prefix: str = "") -> list[ParamInfo]:
                 path=f"{prefix}{f.name}",
                 type=kind,
                 default=REQUIRED if default is msgspec.NODEFAULT else default,
-                unit=unit_of(f.name) or "",
+                unit=param_unit(f.name),
                 limits=(limits,) if limits else (),
                 doc=decl.description,
             )

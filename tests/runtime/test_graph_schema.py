@@ -31,10 +31,14 @@ def validator() -> Any:
     return jsonschema.Draft202012Validator(schema)
 
 
-def test_the_command_prints_a_valid_schema(capsys: pytest.CaptureFixture[str]) -> None:
+def test_the_command_prints_a_valid_schema(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
     assert launch.main(["schema"]) == 0
     schema = json.loads(capsys.readouterr().out)
     jsonschema.Draft202012Validator.check_schema(schema)
+    assert launch.main(["schema", "--out", str(tmp_path / "s.json")]) == 0
+    assert json.loads((tmp_path / "s.json").read_text()) == schema
     assert "contact_patch" in schema["$defs"]["node"]["properties"]["impl"]["anyOf"][0]["enum"]
 
 
