@@ -39,14 +39,22 @@ class RecorderParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     finished bag at ``path``.
     """
 
-    path: str
-    graph_yaml: str = ""
-    graph_source: str = ""
-    command_line: str = ""
-    flush_period_secs: Annotated[float, Meta(gt=0)] = 0.5
-    compression: Literal["none", "lz4", "zstd"] = "none"
-    chunk_size_bytes: Annotated[int, Meta(gt=0)] = 4 << 20
-    overwrite: bool = False
+    path: Annotated[str, Meta(description="the bag file (MCAP) to write")]
+    graph_yaml: Annotated[
+        str, Meta(description="the graph stored in the bag (the launcher fills it in)")
+    ] = ""
+    graph_source: Annotated[str, Meta(description="the graph file's path, stored in the bag")] = ""
+    command_line: Annotated[
+        str, Meta(description="the launcher's command line, stored in the bag")
+    ] = ""
+    flush_period_secs: Annotated[
+        float, Meta(description="how often written messages are flushed to the file", gt=0)
+    ] = 0.5
+    compression: Annotated[Literal["none", "lz4", "zstd"], Meta(description="of each chunk")] = (
+        "none"
+    )
+    chunk_size_bytes: Annotated[int, Meta(description="MCAP chunk size", gt=0)] = 4 << 20
+    overwrite: Annotated[bool, Meta(description="allow replacing a finished bag at path")] = False
 
     def __post_init__(self) -> None:
         if not self.path:

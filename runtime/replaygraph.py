@@ -29,15 +29,36 @@ log = logging.getLogger(__name__)
 class ReplayOptions(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """How the replay node plays the bag (see :mod:`nodes.replay`)."""
 
-    rate: Annotated[float, Meta(gt=0)] = 1.0
-    fast: bool = False
-    loop: bool = False
-    start_secs: Annotated[float, Meta(ge=0)] = 0.0
-    end_secs: float | None = None
-    topics: str = ""
-    remap: dict[str, str] = msgspec.field(default_factory=dict)
-    lockstep: bool = False
-    strict: bool = False
+    rate: Annotated[
+        float,
+        Meta(description="pace by the recorded receive times, scaled (2.0 = twice as fast)", gt=0),
+    ] = 1.0
+    fast: Annotated[
+        bool,
+        Meta(description="as fast as the graph takes them (at most window messages in flight)"),
+    ] = False
+    loop: Annotated[bool, Meta(description="start over at the end")] = False
+    start_secs: Annotated[
+        float, Meta(description="cut the bag: seconds from its first message", ge=0)
+    ] = 0.0
+    end_secs: Annotated[
+        float | None,
+        Meta(description="cut the bag: seconds from its first message (None: to its end)"),
+    ] = None
+    topics: Annotated[str, Meta(description="select topics: a regular expression (re.search)")] = ""
+    remap: Annotated[
+        dict[str, str], Meta(description="rename topics: {bag_topic: published_topic}")
+    ] = msgspec.field(default_factory=dict)
+    lockstep: Annotated[
+        bool,
+        Meta(
+            description="the same bag through the same nodes gives the same outputs whatever the load"
+        ),
+    ] = False
+    strict: Annotated[
+        bool,
+        Meta(description="stop at the first message that does not decode (else skip and count it)"),
+    ] = False
 
     def __post_init__(self) -> None:
         if self.end_secs is not None and self.end_secs <= self.start_secs:

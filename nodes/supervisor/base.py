@@ -28,13 +28,31 @@ from runtime.node import Node
 class TaskParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """What every task shares: how it grasps, releases and gives up."""
 
-    grasp_on_start: bool = True
-    start_delay_secs: Annotated[float, Meta(ge=0)] = 0.3
-    grasp_width_m: Annotated[float, Meta(ge=0)] = 0.0
-    grasp_speed_m_per_s: Annotated[float, Meta(gt=0)] = 0.05
-    grasp_force_n: Annotated[float, Meta(gt=0)] = 12.0
-    release_width_m: Annotated[float, Meta(gt=0)] = 0.11
-    timeout_secs: Annotated[float, Meta(gt=0)] = 30.0
+    grasp_on_start: Annotated[
+        bool,
+        Meta(
+            description="send a grasp command once start_delay_secs have passed"
+        ),
+    ] = True
+    start_delay_secs: Annotated[
+        float, Meta(description="data time from the first message received to the start", ge=0)
+    ] = 0.3
+    grasp_width_m: Annotated[
+        float, Meta(description="the width_m of that grasp command", ge=0)
+    ] = 0.0
+    grasp_speed_m_per_s: Annotated[float, Meta(description="finger speed of the grasp", gt=0)] = (
+        0.05
+    )
+    grasp_force_n: Annotated[float, Meta(description="grip force of the grasp", gt=0)] = 12.0
+    release_width_m: Annotated[
+        float, Meta(description="the opening a release command opens to", gt=0)
+    ] = 0.11
+    timeout_secs: Annotated[
+        float,
+        Meta(
+            description="data time after the first message at which an unfinished task fails", gt=0
+        ),
+    ] = 30.0
 
 
 class Task(Node):
