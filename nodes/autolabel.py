@@ -56,6 +56,7 @@ from perception.classify.autolabel import (
 )
 from perception.classify.dataset import DatasetError, read_manifest
 from runtime.node import Node
+from runtime.params import build_params
 from runtime.registry import register
 from sim import World, ground_truth, load_scene, stamp_of
 from sim.effects import resolve
@@ -153,15 +154,12 @@ class AutolabelParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
         self.generator_params()  # checks the object names and ranges
 
     def generator_params(self) -> GraspGeneratorParams:
-        return GraspGeneratorParams(
-            objects=tuple(self.objects),
-            seed=self.seed,
-            approach_tilt_deg=self.approach_tilt_deg,
-            skew_deg=self.skew_deg,
-            offset_m=self.offset_m,
-            end_fraction=self.end_fraction,
-            end_band_m=self.end_band_m,
-        )
+        """The generator's parameters, checked against its declaration."""
+        given = {"objects": tuple(self.objects), "seed": self.seed}
+        for name in ("approach_tilt_deg", "skew_deg", "offset_m", "end_fraction", "end_band_m"):
+            given[name] = getattr(self, name)
+        params: GraspGeneratorParams = build_params(GraspGeneratorParams, given)
+        return params
 
 
 @register("supervisor.autolabel")

@@ -30,16 +30,14 @@ class TaskParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
 
     grasp_on_start: Annotated[
         bool,
-        Meta(
-            description="send a grasp command once start_delay_secs have passed"
-        ),
+        Meta(description="send a grasp command once start_delay_secs have passed"),
     ] = True
     start_delay_secs: Annotated[
         float, Meta(description="data time from the first message received to the start", ge=0)
     ] = 0.3
-    grasp_width_m: Annotated[
-        float, Meta(description="the width_m of that grasp command", ge=0)
-    ] = 0.0
+    grasp_width_m: Annotated[float, Meta(description="the width_m of that grasp command", ge=0)] = (
+        0.0
+    )
     grasp_speed_m_per_s: Annotated[float, Meta(description="finger speed of the grasp", gt=0)] = (
         0.05
     )

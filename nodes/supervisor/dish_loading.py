@@ -52,6 +52,7 @@ from perception.classify.autolabel import (
     GraspGeneratorParams,
     GraspSample,
 )
+from runtime.params import build_params
 from runtime.registry import register
 
 REGRASP_STRIDE = 100_000  # grasp ids of regrasps: the object's index + j * stride, j >= 1
@@ -84,7 +85,10 @@ class DishLoadingParams(TaskParams, frozen=True, kw_only=True, forbid_unknown_fi
         self.generator_params()  # checks the class names
 
     def generator_params(self, classes: tuple[str, ...] | None = None) -> GraspGeneratorParams:
-        return GraspGeneratorParams(objects=classes or self.classes, seed=self.seed)
+        """The generator's parameters, checked against its declaration."""
+        given = {"objects": classes or self.classes, "seed": self.seed}
+        params: GraspGeneratorParams = build_params(GraspGeneratorParams, given)
+        return params
 
 
 @dataclass

@@ -36,6 +36,7 @@ from typing import Annotated, Literal
 import numpy as np
 from msgspec import Meta
 
+from devices.wsg50 import MAX_FORCE_N
 from messages import GraspState, PoseEstimate, ShearEstimate
 from messages.force import SlipState, WrenchEstimate
 from nodes.supervisor.base import SingleGraspTask, TaskParams
@@ -55,11 +56,11 @@ class HandoverParams(TaskParams, frozen=True, kw_only=True, forbid_unknown_field
     force_max_lag_secs: Annotated[float, Meta(gt=0)] = 0.2
     gravity_in_tool: tuple[float, float, float] = (0.0, -1.0, 0.0)
     reflex: bool = True
-    max_grip_force_n: float = 40.0
+    max_grip_force_n: Annotated[
+        float,
+        Meta(gt=0, le=MAX_FORCE_N, description="the reflex's bound on the grip force"),
+    ] = 40.0
     friction: Annotated[float, Meta(gt=0)] = 0.8
-
-    def __post_init__(self) -> None:
-        ReflexParams(max_force_n=self.max_grip_force_n)
 
 
 class ShearWatch:
