@@ -455,3 +455,39 @@ def test_every_registered_implementation_reports_bad_params_in_the_one_style() -
                 assert ", got " in text or err.rule.startswith("is required"), (impl, text)
                 checked += 1
     assert checked > 50
+
+
+def test_every_parameter_class_is_a_declared_struct_that_refuses_unknown_fields() -> None:
+    import inspect
+
+    import msgspec.inspect as mi
+
+    import nodes
+
+    nodes.import_all()
+    seen: dict[type, mi.Type] = {}
+
+    def walk(t: mi.Type) -> None:
+        if isinstance(t, mi.Metadata):
+            walk(t.type)
+        elif isinstance(t, mi.UnionType):
+            for member in t.types:
+                walk(member)
+        elif isinstance(t, mi.StructType | mi.DataclassType):
+            seen[t.cls] = t
+            for f in t.fields:
+                walk(f.type)
+
+    for impl in known():
+        walk(mi.type_info(graphs.resolve(impl).Params))
+    loose = sorted(
+        cls.__qualname__
+        for cls, t in seen.items()
+        if not (
+            isinstance(t, mi.StructType)
+            and t.forbid_unknown_fields
+            and cls.__struct_config__.frozen
+            and all(p.kind is p.KEYWORD_ONLY for p in inspect.signature(cls).parameters.values())
+        )
+    )
+    assert len(seen) > 30 and loose == []
