@@ -356,7 +356,7 @@ def rewrite(err: Exception, cls: Any, values: Mapping[str, Any]) -> ParamError:
     if decl is not None and (msg.startswith("Expected `") or msg.startswith("Invalid enum")):
         found, value = _lookup(values, at)
         limits = limits_of(decl.type)
-        if msg.startswith("Invalid enum") or (", got `" not in msg and limits):
+        if isinstance(decl.type, mi.LiteralType) or (", got `" not in msg and limits):
             return ParamError(at, f"must be {limits}", value, has_value=found)
         return ParamError(at, f"must be {_kind(decl)}", value, has_value=found)
     return _own(msg, base, struct, values)
