@@ -81,13 +81,30 @@ class SimGripper(Node):
 class WSG50Params(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Where the gripper is and how patient to be with it (seconds, hertz)."""
 
-    address: str = "192.168.1.20"
-    port: Annotated[int, Meta(ge=1, le=65535)] = DEFAULT_PORT
-    home_on_start: bool = False
-    rate_hz: Annotated[float, Meta(ge=1.0, le=500.0)] = 50.0
-    timeout_secs: Annotated[float, Meta(gt=0)] = 1.0
-    connect_timeout_secs: Annotated[float, Meta(gt=0)] = 10.0
-    motion_timeout_secs: Annotated[float, Meta(gt=0)] = 30.0
+    address: Annotated[str, Meta(description="the gripper's IP address or host name")] = (
+        "192.168.1.20"
+    )
+    port: Annotated[int, Meta(description="its TCP port", ge=1, le=65535)] = DEFAULT_PORT
+    home_on_start: Annotated[
+        bool, Meta(description="home the gripper in setup, and wait for it, before reporting ready")
+    ] = False
+    rate_hz: Annotated[
+        float,
+        Meta(
+            description="the device's auto-update rate of its opening, speed, force and grasping state",
+            ge=1.0,
+            le=500.0,
+        ),
+    ] = 50.0
+    timeout_secs: Annotated[
+        float, Meta(description="how long a command's reply is waited for", gt=0)
+    ] = 1.0
+    connect_timeout_secs: Annotated[
+        float, Meta(description="setup fails if the gripper cannot be reached within this", gt=0)
+    ] = 10.0
+    motion_timeout_secs: Annotated[
+        float, Meta(description="the longest a motion (or homing) may take", gt=0)
+    ] = 30.0
 
     def __post_init__(self) -> None:
         if not self.address:

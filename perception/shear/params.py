@@ -30,24 +30,75 @@ class FarnebackParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     3 levels, window 15, 3 iterations, poly_n 5, sigma 1.2); ``bench/shear.py`` sweeps them.
     """
 
-    pyr_scale: Annotated[float, Meta(gt=0.0, lt=1.0)] = 0.5
-    levels: Annotated[int, Meta(ge=1, le=10)] = 3
-    winsize: Annotated[int, Meta(ge=3, le=201)] = 15
-    iterations: Annotated[int, Meta(ge=1, le=50)] = 3
-    poly_n: Literal[5, 7] = 5
-    poly_sigma: Annotated[float, Meta(ge=0.1, le=5.0)] = 1.2
-    gaussian_window: bool = False
+    pyr_scale: Annotated[
+        float,
+        Meta(
+            description="each pyramid level's scale against the one below (OpenCV pyr_scale)",
+            gt=0.0,
+            lt=1.0,
+        ),
+    ] = 0.5
+    levels: Annotated[
+        int, Meta(description="pyramid levels, the full image included", ge=1, le=10)
+    ] = 3
+    winsize: Annotated[
+        int,
+        Meta(
+            description="averaging window (px); larger is more robust to noise, blurs motion",
+            ge=3,
+            le=201,
+        ),
+    ] = 15
+    iterations: Annotated[
+        int, Meta(description="iterations at each pyramid level", ge=1, le=50)
+    ] = 3
+    poly_n: Annotated[
+        Literal[5, 7], Meta(description="pixel neighbourhood of the polynomial expansion")
+    ] = 5
+    poly_sigma: Annotated[
+        float,
+        Meta(
+            description="Gaussian sigma smoothing the derivatives of the expansion (1.1 for poly_n 5, 1.5 for 7)",
+            ge=0.1,
+            le=5.0,
+        ),
+    ] = 1.2
+    gaussian_window: Annotated[
+        bool,
+        Meta(
+            description="a Gaussian window instead of a box filter (OpenCV OPTFLOW_FARNEBACK_GAUSSIAN)"
+        ),
+    ] = False
 
 
 class DisParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """DIS optical flow: a preset and optional overrides (``None`` keeps the preset's)."""
 
-    preset: DisPreset = "fast"
-    finest_scale: Annotated[int, Meta(ge=0)] | None = None
-    patch_size: Annotated[int, Meta(ge=2)] | None = None
-    patch_stride: Annotated[int, Meta(ge=1)] | None = None
-    gradient_descent_iterations: Annotated[int, Meta(ge=1)] | None = None
-    variational_iterations: Annotated[int, Meta(ge=0)] | None = None
+    preset: Annotated[DisPreset, Meta(description="OpenCV's DIS preset")] = "fast"
+    finest_scale: (
+        Annotated[
+            int, Meta(description="the finest pyramid level computed (0: full resolution)", ge=0)
+        ]
+        | None
+    ) = None
+    patch_size: (
+        Annotated[int, Meta(description="side of the matched patches (px)", ge=2)] | None
+    ) = None
+    patch_stride: (
+        Annotated[
+            int,
+            Meta(
+                description="distance between neighbouring patches (px), at most patch_size", ge=1
+            ),
+        ]
+        | None
+    ) = None
+    gradient_descent_iterations: (
+        Annotated[int, Meta(description="gradient descent iterations per patch", ge=1)] | None
+    ) = None
+    variational_iterations: (
+        Annotated[int, Meta(description="variational refinement iterations (0: none)", ge=0)] | None
+    ) = None
 
     def __post_init__(self) -> None:
         if self.patch_size is not None and self.patch_stride is not None:
