@@ -64,8 +64,6 @@ class ParamError(ValueError):
 
 # -- reading a declaration -------------------------------------------------------------------
 
-_STRUCTS = (mi.StructType, mi.DataclassType)
-
 
 @dataclasses.dataclass(frozen=True)
 class _Decl:
@@ -92,8 +90,8 @@ def _decl(t: Any) -> _Decl:
 
 
 def _fields(cls: Any) -> tuple[mi.Field, ...]:
-    info = cls if isinstance(cls, _STRUCTS) else mi.type_info(cls)
-    if not isinstance(info, _STRUCTS):
+    info = cls if isinstance(cls, mi.StructType) else mi.type_info(cls)
+    if not isinstance(info, mi.StructType):
         raise TypeError(f"{cls!r} is no parameter class (a msgspec Struct)")
     return info.fields
 
@@ -112,7 +110,7 @@ def _num(x: float) -> str:
 
 def limits_of(t: Any) -> str:
     """What a type's declaration allows beyond its type: ``> 0``, ``in [3, 201]``,
-    ``one of ('a', 'b')``, ``at least 1 character``; "" when nothing."""
+    ``one of ('a', 'b')``; "" when nothing (a declared length or pattern is not shown)."""
     if isinstance(t, mi.LiteralType):
         return f"one of {tuple(t.values)!r}"
     if isinstance(t, mi.IntType | mi.FloatType):
@@ -123,9 +121,6 @@ def limits_of(t: Any) -> str:
             return f"in {left}{_num(low[1])}, {_num(high[1])}{right}"
         bound = low or high
         return f"{bound[0]} {_num(bound[1])}" if bound else ""
-    if isinstance(t, mi.StrType | mi.ListType | mi.VarTupleType) and t.min_length:
-        unit = "character" if isinstance(t, mi.StrType) else "item"
-        return f"at least {t.min_length} {unit}{'s' if t.min_length > 1 else ''}"
     return ""
 
 
@@ -134,8 +129,7 @@ _KINDS = (
     (mi.IntType, "an integer"),
     (mi.FloatType, "a number"),
     (mi.StrType, "a string"),
-    (mi.LiteralType, "a string"),
-    (_STRUCTS + (mi.DictType,), "a mapping"),
+    ((mi.StructType, mi.DictType), "a mapping"),
     ((mi.ListType, mi.VarTupleType, mi.TupleType), "a list"),
 )
 
@@ -237,7 +231,7 @@ def _check_fields(cls: Any, built: Any, prefix: str) -> None:
         if decl.existing_file and value is not None:
             readable_file(value, f"{prefix}{f.name}")
         _check_units(f.name, value, f"{prefix}{f.name}")
-        if isinstance(decl.type, _STRUCTS) and value is not None:
+        if isinstance(decl.type, mi.StructType) and value is not None:
             _check_fields(decl.type, value, f"{prefix}{f.name}.")
 
 
@@ -278,7 +272,7 @@ def anchor_files(
             found = _anchor(default, default_folders)
             if found != default:
                 out[f.name] = found
-        if isinstance(decl.type, _STRUCTS) and isinstance(value, Mapping):
+        if isinstance(decl.type, mi.StructType) and isinstance(value, Mapping):
             out[f.name] = anchor_files(decl.type, value, folders, default_folders)
     return out
 
@@ -335,7 +329,7 @@ def _declared(cls: Any, path: str) -> tuple[Any, _Decl | None]:
                 return None, None
             decl = _decl(field.type)
         here = decl.type
-    return (here if isinstance(here, _STRUCTS) else None), decl
+    return (here if isinstance(here, mi.StructType) else None), decl
 
 
 def rewrite(err: Exception, cls: Any, values: Mapping[str, Any]) -> ParamError:
@@ -365,7 +359,9 @@ def rewrite(err: Exception, cls: Any, values: Mapping[str, Any]) -> ParamError:
 def _own(msg: str, base: str, owner: Any, values: Mapping[str, Any]) -> ParamError:
     """A class's own check: "name must ..." about one field, or a message about several
     (the values of the fields it names are appended)."""
-    defaults = {f.name: _default(f) for f in owner.fields} if isinstance(owner, _STRUCTS) else {}
+    defaults = (
+        {f.name: _default(f) for f in owner.fields} if isinstance(owner, mi.StructType) else {}
+    )
     first = _FIELD_FIRST.match(msg)
     if (
         first
@@ -445,7 +441,7 @@ def describe(cls: Any, prefix: str = "") -> list[ParamInfo]:
     out: list[ParamInfo] = []
     for f in _fields(cls):
         decl = _decl(f.type)
-        if isinstance(decl.type, _STRUCTS):
+        if isinstance(decl.type, mi.StructType):
             out += describe(decl.type, f"{prefix}{f.name}.")
             continue
         default = _default(f)
