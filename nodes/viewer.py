@@ -35,8 +35,15 @@ class RerunViewerParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknow
     """``target``: ``spawn`` or a path ending in ``.rrd``; ``object``: the object drawn under
     the estimated pose until ground truth names one ("" for none)."""
 
-    target: str = "spawn"
-    object: str = ""
+    target: Annotated[str, Meta(description="spawn (a Rerun viewer) or a path ending in .rrd")] = (
+        "spawn"
+    )
+    object: Annotated[
+        str,
+        Meta(
+            description="the object drawn under the estimated pose until ground truth names one ('' for none)"
+        ),
+    ] = ""
 
     def __post_init__(self) -> None:
         if self.target != "spawn" and not self.target.endswith(".rrd"):
@@ -48,8 +55,10 @@ class RerunViewerParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknow
 class FoxgloveViewerParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Where Foxglove's WebSocket server listens."""
 
-    host: str = "127.0.0.1"
-    port: Annotated[int, Meta(ge=0, le=65535)] = 8765
+    host: Annotated[str, Meta(description="the address Foxglove's WebSocket server listens on")] = (
+        "127.0.0.1"
+    )
+    port: Annotated[int, Meta(description="its port", ge=0, le=65535)] = 8765
 
 
 class _DecodingViewer(Node):

@@ -70,13 +70,31 @@ class WorldParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     ``rate_scale`` > 1 runs the scene faster than real time; ``wsg50_port`` >= 0 serves
     the jaws over the WSG 50 protocol on ``wsg50_host`` (0: a free port, logged)."""
 
-    scene: ExistingFile
-    effects: tuple[str, ...] = ()
-    seed: int = -1
-    rate_scale: Annotated[float, Meta(gt=0)] = 1.0
-    wsg50_port: Annotated[int, Meta(ge=-1, le=65535)] = -1
-    wsg50_host: str = "127.0.0.1"
-    rig_feed: str = ""
+    scene: Annotated[ExistingFile, Meta(description="a scene file (scenes/)")]
+    effects: Annotated[
+        tuple[str, ...], Meta(description="the scene's effects, replaced when given (sim.effects)")
+    ] = ()
+    seed: Annotated[int, Meta(description="the scene's seed, replaced when >= 0")] = -1
+    rate_scale: Annotated[
+        float, Meta(description="above 1, the scene runs faster than real time", gt=0)
+    ] = 1.0
+    wsg50_port: Annotated[
+        int,
+        Meta(
+            description=">= 0: serve the jaws over the WSG 50 protocol on this port (0: a free one, logged); -1: not",
+            ge=-1,
+            le=65535,
+        ),
+    ] = -1
+    wsg50_host: Annotated[str, Meta(description="where the WSG 50 protocol is served")] = (
+        "127.0.0.1"
+    )
+    rig_feed: Annotated[
+        str,
+        Meta(
+            description="a ZeroMQ endpoint the world also publishes each state on, for an emulated rig's devices ('' for none)"
+        ),
+    ] = ""
 
     def __post_init__(self) -> None:
         if self.effects:
