@@ -60,7 +60,14 @@ class Vote:
 class SortParams(TaskParams, frozen=True, kw_only=True, forbid_unknown_fields=True):
     vote_frames: Annotated[int, Meta(ge=1)] = 5
     bins: tuple[tuple[str, str], ...] = msgspec.field(default=DEFAULT_BINS)
-    min_confidence: Annotated[float, Meta(ge=0.0, le=1.0)] = 0.0
+    min_confidence: Annotated[
+        float,
+        Meta(
+            description="below this the unsure bin is used (0: always route to the best class's bin)",
+            ge=0.0,
+            le=1.0,
+        ),
+    ] = 0.0
     unsure_bin: str = "manual"
 
 
