@@ -83,14 +83,31 @@ class RoyaleParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     waits for the gripper's opening at its stamp; ``lost_after_secs``: silence after
     which the camera counts as unplugged."""
 
-    sensor: Literal["left", "right"]
-    camera_id: str = ""
-    use_case: str = "MODE_9_10FPS_1000"
-    exposure_us: Annotated[int, Meta(ge=0)] = 0
-    max_noise_m: Annotated[float, Meta(gt=0)] = MAX_NOISE_M
-    calibration: str = ""
-    opening_wait_secs: Annotated[float, Meta(ge=0)] = 0.1
-    lost_after_secs: Annotated[float, Meta(gt=0)] = 1.0
+    sensor: Annotated[Literal["left", "right"], Meta(description="which bubble: left or right")]
+    camera_id: Annotated[
+        str, Meta(description="the camera's id ('' when only one is plugged in)")
+    ] = ""
+    use_case: Annotated[
+        str,
+        Meta(
+            description="the SDK's mode name (frame rate and exposure limit), checked against the camera's own list"
+        ),
+    ] = "MODE_9_10FPS_1000"
+    exposure_us: Annotated[int, Meta(description="a fixed exposure (0: the use case's)", ge=0)] = 0
+    max_noise_m: Annotated[
+        float,
+        Meta(description="a pixel whose noise the SDK reports above this is invalid (NaN)", gt=0),
+    ] = MAX_NOISE_M
+    calibration: Annotated[
+        str, Meta(description="the rig's calibration file ('': the CAD mount)")
+    ] = ""
+    opening_wait_secs: Annotated[
+        float,
+        Meta(description="how long a frame waits for the gripper's opening at its stamp", ge=0),
+    ] = 0.1
+    lost_after_secs: Annotated[
+        float, Meta(description="silence after which the camera counts as unplugged", gt=0)
+    ] = 1.0
 
     def __post_init__(self) -> None:
         if not self.use_case:

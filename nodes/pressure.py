@@ -75,15 +75,29 @@ class UsbPressureParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknow
     range (a 0..1 psi gauge part by default).
     """
 
-    sensor: Literal["left", "right"]
-    serial: str = ""
-    address: Annotated[int, Meta(gt=0, lt=128)] = ADDRESS
-    pmin_pa: float = 0.0
-    pmax_pa: float = PSI_PA
-    rate_hz: Annotated[float, Meta(gt=0, le=1000)] = 100.0
-    i2c_speed_hz: Annotated[int, Meta(ge=47000, le=400000)] = 100_000
-    retry_secs: Annotated[float, Meta(gt=0)] = 0.5
-    calibration: str = ""
+    sensor: Annotated[Literal["left", "right"], Meta(description="which bubble: left or right")]
+    serial: Annotated[
+        str,
+        Meta(description="the bridge's USB serial number ('' when only one bridge is plugged in)"),
+    ] = ""
+    address: Annotated[int, Meta(description="the sensor's 7-bit I2C address", gt=0, lt=128)] = (
+        ADDRESS
+    )
+    pmin_pa: Annotated[float, Meta(description="the low end of the sensor's range")] = 0.0
+    pmax_pa: Annotated[
+        float,
+        Meta(description="the high end of the sensor's range (a 0..1 psi gauge part by default)"),
+    ] = PSI_PA
+    rate_hz: Annotated[float, Meta(description="readings per second", gt=0, le=1000)] = 100.0
+    i2c_speed_hz: Annotated[
+        int, Meta(description="the bridge's I2C clock", ge=47000, le=400000)
+    ] = 100_000
+    retry_secs: Annotated[
+        float, Meta(description="while the bridge is gone, look for it this often", gt=0)
+    ] = 0.5
+    calibration: Annotated[
+        str, Meta(description="the rig's calibration file, with the sensor's zero ('' for none)")
+    ] = ""
 
     def __post_init__(self) -> None:
         if self.calibration:
