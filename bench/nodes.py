@@ -222,6 +222,11 @@ class ImageSource(Node):
     def _tick(self) -> None:
         if not self.plan.done:
             self._publish(self.plan.on_timer())
+        if self.plan.phase != LATENCY:
+            # The timer paces the latency phase only; the rest goes by acknowledgement,
+            # as the raw source's does: a node woken 1000 times a second for nothing
+            # would pay for the wake-ups in the figures this source measures.
+            self.io.cancel_timer(self._tick)
 
     def on_ack(self, msg: Tick) -> None:
         self._publish(self.plan.on_ack(int(msg.value)))

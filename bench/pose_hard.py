@@ -14,7 +14,8 @@ a random object axis, or tilted 80 degrees for bodies of revolution, and moved 3
 ``track`` (the second estimate on the same cloud: the tracking path).
 
 Success: within 2 degrees and 2 mm of the truth up to the object's symmetry, counting
-only the translations the patch observes (``symmetry.pose_difference``).
+only the directions observed: a slide or turn that neither the estimate nor the patch
+at the true pose observes is no error (``metrics.right`` with the cloud).
 The verdict (goals in brackets): ``right_ok_rate``, right and ``ok`` or ``recovered``;
 ``right_suspect_share``, right but ``suspect``, as a share of the right answers (under
 5%); ``silent_wrong``, answers outside those bounds whose status was ``ok`` or
@@ -139,12 +140,15 @@ def judged(
     cpu: float,
     *,
     ends_alike: bool = False,
+    points_in_tool: np.ndarray | None = None,
 ) -> Judged:
-    """An estimate scored: right (``metrics.right``) and covered (``metrics.covered``);
-    ``ends_alike``: the patch cannot tell the ends of the body of revolution apart."""
+    """An estimate scored: right (``metrics.right``; along the directions observed, by
+    the estimate or at the truth, when given the cloud ``points_in_tool``) and covered
+    (``metrics.covered``); ``ends_alike``: the patch cannot tell the ends of the body of
+    revolution apart."""
     return (
         result,
-        metrics.right(fld, result, truth, ends_alike=ends_alike),
+        metrics.right(fld, result, truth, ends_alike=ends_alike, points_in_tool=points_in_tool),
         metrics.covered(fld, result, truth, ends_alike=ends_alike),
         cpu,
     )
@@ -219,7 +223,14 @@ def estimator_rows(
                         res = est.estimate(pts, bub, seed_tool_from_object=prior)
                         cpu = time.process_time() - c0
                         results.append(
-                            judged(model.field, res, truth, cpu, ends_alike=kind == "bottle")
+                            judged(
+                                model.field,
+                                res,
+                                truth,
+                                cpu,
+                                ends_alike=kind == "bottle",
+                                points_in_tool=pts,
+                            )
                         )
                     rows.append(
                         summary(
@@ -258,7 +269,7 @@ def size_rows(offsets_mm: list[float], n_cases: int, n_points: int) -> list[Row]
                 c0 = time.process_time()
                 res = est.estimate(pts, bub, seed_tool_from_object=seed)
                 cpu = time.process_time() - c0
-                results.append(judged(true.field, res, truth, cpu))
+                results.append(judged(true.field, res, truth, cpu, points_in_tool=pts))
                 axis.append(
                     metrics.axis_error_deg(res.tool_from_object, truth, flip_symmetric=True)
                 )
@@ -313,7 +324,9 @@ def degenerate_rows(solvers: list[str]) -> list[Row]:
             # Nothing is right without a prior; with one (the planar patch), the answer
             # may be right along what the patch observes: the seed's face.
             scored = (
-                judged(BOX.field, res, seed, cpu) if seed is not None else (res, False, False, cpu)
+                judged(BOX.field, res, seed, cpu, points_in_tool=pts)
+                if seed is not None
+                else (res, False, False, cpu)
             )
             rows.append(
                 {

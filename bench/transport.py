@@ -38,7 +38,11 @@ the same repeat and transport (measured minutes apart, the machine's load drifts
 than it does within one repeat), ``throughput_vs_raw_min``/``_max`` their range;
 ``latency_vs_raw`` divides by the raw row's median latency; ``source_cpu_vs_raw`` and
 ``sink_cpu_vs_raw`` are the CPU per frame of each side against raw's, paired by repeat
-as the throughput is.
+as the throughput is (``_min``/``_max`` their range).
+
+Where the runtime's extra CPU per frame goes, step by step (message, encode, finite
+check, send; receive, decode, delivery), side by side with the raw pair's in one
+process: ``python -m bench.transport_steps``.
 
     python -m bench.transport [--quick] [--json] [--no-plot]
 """
@@ -162,16 +166,23 @@ def _rows(runs: dict[tuple[str, str], list[Measured]], sizes: Sizes) -> list[Row
                     "throughput_vs_raw_min": min(paired),
                     "throughput_vs_raw_max": max(paired),
                     "latency_vs_raw": m.latency_ms_median / raw.latency_ms_median,
-                    # CPU per frame against raw's in the same repeat, as for throughput.
-                    "source_cpu_vs_raw": median(
-                        [a.source_cpu_us_per_frame / b.source_cpu_us_per_frame for a, b in pairs]
-                    ),
-                    "sink_cpu_vs_raw": median(
-                        [a.sink_cpu_us_per_frame / b.sink_cpu_us_per_frame for a, b in pairs]
-                    ),
+                    **_cpu_ratios(pairs),
                 }
             )
     return rows
+
+
+def _cpu_ratios(pairs: list[tuple[Measured, Measured]]) -> Row:
+    """Each side's CPU per frame against raw's in the same repeat, as for throughput: the
+    median over repeats and the range."""
+    out: Row = {}
+    for side in ("source", "sink"):
+        key = f"{side}_cpu_us_per_frame"
+        ratios = [getattr(mine, key) / getattr(raw, key) for mine, raw in pairs]
+        out[f"{side}_cpu_vs_raw"] = median(ratios)
+        out[f"{side}_cpu_vs_raw_min"] = min(ratios)
+        out[f"{side}_cpu_vs_raw_max"] = max(ratios)
+    return out
 
 
 COLUMNS = [

@@ -9,7 +9,8 @@ description of each object. Every object lives in its geometry frame G (docs/des
     lo, hi = model.bounds_m()
 
 Dimensions are typical household sizes (a 95 mm mug, a 0.5 l PET bottle, a square
-bottle, a wine glass); any of them can be overridden by keyword.
+bottle, a wine glass); any of them can be overridden by keyword. Each class's family of
+variants (real dishware's spread of sizes) is ``geometry.variants``.
 """
 
 from __future__ import annotations
@@ -65,13 +66,18 @@ def _cylinder(d: dict[str, float]) -> tuple[Field, bool]:
 def _mug(d: dict[str, float]) -> tuple[Field, bool]:
     r, h = d["radius_m"], d["height_m"]
     body = CappedCylinder(r, h)
-    # Handle: a C loop of three capsules on +x (two horizontal arms, one upright grip).
+    # Handle: a C loop of three capsules on +x (two horizontal arms, one upright grip),
+    # centred ``handle_offset_m`` above the body's middle (negative: below).
     rad, reach, span = d["handle_radius_m"], d["handle_reach_m"], d["handle_span_m"]
+    z_mid = d["handle_offset_m"]
     arm_len = reach
     arm_rot = rotation_about(np.array([0.0, 1.0, 0.0]), np.pi / 2)
     x_mid = r + reach / 2 - rad
-    arms = [_at(Capsule(rad, arm_len), x_m=x_mid, z_m=s * span / 2, rot=arm_rot) for s in (-1, 1)]
-    grip = _at(Capsule(rad, span), x_m=r + reach - rad)
+    arms = [
+        _at(Capsule(rad, arm_len), x_m=x_mid, z_m=z_mid + s * span / 2, rot=arm_rot)
+        for s in (-1, 1)
+    ]
+    grip = _at(Capsule(rad, span), x_m=r + reach - rad, z_m=z_mid)
     return Union([body, *arms, grip]), False
 
 
@@ -126,6 +132,7 @@ _BUILDERS: dict[
             "handle_radius_m": 0.006,
             "handle_reach_m": 0.032,
             "handle_span_m": 0.055,
+            "handle_offset_m": 0.0,
         },
         _mug,
     ),
@@ -163,6 +170,8 @@ _BUILDERS: dict[
 }
 
 CALIBRATION_OBJECTS = ("cylinder",)
+# Dimensions that are positions, not sizes: any finite value (the others must be > 0).
+SIGNED_DIMS = frozenset({"handle_offset_m"})
 # The objects of the tasks (classes, datasets, pose fits); ``make`` builds these and the
 # calibration objects.
 NAMES: tuple[str, ...] = tuple(n for n in _BUILDERS if n not in CALIBRATION_OBJECTS)
@@ -186,7 +195,9 @@ def make(name: str, **overrides: Any) -> ObjectModel:
         raise ValueError(f"{name}: unknown dimension(s) {unknown}; valid: {sorted(defaults)}")
     dims = {**defaults, **{k: float(v) for k, v in overrides.items()}}
     for key, value in dims.items():
-        if not (np.isfinite(value) and value > 0.0):
+        if key in SIGNED_DIMS and not np.isfinite(value):
+            raise ValueError(f"{name}: {key} must be finite, got {value}")
+        if key not in SIGNED_DIMS and not (np.isfinite(value) and value > 0.0):
             raise ValueError(f"{name}: {key} must be > 0, got {value}")
     fld, symmetric = build(dims)
     return ObjectModel(

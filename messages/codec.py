@@ -207,45 +207,60 @@ def _passthrough(kind: type, obj: Any) -> Any:
     raise NotImplementedError(f"cannot convert {type(obj).__name__} to {kind}")
 
 
-def _received_array(
-    topic: str, wire_type: str, row: tuple[str, str, list[int]], frame: Any, plan: _Plan
-) -> np.ndarray:
-    """The array of one header row, a read-only view on ``frame`` (raises ``FrameDecodeError``)."""
-    name, dtype_str, shape = row
-    field = plan.arrays_by_name.get(name)
-    if field is None:
-        raise FrameDecodeError(f"{topic}: {wire_type} has no array field {name!r}")
-    dtype = field.dtype  # the usual spelling: numpy's parser would return an equal dtype
-    if dtype_str != field.dtype_str:
-        try:
-            dtype = np.dtype(dtype_str)
-        except (TypeError, ValueError, SyntaxError) as err:  # numpy's dtype-string parser
-            raise FrameDecodeError(f"{topic}: {wire_type}.{name}: bad dtype {dtype_str!r}") from err
-        # The wire carries little-endian buffers only ("=f4" and "f4" mean "<f4" here): a
-        # big-endian array would reach the node and trip torch.from_numpy and OpenCV.
-        if dtype.hasobject or dtype != field.dtype:
+def _received_arrays(
+    topic: str, wire: WireHeader, frames: Sequence[Any], plan: _Plan
+) -> dict[str, Any]:
+    """``wire.fields`` with each header row's array added, a read-only view on its frame
+    (raises ``FrameDecodeError``). One loop for every array of a message: this runs for
+    each frame a node receives, and a call per array costs more than its checks."""
+    fields = wire.fields  # decoded for this call alone: filled in place
+    by_name = plan.arrays_by_name
+    for (name, dtype_str, shape), frame in zip(wire.arrays, frames, strict=True):
+        field = by_name.get(name)
+        if field is None:
+            raise FrameDecodeError(f"{topic}: {wire.type} has no array field {name!r}")
+        dtype = field.dtype  # the usual spelling: numpy's parser would return an equal dtype
+        if dtype_str != field.dtype_str:
+            dtype = _wire_dtype(topic, wire.type, name, dtype_str, field)
+        # The shape is checked before numpy sees it: no array is built for a frame refused.
+        if not field.fits(shape) or (shape and min(shape) < 0):
             raise FrameDecodeError(
-                f"{topic}: {wire_type}.{name}: dtype {dtype_str!r}, declared {field.spec.dtype}"
+                f"{topic}: {wire.type}.{name}: shape {shape}, declared {list(field.spec.shape)}"
             )
-    # The shape is checked before numpy sees it: no array is built for a frame refused.
-    if not field.fits(shape) or (shape and min(shape) < 0):
-        raise FrameDecodeError(
-            f"{topic}: {wire_type}.{name}: shape {shape}, declared {list(field.spec.shape)}"
-        )
-    # zmq.Frame buffers are writable, and over inproc they can be the sender's own array:
-    # a receiver must never write through to it. numpy makes arrays on a read-only view
-    # read-only (cheaper than clearing the flag afterwards).
-    buf = _buffer(frame).toreadonly()
-    want = math.prod(shape) * dtype.itemsize  # Python ints: no int64 wrap-around
-    if buf.nbytes != want:
-        raise FrameDecodeError(
-            f"{topic}: {wire_type}.{name}: buffer of {buf.nbytes} bytes, "
-            f"shape {shape} of {dtype_str} needs {want}"
-        )
+        # zmq.Frame buffers are writable, and over inproc they can be the sender's own
+        # array: a receiver must never write through to it. numpy makes arrays on a
+        # read-only view read-only (cheaper than clearing the flag afterwards).
+        buf = memoryview(frame).toreadonly()  # a zmq.Frame's own buffer, as bytes' are
+        want = math.prod(shape) * dtype.itemsize  # Python ints: no int64 wrap-around
+        if buf.nbytes != want:
+            raise FrameDecodeError(
+                f"{topic}: {wire.type}.{name}: buffer of {buf.nbytes} bytes, "
+                f"shape {shape} of {dtype_str} needs {want}"
+            )
+        try:
+            fields[name] = np.ndarray(shape, dtype, buffer=buf)
+        except ValueError as err:  # an axis past numpy's limit (with another axis of 0)
+            raise FrameDecodeError(
+                f"{topic}: {wire.type}.{name}: bad shape {shape}: {err}"
+            ) from err
+    return fields
+
+
+def _wire_dtype(
+    topic: str, wire_type: str, name: str, dtype_str: str, field: _WireArray
+) -> np.dtype[Any]:
+    """A dtype spelled otherwise than the encoder spells it, if it is the declared one."""
     try:
-        return np.ndarray(shape, dtype, buffer=buf)
-    except ValueError as err:  # an axis past numpy's limit (with another axis of 0)
-        raise FrameDecodeError(f"{topic}: {wire_type}.{name}: bad shape {shape}: {err}") from err
+        dtype = np.dtype(dtype_str)
+    except (TypeError, ValueError, SyntaxError) as err:  # numpy's dtype-string parser
+        raise FrameDecodeError(f"{topic}: {wire_type}.{name}: bad dtype {dtype_str!r}") from err
+    # The wire carries little-endian buffers only ("=f4" and "f4" mean "<f4" here): a
+    # big-endian array would reach the node and trip torch.from_numpy and OpenCV.
+    if dtype.hasobject or dtype != field.dtype:
+        raise FrameDecodeError(
+            f"{topic}: {wire_type}.{name}: dtype {dtype_str!r}, declared {field.spec.dtype}"
+        )
+    return dtype
 
 
 def decode(
@@ -296,9 +311,7 @@ def decode(
         raise FrameDecodeError(
             f"{topic}: {wire.type} header lists {len(wire.arrays)} arrays, got {len(frames) - 2} buffers"
         )
-    fields = dict(wire.fields)
-    for row, frame in zip(wire.arrays, frames[2:], strict=True):
-        fields[row[0]] = _received_array(topic, wire.type, row, frame, plan)
+    fields = _received_arrays(topic, wire, frames[2:], plan)
     try:
         msg = msgspec.convert(fields, cls, dec_hook=_passthrough)
     except (msgspec.ValidationError, NotImplementedError, TypeError) as err:

@@ -21,7 +21,8 @@ holds are skipped. A line per grasp shows progress (done, frames, rate, time lef
 
 ``world.autolabel`` is the simulated world of this graph: ``world.sim``'s world
 (``sim.World``) whose object and pose are set by each ``GraspRequest`` (the scene file
-of that object gives the bubbles, cameras and noise) instead of a scripted trajectory.
+of that object gives the bubbles, cameras and noise; the request's variant, if any, the
+object's dimensions) instead of a scripted trajectory.
 
 Ports:
     inputs: ``place`` (GraspRequest), ``command`` (GripperCommand).
@@ -60,7 +61,7 @@ from runtime.params import build_params
 from runtime.registry import register
 from sim import World, ground_truth, load_scene, stamp_of
 from sim.effects import resolve
-from sim.scene import Keyframe, Scene, SceneError, rpy_deg_from_rotation
+from sim.scene import Keyframe, ObjectSpec, Scene, SceneError, rpy_deg_from_rotation
 from sim.wire import apply_command, to_message
 
 TASK = "autolabel"
@@ -88,6 +89,16 @@ class AutolabelParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     objects: Annotated[tuple[str, ...], Meta(description="object names to grasp.")] = (
         DEFAULT_OBJECTS
     )
+    variants: Annotated[
+        str,
+        Meta(
+            description=(
+                "``none`` (each class's reference shape), ``train`` or ``held_out`` (a "
+                "variant of its class from that split, ``geometry.variants``: a test set "
+                "asks for ``held_out``, a training set for ``train``)."
+            )
+        ),
+    ] = "none"
     open_width_m: Annotated[
         float, Meta(gt=0, le=0.11, description="opening before each grasp and after each release.")
     ] = 0.11
@@ -155,7 +166,7 @@ class AutolabelParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
 
     def generator_params(self) -> GraspGeneratorParams:
         """The generator's parameters, checked against its declaration."""
-        given = {"objects": tuple(self.objects), "seed": self.seed}
+        given = {"objects": tuple(self.objects), "variants": self.variants, "seed": self.seed}
         for name in ("approach_tilt_deg", "skew_deg", "offset_m", "end_fraction", "end_band_m"):
             given[name] = getattr(self, name)
         params: GraspGeneratorParams = build_params(GraspGeneratorParams, given)
@@ -265,6 +276,7 @@ class AutolabelSupervisor(Node):
                 open_width_m=self.params.open_width_m,
                 grasp_width_m=sample.grasp_width_m,
                 force_n=sample.force_n,
+                variant=-1 if sample.variant is None else sample.variant,
             ),
         )
         self.phase = "settle"
@@ -385,6 +397,10 @@ class AutolabelWorldParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unk
         if request.object_name not in self.scenes:
             raise ValueError(f"no scene for object {request.object_name!r}: {sorted(self.scenes)}")
         base = load_scene(self.scenes[request.object_name])
+        if request.variant >= 0:
+            base = dataclasses.replace(
+                base, object=ObjectSpec.of(request.object_name, request.variant)
+            )
         pose = np.asarray(request.tool_from_object, dtype=np.float64)
         keyframe = Keyframe(
             t_secs=0.0,

@@ -52,6 +52,11 @@ class IO(Protocol):
         In lockstep, unless the node is ``clocked`` or has no inputs, ``callback`` runs
         once after each message the node handles instead: bag-driven, not clock-driven."""
 
+    def cancel_timer(self, callback: Callable[[], None]) -> None:
+        """Stop the timers added with ``callback`` (none: nothing happens). A node whose
+        timed phase is over cancels its timer rather than being woken for nothing; a timer
+        cancelled by another's callback does not run again, even in the same round."""
+
     def now_nanos(self) -> int:
         """The current time in nanoseconds (wall clock in a live graph)."""
 

@@ -278,7 +278,8 @@ class Runner:
             return  # they run after each message (_deliver)
         now = time.monotonic_ns()
         for timer in self.io.timers:
-            if timer.due_nanos <= now and not self.io.stop_requested:
+            # ``in``: not one an earlier callback of this round cancelled (a new list).
+            if timer.due_nanos <= now and not self.io.stop_requested and timer in self.io.timers:
                 # Skip missed periods rather than bursting to catch up.
                 timer.due_nanos = max(timer.due_nanos + timer.period_nanos, now)
                 self._call(timer.callback)
@@ -342,7 +343,7 @@ class Runner:
         self._call(self.node.handle, inp.port, msg)
         if self.bag_driven:
             for timer in self.io.timers:
-                if not self.io.stop_requested:
+                if not self.io.stop_requested and timer in self.io.timers:
                     self._call(timer.callback)
 
     def _call(self, fn: Callable[..., None], *args: Any) -> None:

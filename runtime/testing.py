@@ -85,6 +85,9 @@ class FakeIO:
         period = timer_period_nanos(period_secs)
         self._timers.append(_Timer(period, callback, self._now + period))
 
+    def cancel_timer(self, callback: Callable[[], None]) -> None:
+        self._timers = [t for t in self._timers if t.callback != callback]
+
     def now_nanos(self) -> int:
         return self._now
 

@@ -1,7 +1,7 @@
 """Scene files: what the simulator shows, loaded from YAML and checked.
 
-A scene names the object (one of ``geometry.objects``, with optional dimension
-overrides), its pose trajectory in the tool frame, the scripted gripper commands, the
+A scene names the object (one of ``geometry.objects``, optionally one of its class's
+variants, ``geometry.variants``, and dimension overrides), its pose trajectory in the tool frame, the scripted gripper commands, the
 bubbles, the cameras, the dot pattern, the noise, the seed and the ``effects`` to
 simulate, optionally a ``support`` the arm lowers the held object onto
 (``sim.support``), and the ``load`` on the held object (``sim.friction``: its mass, a
@@ -13,7 +13,7 @@ defaults to docs/facts.md figures::
     seed: 7
     duration_secs: 4.0
     effects: [membrane, depth, ir, dot_pattern, shear, tof_noise, pressure, gripper, ground_truth]
-    object: {name: mug, dims_m: {radius_m: 0.04}}
+    object: {name: mug, dims_m: {radius_m: 0.04}}   # or {name: mug, variant: 1003}
     mount_rpy_deg: [0, -90, -90]     # object axis along tool y, mug handle along tool z
     trajectory:                      # keyframes of the held frame in the tool frame
       - {t_secs: 0.0, xyz_m: [0, 0, 0.005], rpy_deg: [0, 0, 0]}
@@ -64,10 +64,32 @@ class SceneError(ValueError):
 
 @dataclass(frozen=True, kw_only=True)
 class ObjectSpec:
-    """Which object, and dimension overrides passed to ``geometry.objects.make``."""
+    """Which object, and dimension overrides passed to ``geometry.objects.make``.
+
+    ``variant``: the class's variant (``geometry.variants``) the dimensions came from, or
+    None; ``dims_m`` holds the variant's dimensions already (:meth:`of` resolves them).
+    """
 
     name: str
     dims_m: tuple[tuple[str, float], ...] = ()
+    variant: int | None = None
+
+    @classmethod
+    def of(
+        cls, name: str, variant: int | None = None, dims_m: dict[str, float] | None = None
+    ) -> ObjectSpec:
+        """An object, the dimensions of ``variant`` (if given) overridden by ``dims_m``.
+
+        Raises:
+            ValueError: an unknown class or a variant id in no split.
+        """
+        dims: dict[str, float] = {}
+        if variant is not None:
+            from geometry.variants import variant_dims
+
+            dims = variant_dims(name, int(variant))
+        dims.update(dims_m or {})
+        return cls(name=name, dims_m=tuple(sorted(dims.items())), variant=variant)
 
     def model(self) -> Any:
         """The shared object model (cached)."""
@@ -279,14 +301,17 @@ def scene_from_dict(data: Any, *, path: str = "<dict>") -> Scene:
     dims = obj.get("dims_m", {}) or {}
     if not isinstance(dims, dict):
         raise SceneError(f"{path}: object.dims_m: expected a mapping")
-    unknown_obj = sorted(set(obj) - {"name", "dims_m"})
+    unknown_obj = sorted(set(obj) - {"name", "dims_m", "variant"})
     if unknown_obj:
-        raise SceneError(f"{path}: object: unknown field(s) {unknown_obj}; valid: dims_m, name")
-    kwargs: dict[str, Any] = {
-        "object": ObjectSpec(name=str(obj["name"]), dims_m=tuple(sorted(dims.items()))),
-        "path": str(path),
-    }
+        raise SceneError(
+            f"{path}: object: unknown field(s) {unknown_obj}; valid: dims_m, name, variant"
+        )
+    variant = obj.get("variant")
+    if variant is not None and (isinstance(variant, bool) or not isinstance(variant, int)):
+        raise SceneError(f"{path}: object.variant: expected an integer id, got {variant!r}")
+    kwargs: dict[str, Any] = {"path": str(path)}
     try:
+        kwargs["object"] = ObjectSpec.of(str(obj["name"]), variant, dims)
         kwargs["object"].model()
     except ValueError as err:
         raise SceneError(f"{path}: object: {err}") from err

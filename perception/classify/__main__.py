@@ -187,7 +187,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         p = params.get(int(grasp), {})
         end_m = None
         if "object_name" in p and "height_m" in p:  # auto-labelled: where the grasp was
-            end_m = end_distance_m(p["object_name"], p["height_m"])
+            end_m = end_distance_m(p["object_name"], p["height_m"], p.get("variant"))
             regions["near_end" if end_m < near_m else "body"].append(correct)
         if not correct:
             wrong.append(

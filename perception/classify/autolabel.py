@@ -6,6 +6,9 @@ Here each grasp ``i`` of a run is drawn from a generator seeded with ``(seed, i)
 run is deterministic per seed and a resumed run draws the same grasps it would have:
 
 * the object: classes come in shuffled blocks of one of each, so counts stay balanced;
+  with ``variants`` (``train`` or ``held_out``) each grasp's object is a variant of its
+  class drawn from that split of ``geometry.variants`` (its own stream: the rest of the
+  draw is what it would be without), the class's reference shape otherwise;
 * the pose after a random drop: any turn about the object's own axis, the axis tilted
   towards the approach direction (grasps from above and from the side) and a little
   towards the closing direction, a small shift across and along the fingers;
@@ -33,11 +36,12 @@ import msgspec
 import numpy as np
 from msgspec import Meta
 
-from geometry import objects
+from geometry import objects, variants
 from geometry.gripper import DEFAULT_GRIPPER, GripperGeometry
 from geometry.se3 import rotation_about
 
 DEFAULT_OBJECTS = ("mug", "pet_bottle", "square_bottle", "wine_glass")
+VARIANT_CHOICES = ("none", *variants.SPLITS)
 _X, _Y, _Z = np.eye(3)
 
 
@@ -47,6 +51,15 @@ class GraspGeneratorParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unk
     objects: Annotated[
         tuple[str, ...], Meta(description="object names (``geometry.objects``) to grasp.")
     ] = DEFAULT_OBJECTS
+    variants: Annotated[
+        str,
+        Meta(
+            description=(
+                "``none`` (each class's reference shape), or ``train`` / ``held_out``: a "
+                "variant of the class from that split of ``geometry.variants.SPLITS``."
+            )
+        ),
+    ] = "none"
     seed: Annotated[
         int, Meta(description="the run's seed; grasp ``i`` depends only on ``(seed, i)``.")
     ] = 0
@@ -109,6 +122,12 @@ class GraspGeneratorParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unk
         for name in self.objects:
             if name not in objects.NAMES:
                 raise ValueError(f"`objects`: unknown object {name!r}; valid: {objects.NAMES}")
+        if self.variants not in VARIANT_CHOICES:
+            raise ValueError(f"`variants` must be one of {VARIANT_CHOICES}, got {self.variants!r}")
+        if self.variants != "none":
+            missing = [n for n in self.objects if n not in variants.FAMILIES]
+            if missing:
+                raise ValueError(f"`variants`: no variant family for {missing}")
         if not self.end_band_m > self.height_margin_m:
             raise ValueError(
                 f"`end_band_m` must be > height_margin_m ({self.height_margin_m!r}), "
@@ -139,30 +158,40 @@ class GraspSample:
     grasp_width_m: float  # jaw opening commanded (contact less the squeeze)
     force_n: float
     tries: int
+    variant: int | None = None  # the class's variant (geometry.variants), None: reference
 
     def to_params(self) -> dict[str, Any]:
-        """JSON-able record for the dataset manifest and the supervisor's events."""
+        """JSON-able record for the dataset manifest and the supervisor's events (a
+        reference shape's record has no ``variant``)."""
         out = asdict(self)
+        if self.variant is None:
+            del out["variant"]
         out["tool_from_object"] = np.round(self.tool_from_object, 6).tolist()
         return {k: (round(v, 6) if isinstance(v, float) else v) for k, v in out.items()}
 
 
-@functools.cache
-def _axis_span_m(name: str) -> tuple[float, float]:
-    lo, hi = objects.make(name).bounds_m()
+@functools.lru_cache(maxsize=256)
+def _model(name: str, variant: int | None) -> objects.ObjectModel:
+    return objects.make(name) if variant is None else variants.make_variant(name, variant)
+
+
+@functools.lru_cache(maxsize=256)
+def _axis_span_m(name: str, variant: int | None) -> tuple[float, float]:
+    lo, hi = _model(name, variant).bounds_m()
     return float(lo[2]), float(hi[2])
 
 
-def end_distance_m(object_name: str, height_m: float) -> float:
-    """How far a grasp height (``GraspSample.height_m``) lies from the object's nearer end."""
-    lo, hi = _axis_span_m(object_name)
+def end_distance_m(object_name: str, height_m: float, variant: int | None = None) -> float:
+    """How far a grasp height (``GraspSample.height_m``) lies from the object's nearer end
+    (of the grasp's variant, if it had one)."""
+    lo, hi = _axis_span_m(object_name, variant)
     return min(height_m - lo, hi - height_m)
 
 
-@functools.cache
-def _surface(name: str) -> np.ndarray:
+@functools.lru_cache(maxsize=256)
+def _surface(name: str, variant: int | None) -> np.ndarray:
     # A fixed sample of the surface: extents must not depend on the grasp's draw.
-    return objects.make(name).sample_surface(4000, np.random.default_rng(12345))
+    return _model(name, variant).sample_surface(4000, np.random.default_rng(12345))
 
 
 class GraspGenerator:
@@ -187,6 +216,14 @@ class GraspGenerator:
         order = np.random.default_rng([self.params.seed, block, 1]).permutation(len(names))
         return names[int(order[index])]
 
+    def variant_for(self, grasp_id: int) -> int | None:
+        """The variant of grasp ``grasp_id``'s object (None without ``variants``)."""
+        if self.params.variants == "none":
+            return None
+        ids = variants.SPLITS[self.params.variants]
+        rng = np.random.default_rng([self.params.seed, grasp_id, 4])
+        return int(ids[int(rng.integers(len(ids)))])
+
     def sample(self, grasp_id: int) -> GraspSample:
         """Grasp ``grasp_id`` of this seed (the same every time it is asked).
 
@@ -197,9 +234,10 @@ class GraspGenerator:
             raise ValueError(f"grasp_id must be >= 0, got {grasp_id}")
         p = self.params
         name = self.object_for(grasp_id)
-        model = objects.make(name)
+        variant = self.variant_for(grasp_id)
+        model = _model(name, variant)
         lo, hi = model.bounds_m()
-        surface = _surface(name)
+        surface = _surface(name, variant)
         rng = np.random.default_rng([p.seed, grasp_id, 2])
         # Its own stream, so that end_fraction = 0 leaves every other draw as it was.
         end_rng = np.random.default_rng([p.seed, grasp_id, 3])
@@ -246,8 +284,10 @@ class GraspGenerator:
                 grasp_width_m=grasp_width,
                 force_n=float(force),
                 tries=tries,
+                variant=variant,
             )
-        raise ValueError(f"grasp {grasp_id}: no feasible grasp of {name!r} in {p.max_tries} tries")
+        what = name if variant is None else f"{name} variant {variant}"
+        raise ValueError(f"grasp {grasp_id}: no feasible grasp of {what!r} in {p.max_tries} tries")
 
     def _fit(
         self, points: np.ndarray, offset: np.ndarray, squeeze: float

@@ -1,4 +1,5 @@
-"""Smoke test of ``python -m bench.transport``: it runs, and its JSON has the promised shape.
+"""Smoke tests of ``python -m bench.transport`` and ``bench.transport_steps``: they run, and
+their JSON has the promised shape.
 
 No timing is asserted: the figures only have to exist, be finite and be positive.
 """
@@ -52,3 +53,24 @@ def test_quick_json_has_every_transport_and_impl_with_finite_positive_figures() 
         assert row["latency_ms_p99"] >= row["latency_ms_median"]
         if row["impl"] == "raw":
             assert row["throughput_vs_raw"] == 1.0
+
+
+@pytest.mark.timeout(120)
+def test_steps_quick_json_has_every_step_of_both_sides() -> None:
+    from bench.transport_steps import SINK_STEPS, SOURCE_STEPS
+
+    report, _ = run_quick("transport_steps", timeout=100)
+    rows = report["rows"]
+    assert [(row["side"], row["step"]) for row in rows] == [
+        *(("source", step) for step in SOURCE_STEPS),
+        *(("sink", step) for step in SINK_STEPS),
+    ]
+    for row in rows:
+        mine = row["runtime_us"]
+        assert math.isfinite(mine) and mine > 0, row
+        if row["step"] in ("encode", "finite"):  # the raw pair has no such step
+            assert "raw_us" not in row and row["extra_us"] == mine
+        else:
+            assert math.isfinite(row["raw_us"]) and row["raw_us"] > 0, row
+            assert row["extra_us"] == pytest.approx(mine - row["raw_us"])
+            assert row["vs_raw"] == pytest.approx(mine / row["raw_us"])

@@ -50,3 +50,19 @@ def test_drawn_grasps_are_the_auto_labellers_grasps() -> None:
         (command,) = scene.gripper.commands
         assert command.width_m == sample.grasp_width_m and command.force_n == sample.force_n
         assert "dot_pattern" not in scene.resolved_effects
+
+
+def test_drawn_grasps_hold_held_out_variants_when_asked() -> None:
+    from bench.worlds import DRAWN_SEED, drawn_scene
+    from geometry.variants import SPLITS, variant_dims
+    from perception.classify.autolabel import GraspGenerator, GraspGeneratorParams
+    from sim.scene import scene_from_dict
+
+    generator = GraspGenerator(GraspGeneratorParams(seed=DRAWN_SEED, variants="held_out"))
+    for k in range(4):
+        sample = generator.sample(k)
+        scene = scene_from_dict(drawn_scene(k, "held_out"))
+        assert scene.object.variant == sample.variant and sample.variant in SPLITS["held_out"]
+        assert dict(scene.object.dims_m) == variant_dims(sample.object_name, sample.variant)
+        assert np.allclose(scene.tool_from_object(0.0), sample.tool_from_object, atol=1e-9)
+    assert scene_from_dict(drawn_scene(0)).object.variant is None

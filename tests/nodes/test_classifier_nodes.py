@@ -133,9 +133,11 @@ def test_bad_params_are_refused() -> None:
 
 import json  # noqa: E402
 
+import msgspec  # noqa: E402
+
 from messages.classify import GraspRequest  # noqa: E402
 from messages.types import GripperCommand, GroundTruth, TaskEvent  # noqa: E402
-from nodes.autolabel import AutolabelSupervisor, AutolabelWorld  # noqa: E402
+from nodes.autolabel import AutolabelSupervisor, AutolabelWorld, AutolabelWorldParams  # noqa: E402
 from nodes.dataset_writer import DatasetWriterNode  # noqa: E402
 from perception.classify.dataset import read_manifest  # noqa: E402
 from sim.scene import rotation_from_rpy_deg, rpy_deg_from_rotation  # noqa: E402
@@ -207,10 +209,10 @@ def test_supervisor_gives_up_on_unstable_grasps(tmp_path: Path) -> None:
     assert events.count("grasp_failed") == 2 and "grasp_end" not in events
 
 
-def _request(grasp_id: int = 0, seed: int = 3) -> GraspRequest:
+def _request(grasp_id: int = 0, seed: int = 3, variants: str = "none") -> GraspRequest:
     from perception.classify.autolabel import GraspGenerator, GraspGeneratorParams
 
-    sample = GraspGenerator(GraspGeneratorParams(seed=seed)).sample(grasp_id)
+    sample = GraspGenerator(GraspGeneratorParams(seed=seed, variants=variants)).sample(grasp_id)
     return GraspRequest(
         header=Header(),
         grasp_id=grasp_id,
@@ -220,7 +222,21 @@ def _request(grasp_id: int = 0, seed: int = 3) -> GraspRequest:
         open_width_m=0.11,
         grasp_width_m=sample.grasp_width_m,
         force_n=sample.force_n,
+        variant=-1 if sample.variant is None else sample.variant,
     )
+
+
+def test_world_builds_the_requested_variant() -> None:
+    from geometry import objects, variants
+
+    request = _request(seed=5, variants="held_out")
+    scene = AutolabelWorldParams().scene_for(request)
+    assert scene.object.variant == request.variant
+    assert request.variant in variants.SPLITS["held_out"]
+    assert dict(scene.object.dims_m) == variants.variant_dims(request.object_name, request.variant)
+    reference = AutolabelWorldParams().scene_for(msgspec.structs.replace(request, variant=-1))
+    assert reference.object.variant is None
+    assert reference.object.model().dims_m == objects.make(request.object_name).dims_m
 
 
 def _close_on(request: GraspRequest) -> GripperCommand:
