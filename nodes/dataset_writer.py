@@ -55,12 +55,24 @@ class DatasetWriterParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unkn
     that exists (else it is an error); ``max_skew_secs``: largest stamp difference of a
     left/right pair."""
 
-    dataset: str = "out/datasets/autolabel"
-    classes: tuple[str, ...] = DEFAULT_OBJECTS
-    resume: bool = True
-    frame_stride: Annotated[int, Meta(ge=1)] = 3
-    max_frames_per_grasp: Annotated[int, Meta(ge=1)] = 10
-    max_skew_secs: Annotated[float, Meta(ge=0)] = 0.001
+    dataset: Annotated[str, Meta(description="the dataset directory")] = "out/datasets/autolabel"
+    classes: Annotated[tuple[str, ...], Meta(description="class names in label order")] = (
+        DEFAULT_OBJECTS
+    )
+    resume: Annotated[
+        bool, Meta(description="continue a dataset that exists (else it is an error)")
+    ] = True
+    frame_stride: Annotated[
+        int,
+        Meta(description="of a grasp's stable frames, every n-th left/right pair is kept", ge=1),
+    ] = 3
+    max_frames_per_grasp: Annotated[
+        int,
+        Meta(description="at most this many pairs of one grasp (its frames differ little)", ge=1),
+    ] = 10
+    max_skew_secs: Annotated[
+        float, Meta(description="largest stamp difference of a left/right pair", ge=0)
+    ] = 0.001
 
     def __post_init__(self) -> None:
         if not self.dataset:
