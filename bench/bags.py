@@ -54,6 +54,7 @@ from pathlib import Path
 from typing import Any
 
 import msgpack
+import msgspec
 import yaml
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
@@ -206,8 +207,7 @@ class ReplaySink(Node):
     optional_inputs = frozenset({"right"})
     outputs: dict[str, type] = {}
 
-    @dataclass(frozen=True, kw_only=True)
-    class Params:
+    class Params(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
         out_path: str = ""
         work_secs: float = 0.0  # busy work per frame, standing in for a perception stage
 

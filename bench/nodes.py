@@ -33,10 +33,11 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from messages import Header, Tick, ToFImage
 from runtime.node import Node
@@ -179,25 +180,14 @@ class SinkRecord:
         }
 
 
-@dataclass(frozen=True, kw_only=True)
-class ImageSourceParams:
-    rows: int = 172
-    cols: int = 224
-    latency_frames: int = 1000
-    rate_hz: float = 1000.0
-    throughput_frames: int = 2000
-    window: int = 32
+class ImageSourceParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    rows: Annotated[int, Meta(ge=1)] = 172
+    cols: Annotated[int, Meta(ge=1)] = 224
+    latency_frames: Annotated[int, Meta(ge=0)] = 1000
+    rate_hz: Annotated[float, Meta(gt=0)] = 1000.0
+    throughput_frames: Annotated[int, Meta(ge=0)] = 2000
+    window: Annotated[int, Meta(ge=1)] = 32
     out_path: str = ""
-
-    def __post_init__(self) -> None:
-        for name in ("rows", "cols", "window"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("latency_frames", "throughput_frames"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
-        if not self.rate_hz > 0:
-            raise ValueError(f"rate_hz must be > 0, got {self.rate_hz}")
 
 
 @register("bench.image_source")
@@ -250,14 +240,9 @@ class ImageSource(Node):
                 json.dump(self.plan.result(), f)
 
 
-@dataclass(frozen=True, kw_only=True)
-class ImageSinkParams:
+class ImageSinkParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     out_path: str = ""
-    ack_every: int = 8
-
-    def __post_init__(self) -> None:
-        if self.ack_every < 1:
-            raise ValueError(f"ack_every must be >= 1, got {self.ack_every}")
+    ack_every: Annotated[int, Meta(ge=1)] = 8
 
 
 @register("bench.image_sink")

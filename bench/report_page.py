@@ -10,7 +10,6 @@ does not run), so the page says where the default sits, measured, not remembered
 
 from __future__ import annotations
 
-import dataclasses
 import datetime
 import math
 from collections.abc import Callable, Sequence
@@ -18,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import msgspec
 import yaml
 
 from bench.common import Row
@@ -198,7 +198,7 @@ def default_node(spec: Pareto, root: Path) -> tuple[str, dict[str, Any]] | None:
 
             nodes.import_all()
             params = resolve(impl).Params(**given)
-            full = {f.name: getattr(params, f.name) for f in dataclasses.fields(params)}
+            full = msgspec.structs.asdict(params)
             return impl, {"given": given, "full": full}
     return None
 

@@ -6,6 +6,7 @@ python launch.py [run] GRAPH [--check] [--set NODE.PARAM=VALUE ...] [--swap NODE
                        [--view [OUT.rrd | foxglove]] [--host NAME [--keys DIR]]
                        [--emulate [--rig FILE]]
 python launch.py nodes [IMPL]                list implementations, or one's ports and params
+python launch.py schema [--out FILE]        the JSON Schema of graph files, for editors
 python launch.py graph GRAPH --draw OUT.svg  a picture of a graph file (docs/graphs.md)
 python launch.py bag info|echo|diff ...      inspect bags (see docs/bags.md)
 python launch.py bag view|export|video ...   look at bags (see docs/viewing.md)
@@ -17,7 +18,7 @@ python launch.py batch replay|autolabel ...  many bags or worlds as tasks on Ray
 
 ``run`` is the default command: ``launch.py GRAPH ...`` is ``launch.py run GRAPH ...``.
 The tree is declared here, whole; each command's work is its module's ``main(args)``
-(``cli.run``, ``cli.nodes``, ``cli.graphdraw``, ``cli.bag``, ``cli.bagview``, ``cli.replay``, ``cli.topic``,
+(``cli.run``, ``cli.nodes``, ``cli.schema``, ``cli.graphdraw``, ``cli.bag``, ``cli.bagview``, ``cli.replay``, ``cli.topic``,
 ``cli.keys``),
 imported when that command runs: ``--help`` imports neither numpy nor ZeroMQ, ``bag
 info`` no node module, ``--check`` only those the graph names (docs/runtime.md).
@@ -60,7 +61,7 @@ def parser() -> tuple[argparse.ArgumentParser, list[str]]:
         epilog="`python launch.py GRAPH ...` runs a graph (`run` is the default command).",
     )
     commands = top.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for add in (_run, _nodes, _graph, _bag, _replay, _topic, _keys, _calibrate, _batch):
+    for add in (_run, _nodes, _schema, _graph, _bag, _replay, _topic, _keys, _calibrate, _batch):
         add(commands)
     return top, list(commands.choices)
 
@@ -109,6 +110,17 @@ def _nodes(commands: Commands) -> None:
     )
     parser.add_argument("impl", nargs="?", help="a registered name or module:Class")
     parser.set_defaults(handler="cli.nodes")
+
+
+def _schema(commands: Commands) -> None:
+    parser = commands.add_parser(
+        "schema",
+        help="print the JSON Schema of graph files (for an editor's YAML checking)",
+        description="Print the JSON Schema of graph files, built from every node "
+        "implementation's parameter declaration (docs/graphs.md).",
+    )
+    parser.add_argument("--out", type=Path, help="write it to OUT (default: print it)")
+    parser.set_defaults(handler="cli.schema")
 
 
 def _graph(commands: Commands) -> None:

@@ -60,9 +60,10 @@ def node_table(names: Sequence[str]) -> str:
 def node_details(impl: str) -> str:
     """An implementation's ports and every parameter: type, default, unit, limits, meaning.
 
-    Limits are those the parameter class's own check states (found by building it with
-    far-out values); a class whose check needs another parameter first (a required path)
-    shows none. Nested parameters are listed by their dotted path, as ``--set`` takes them.
+    Types, limits, choices and help are read from the parameter class's declaration
+    (``runtime.params``); a check across fields (``max_depth_m > min_depth_m``) is the
+    class's own and not listed. Nested parameters are listed by their dotted path, as
+    ``--set`` takes them.
 
     Raises:
         KeyError: an unknown implementation (the message lists the valid ones).

@@ -38,11 +38,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from messages.base import Header
 from messages.classify import GraspRequest
@@ -56,6 +57,7 @@ from perception.classify.autolabel import (
 )
 from perception.classify.dataset import DatasetError, read_manifest
 from runtime.node import Node
+from runtime.params import build_params
 from runtime.registry import register
 from sim import World, ground_truth, load_scene, stamp_of
 from sim.effects import resolve
@@ -65,85 +67,110 @@ from sim.wire import apply_command, to_message
 TASK = "autolabel"
 
 
-@dataclass(frozen=True, kw_only=True)
-class AutolabelParams:
-    """Parameters of the auto-labelling supervisor.
+class AutolabelParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Parameters of the auto-labelling supervisor."""
 
-    Attributes:
-        seed: the run's seed (grasp ``i`` depends only on ``(seed, i)``).
-        grasps: how many grasps the run makes (ids ``0 .. grasps - 1``).
-        dataset: the dataset directory the writer fills; with ``resume`` its manifest
-            says which grasps are done.
-        resume: skip grasps already in the dataset.
-        objects: object names to grasp.
-        variants: ``none`` (each class's reference shape), ``train`` or ``held_out``
-            (a variant of its class from that split, ``geometry.variants``: a test set
-            asks for ``held_out``, a training set for ``train``).
-        open_width_m: opening before each grasp and after each release.
-        close_speed_m_per_s: finger speed of the grasp.
-        settle_secs: wait after placing an object before closing.
-        stable_timeout_secs: give up on a grasp not stable this long after closing.
-        hold_secs: how long a stable grasp is held (frames recorded meanwhile).
-        release_secs: wait after opening, before the next drop.
-        approach_tilt_deg, skew_deg, offset_m: ranges of the random pose
-            (``GraspGeneratorParams``).
-        end_fraction, end_band_m: more grasps near the objects' ends, for training
-            (``GraspGeneratorParams``; 0, the default, for a held-out set).
-        start_delay_secs: wall time before the first grasp (lets the graph settle).
-        end_grace_secs: at the end, how long to wait for the writer to confirm the last
-            grasps (its frames may trail under load) before stopping the graph.
-    """
-
-    seed: int = 0
-    grasps: int = 200
-    dataset: str = "out/datasets/autolabel"
-    resume: bool = True
-    objects: tuple[str, ...] = DEFAULT_OBJECTS
-    variants: str = "none"
-    open_width_m: float = 0.11
-    close_speed_m_per_s: float = 0.1
-    settle_secs: float = 0.2
-    stable_timeout_secs: float = 3.0
-    hold_secs: float = 1.0
-    release_secs: float = 0.3
-    approach_tilt_deg: float = 40.0
-    skew_deg: float = 8.0
-    offset_m: float = 0.006
-    end_fraction: float = 0.0
-    end_band_m: float = 0.02
-    start_delay_secs: float = 0.5
-    end_grace_secs: float = 30.0
+    seed: Annotated[
+        int, Meta(description="the run's seed (grasp ``i`` depends only on ``(seed, i)``).")
+    ] = 0
+    grasps: Annotated[
+        int, Meta(ge=1, description="how many grasps the run makes (ids ``0 .. grasps - 1``).")
+    ] = 200
+    dataset: Annotated[
+        str,
+        Meta(
+            description=(
+                "the dataset directory the writer fills; with ``resume`` its manifest "
+                "says which grasps are done."
+            )
+        ),
+    ] = "out/datasets/autolabel"
+    resume: Annotated[bool, Meta(description="skip grasps already in the dataset.")] = True
+    objects: Annotated[tuple[str, ...], Meta(description="object names to grasp.")] = (
+        DEFAULT_OBJECTS
+    )
+    variants: Annotated[
+        str,
+        Meta(
+            description=(
+                "``none`` (each class's reference shape), ``train`` or ``held_out`` (a "
+                "variant of its class from that split, ``geometry.variants``: a test set "
+                "asks for ``held_out``, a training set for ``train``)."
+            )
+        ),
+    ] = "none"
+    open_width_m: Annotated[
+        float, Meta(gt=0, le=0.11, description="opening before each grasp and after each release.")
+    ] = 0.11
+    close_speed_m_per_s: Annotated[float, Meta(gt=0, description="finger speed of the grasp.")] = (
+        0.1
+    )
+    settle_secs: Annotated[
+        float, Meta(ge=0, description="wait after placing an object before closing.")
+    ] = 0.2
+    stable_timeout_secs: Annotated[
+        float, Meta(gt=0, description="give up on a grasp not stable this long after closing.")
+    ] = 3.0
+    hold_secs: Annotated[
+        float,
+        Meta(gt=0, description="how long a stable grasp is held (frames recorded meanwhile)."),
+    ] = 1.0
+    release_secs: Annotated[
+        float, Meta(ge=0, description="wait after opening, before the next drop.")
+    ] = 0.3
+    approach_tilt_deg: Annotated[
+        float, Meta(description="ranges of the random pose (``GraspGeneratorParams``).")
+    ] = 40.0
+    skew_deg: Annotated[
+        float, Meta(description="ranges of the random pose (``GraspGeneratorParams``).")
+    ] = 8.0
+    offset_m: Annotated[
+        float, Meta(description="ranges of the random pose (``GraspGeneratorParams``).")
+    ] = 0.006
+    end_fraction: Annotated[
+        float,
+        Meta(
+            description=(
+                "more grasps near the objects' ends, for training "
+                "(``GraspGeneratorParams``; 0, the default, for a held-out set)."
+            )
+        ),
+    ] = 0.0
+    end_band_m: Annotated[
+        float,
+        Meta(
+            description=(
+                "more grasps near the objects' ends, for training "
+                "(``GraspGeneratorParams``; 0, the default, for a held-out set)."
+            )
+        ),
+    ] = 0.02
+    start_delay_secs: Annotated[
+        float, Meta(ge=0, description="wall time before the first grasp (lets the graph settle).")
+    ] = 0.5
+    end_grace_secs: Annotated[
+        float,
+        Meta(
+            ge=0,
+            description=(
+                "at the end, how long to wait for the writer to confirm the last grasps"
+                " (its frames may trail under load) before stopping the graph."
+            ),
+        ),
+    ] = 30.0
 
     def __post_init__(self) -> None:
-        if self.grasps < 1:
-            raise ValueError(f"`grasps` must be >= 1, got {self.grasps!r}")
         if not self.dataset:
             raise ValueError("`dataset` must be a directory path, got ''")
-        if not 0 < self.open_width_m <= 0.11:
-            raise ValueError(f"`open_width_m` must be in (0, 0.11], got {self.open_width_m!r}")
-        for name in (
-            "close_speed_m_per_s",
-            "stable_timeout_secs",
-            "hold_secs",
-        ):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"`{name}` must be > 0, got {getattr(self, name)!r}")
-        for name in ("settle_secs", "release_secs", "start_delay_secs", "end_grace_secs"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"`{name}` must be >= 0, got {getattr(self, name)!r}")
         self.generator_params()  # checks the object names and ranges
 
     def generator_params(self) -> GraspGeneratorParams:
-        return GraspGeneratorParams(
-            objects=tuple(self.objects),
-            variants=self.variants,
-            seed=self.seed,
-            approach_tilt_deg=self.approach_tilt_deg,
-            skew_deg=self.skew_deg,
-            offset_m=self.offset_m,
-            end_fraction=self.end_fraction,
-            end_band_m=self.end_band_m,
-        )
+        """The generator's parameters, checked against its declaration."""
+        given = {"objects": tuple(self.objects), "variants": self.variants, "seed": self.seed}
+        for name in ("approach_tilt_deg", "skew_deg", "offset_m", "end_fraction", "end_band_m"):
+            given[name] = getattr(self, name)
+        params: GraspGeneratorParams = build_params(GraspGeneratorParams, given)
+        return params
 
 
 @register("supervisor.autolabel")
@@ -203,7 +230,7 @@ class AutolabelSupervisor(Node):
                     "scene": {
                         "generator": {
                             k: (list(v) if isinstance(v, tuple) else v)
-                            for k, v in dataclasses.asdict(gen).items()
+                            for k, v in msgspec.structs.asdict(gen).items()
                         },
                         "open_width_m": self.params.open_width_m,
                         "close_speed_m_per_s": self.params.close_speed_m_per_s,
@@ -350,20 +377,17 @@ DEFAULT_SCENES = {
 DEFAULT_EFFECTS = ("membrane", "depth", "ir", "tof_noise", "pressure", "gripper", "ground_truth")
 
 
-@dataclass(frozen=True, kw_only=True)
-class AutolabelWorldParams:
+class AutolabelWorldParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """``scenes``: object name -> scene file (bubbles, cameras, noise; its object must be
     that one); ``effects`` and ``seed`` replace the scenes'; ``rate_scale`` > 1 runs
     faster than real time."""
 
-    scenes: dict[str, str] = field(default_factory=lambda: dict(DEFAULT_SCENES))
+    scenes: dict[str, str] = msgspec.field(default_factory=lambda: dict(DEFAULT_SCENES))
     effects: tuple[str, ...] = DEFAULT_EFFECTS
     seed: int = 0
-    rate_scale: float = 1.0
+    rate_scale: Annotated[float, Meta(gt=0)] = 1.0
 
     def __post_init__(self) -> None:
-        if not self.rate_scale > 0:
-            raise ValueError(f"`rate_scale` must be > 0, got {self.rate_scale!r}")
         try:
             resolve(self.effects)
         except ValueError as err:

@@ -34,9 +34,11 @@ import queue
 import time
 from collections import deque
 from collections.abc import Mapping
-from dataclasses import dataclass
+from typing import Annotated, Literal
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from devices.royale import MAX_NOISE_M, Frame, RoyaleCamera
 from geometry.mount import CAD_MOUNTS, CameraMounts, OpeningHistory
@@ -73,8 +75,7 @@ class SimBubbleCamera(Node):
             self.io.publish("contact_mask", frame.contact_mask(stamp))
 
 
-@dataclass(frozen=True, kw_only=True)
-class RoyaleParams:
+class RoyaleParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """``camera_id``: the camera's id ("" when only one is plugged in); ``use_case``: the
     SDK's mode name (frame rate and exposure limit), checked against the camera's own
     list; ``exposure_us``: a fixed exposure (0: the use case's); ``calibration``: the
@@ -82,27 +83,35 @@ class RoyaleParams:
     waits for the gripper's opening at its stamp; ``lost_after_secs``: silence after
     which the camera counts as unplugged."""
 
-    sensor: str
-    camera_id: str = ""
-    use_case: str = "MODE_9_10FPS_1000"
-    exposure_us: int = 0
-    max_noise_m: float = MAX_NOISE_M
-    calibration: str = ""
-    opening_wait_secs: float = 0.1
-    lost_after_secs: float = 1.0
+    sensor: Annotated[Literal["left", "right"], Meta(description="which bubble: left or right")]
+    camera_id: Annotated[
+        str, Meta(description="the camera's id ('' when only one is plugged in)")
+    ] = ""
+    use_case: Annotated[
+        str,
+        Meta(
+            description="the SDK's mode name (frame rate and exposure limit), checked against the camera's own list"
+        ),
+    ] = "MODE_9_10FPS_1000"
+    exposure_us: Annotated[int, Meta(description="a fixed exposure (0: the use case's)", ge=0)] = 0
+    max_noise_m: Annotated[
+        float,
+        Meta(description="a pixel whose noise the SDK reports above this is invalid (NaN)", gt=0),
+    ] = MAX_NOISE_M
+    calibration: Annotated[
+        str, Meta(description="the rig's calibration file ('': the CAD mount)")
+    ] = ""
+    opening_wait_secs: Annotated[
+        float,
+        Meta(description="how long a frame waits for the gripper's opening at its stamp", ge=0),
+    ] = 0.1
+    lost_after_secs: Annotated[
+        float, Meta(description="silence after which the camera counts as unplugged", gt=0)
+    ] = 1.0
 
     def __post_init__(self) -> None:
-        SensorParams(sensor=self.sensor)
         if not self.use_case:
             raise ValueError("`use_case` must name one of the camera's use cases, got ''")
-        if self.exposure_us < 0:
-            raise ValueError(f"`exposure_us` must be >= 0, got {self.exposure_us!r}")
-        if not self.max_noise_m > 0:
-            raise ValueError(f"`max_noise_m` must be > 0, got {self.max_noise_m!r}")
-        if not self.opening_wait_secs >= 0:
-            raise ValueError(f"`opening_wait_secs` must be >= 0, got {self.opening_wait_secs!r}")
-        if not self.lost_after_secs > 0:
-            raise ValueError(f"`lost_after_secs` must be > 0, got {self.lost_after_secs!r}")
         if self.calibration:
             try:
                 load_calibration(self.calibration)

@@ -14,10 +14,12 @@ classifies depth into four classes gets exactly that or does not start.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
+import msgspec
 import torch
+from msgspec import Meta
 
 from messages.base import Header
 from messages.errors import NodeError
@@ -33,25 +35,32 @@ DEFAULT_MODEL = str(Path(__file__).resolve().parents[1] / "models" / "tactile_re
 DEFAULT_CLASSES = ("mug", "pet_bottle", "square_bottle", "wine_glass")
 
 
-@dataclass(frozen=True, kw_only=True)
-class ClassifierParams:
-    """Parameters of the classifier node.
+class ClassifierParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Parameters of the classifier node."""
 
-    Attributes:
-        model: checkpoint path (relative to the working directory, the repository root).
-        modality: ``depth``, ``ir`` or ``both``; must be the checkpoint's.
-        classes: class names in label order; must be the checkpoint's.
-        max_skew_secs: largest stamp difference of a left/right pair.
-        min_period_secs: classify at most once per this period (0: every pair).
-        threads: torch threads for inference (the graph shares few cores).
-    """
-
-    model: ExistingFile = DEFAULT_MODEL
-    modality: str = "both"
-    classes: tuple[str, ...] = DEFAULT_CLASSES
-    max_skew_secs: float = 0.05
-    min_period_secs: float = 0.0
-    threads: int = 1
+    model: Annotated[
+        ExistingFile,
+        Meta(
+            description=(
+                "checkpoint path (relative to the working directory, the repository root)."
+            )
+        ),
+    ] = DEFAULT_MODEL
+    modality: Annotated[
+        str, Meta(description="``depth``, ``ir`` or ``both``; must be the checkpoint's.")
+    ] = "both"
+    classes: Annotated[
+        tuple[str, ...], Meta(description="class names in label order; must be the checkpoint's.")
+    ] = DEFAULT_CLASSES
+    max_skew_secs: Annotated[
+        float, Meta(ge=0, description="largest stamp difference of a left/right pair.")
+    ] = 0.05
+    min_period_secs: Annotated[
+        float, Meta(ge=0, description="classify at most once per this period (0: every pair).")
+    ] = 0.0
+    threads: Annotated[
+        int, Meta(ge=1, description="torch threads for inference (the graph shares few cores).")
+    ] = 1
 
     def __post_init__(self) -> None:
         check_modality(self.modality)
@@ -59,12 +68,6 @@ class ClassifierParams:
             raise ValueError("`model` must be a checkpoint path, got ''")
         if len(self.classes) < 2 or len(set(self.classes)) != len(self.classes):
             raise ValueError(f"`classes` must be >= 2 distinct names, got {list(self.classes)}")
-        if not self.max_skew_secs >= 0:
-            raise ValueError(f"`max_skew_secs` must be >= 0, got {self.max_skew_secs}")
-        if not self.min_period_secs >= 0:
-            raise ValueError(f"`min_period_secs` must be >= 0, got {self.min_period_secs}")
-        if self.threads < 1:
-            raise ValueError(f"`threads` must be >= 1, got {self.threads}")
 
 
 @register("classifier.resnet18")

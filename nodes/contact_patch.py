@@ -29,9 +29,11 @@ Until a bubble has a reference it contributes no points. The logic lives in
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field
+from typing import Annotated
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from geometry.camera import PinholeCamera
 from messages.base import Header
@@ -44,39 +46,37 @@ PAIR_HISTORY = 8  # frames of each bubble kept while waiting for the other's
 GRIPPER_HISTORY = 64  # gripper states kept to tell whether a frame was taken open and still
 
 
-@dataclass(frozen=True, kw_only=True)
-class ContactPatchParams:
-    """The contact filter's knobs (``contact``) plus when to take the free-bubble reference.
+class ContactPatchParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """The contact filter's knobs (``contact``) plus when to take the free-bubble reference."""
 
-    Attributes:
-        contact: the filter (``perception.contact.ContactParams``), e.g.
-            ``{contact: {threshold_m: 0.006}}`` in a graph file.
-        reference_min_width_m: the gripper counts as open from this opening on.
-        reference_max_speed_m_per_s: ... and as still below this finger speed.
-        reference_frames: free frames averaged into each bubble's reference.
-        max_skew_secs: the most two frames' stamps may differ to make one patch; 0:
-            half the slower camera's frame period, measured from the stamps.
-    """
-
-    contact: ContactParams = field(default_factory=ContactParams)
-    reference_min_width_m: float = 0.1
-    reference_max_speed_m_per_s: float = 0.001
-    reference_frames: int = 5
-    max_skew_secs: float = 0.0
-
-    def __post_init__(self) -> None:
-        if not (self.reference_min_width_m >= 0.0):
-            raise ValueError(
-                f"reference_min_width_m must be >= 0, got {self.reference_min_width_m}"
+    contact: Annotated[
+        ContactParams,
+        Meta(
+            description=(
+                "the filter (``perception.contact.ContactParams``), e.g. ``{contact: "
+                "{threshold_m: 0.006}}`` in a graph file."
             )
-        if not (self.reference_max_speed_m_per_s >= 0.0):
-            raise ValueError(
-                f"reference_max_speed_m_per_s must be >= 0, got {self.reference_max_speed_m_per_s}"
-            )
-        if self.reference_frames < 1:
-            raise ValueError(f"reference_frames must be >= 1, got {self.reference_frames}")
-        if not (self.max_skew_secs >= 0.0):
-            raise ValueError(f"max_skew_secs must be >= 0, got {self.max_skew_secs}")
+        ),
+    ] = msgspec.field(default_factory=ContactParams)
+    reference_min_width_m: Annotated[
+        float, Meta(ge=0.0, description="the gripper counts as open from this opening on.")
+    ] = 0.1
+    reference_max_speed_m_per_s: Annotated[
+        float, Meta(ge=0.0, description="... and as still below this finger speed.")
+    ] = 0.001
+    reference_frames: Annotated[
+        int, Meta(ge=1, description="free frames averaged into each bubble's reference.")
+    ] = 5
+    max_skew_secs: Annotated[
+        float,
+        Meta(
+            ge=0.0,
+            description=(
+                "the most two frames' stamps may differ to make one patch; 0: half the "
+                "slower camera's frame period, measured from the stamps."
+            ),
+        ),
+    ] = 0.0
 
 
 @register("contact_patch")

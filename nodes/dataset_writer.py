@@ -34,7 +34,10 @@ import bisect
 import json
 from collections import Counter, OrderedDict, deque
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Annotated, Any
+
+import msgspec
+from msgspec import Meta
 
 from messages.base import Header
 from messages.errors import NodeError
@@ -47,39 +50,47 @@ from runtime.registry import register
 TASK = "autolabel"
 
 
-@dataclass(frozen=True, kw_only=True)
-class DatasetWriterParams:
+class DatasetWriterParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """``dataset``: directory; ``classes``: label order; ``resume``: continue a dataset
     that exists (else it is an error); ``max_skew_secs``: largest stamp difference of a
     left/right pair; ``max_history``: most grasp states and ground truths kept while an
     open grasp's frames are awaited (frames that trail by more lose their state);
     ``max_unpaired``: most frames of one camera kept waiting for the other camera's."""
 
-    dataset: str = "out/datasets/autolabel"
-    classes: tuple[str, ...] = DEFAULT_OBJECTS
-    resume: bool = True
-    frame_stride: int = 3
-    max_frames_per_grasp: int = 10
-    max_skew_secs: float = 0.001
-    max_history: int = 100_000
-    max_unpaired: int = 2000
+    dataset: Annotated[str, Meta(description="the dataset directory")] = "out/datasets/autolabel"
+    classes: Annotated[tuple[str, ...], Meta(description="class names in label order")] = (
+        DEFAULT_OBJECTS
+    )
+    resume: Annotated[
+        bool, Meta(description="continue a dataset that exists (else it is an error)")
+    ] = True
+    frame_stride: Annotated[
+        int,
+        Meta(description="of a grasp's stable frames, every n-th left/right pair is kept", ge=1),
+    ] = 3
+    max_frames_per_grasp: Annotated[
+        int,
+        Meta(description="at most this many pairs of one grasp (its frames differ little)", ge=1),
+    ] = 10
+    max_skew_secs: Annotated[
+        float, Meta(description="largest stamp difference of a left/right pair", ge=0)
+    ] = 0.001
+    max_history: Annotated[
+        int,
+        Meta(
+            ge=1,
+            description="most grasp states and ground truths kept while an open grasp's frames are awaited",
+        ),
+    ] = 100_000
+    max_unpaired: Annotated[
+        int, Meta(ge=1, description="most frames of one camera kept waiting for the other's")
+    ] = 2000
 
     def __post_init__(self) -> None:
         if not self.dataset:
             raise ValueError("`dataset` must be a directory path, got ''")
         if len(self.classes) < 2 or len(set(self.classes)) != len(self.classes):
             raise ValueError(f"`classes` must be >= 2 distinct names, got {list(self.classes)}")
-        if self.frame_stride < 1:
-            raise ValueError(f"`frame_stride` must be >= 1, got {self.frame_stride!r}")
-        if self.max_frames_per_grasp < 1:
-            raise ValueError(
-                f"`max_frames_per_grasp` must be >= 1, got {self.max_frames_per_grasp!r}"
-            )
-        for name in ("max_history", "max_unpaired"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)!r}")
-        if not self.max_skew_secs >= 0:
-            raise ValueError(f"`max_skew_secs` must be >= 0, got {self.max_skew_secs!r}")
 
 
 @dataclass

@@ -31,7 +31,10 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from typing import Annotated
+
+import msgspec
+from msgspec import Meta
 
 from devices.wsg50 import (
     DEFAULT_PORT,
@@ -75,28 +78,37 @@ class SimGripper(Node):
             self.io.log.warning("%s: a WSG 50 would refuse this command: %s", self.name, refusal)
 
 
-@dataclass(frozen=True, kw_only=True)
-class WSG50Params:
+class WSG50Params(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Where the gripper is and how patient to be with it (seconds, hertz)."""
 
-    address: str = "192.168.1.20"
-    port: int = DEFAULT_PORT
-    home_on_start: bool = False
-    rate_hz: float = 50.0
-    timeout_secs: float = 1.0
-    connect_timeout_secs: float = 10.0
-    motion_timeout_secs: float = 30.0
+    address: Annotated[str, Meta(description="the gripper's IP address or host name")] = (
+        "192.168.1.20"
+    )
+    port: Annotated[int, Meta(description="its TCP port", ge=1, le=65535)] = DEFAULT_PORT
+    home_on_start: Annotated[
+        bool, Meta(description="home the gripper in setup, and wait for it, before reporting ready")
+    ] = False
+    rate_hz: Annotated[
+        float,
+        Meta(
+            description="the device's auto-update rate of its opening, speed, force and grasping state",
+            ge=1.0,
+            le=500.0,
+        ),
+    ] = 50.0
+    timeout_secs: Annotated[
+        float, Meta(description="how long a command's reply is waited for", gt=0)
+    ] = 1.0
+    connect_timeout_secs: Annotated[
+        float, Meta(description="setup fails if the gripper cannot be reached within this", gt=0)
+    ] = 10.0
+    motion_timeout_secs: Annotated[
+        float, Meta(description="the longest a motion (or homing) may take", gt=0)
+    ] = 30.0
 
     def __post_init__(self) -> None:
         if not self.address:
             raise ValueError("`address` must name the gripper's host, got ''")
-        if not 1 <= self.port <= 65535:
-            raise ValueError(f"`port` must be in 1..65535, got {self.port!r}")
-        if not 1.0 <= self.rate_hz <= 500.0:
-            raise ValueError(f"`rate_hz` must be in 1..500, got {self.rate_hz!r}")
-        for name in ("timeout_secs", "connect_timeout_secs", "motion_timeout_secs"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"`{name}` must be > 0, got {getattr(self, name)!r}")
 
 
 @register("gripper.wsg50")

@@ -38,10 +38,11 @@ for it (about 0.5 s).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import cast
+from typing import Annotated, cast
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from geometry import objects
 from geometry.fields import Field
@@ -58,25 +59,37 @@ from runtime.node import Node
 from runtime.registry import register
 
 
-@dataclass(frozen=True, kw_only=True)
-class PoseParams:
-    """What every pose node takes.
+class PoseParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """What every pose node takes."""
 
-    Attributes:
-        object: the object model (``geometry.objects.NAMES``).
-        body_only: fit only the object's main body (the paper fits the mug's cylinder);
-            otherwise its whole field (mug handle, bottle neck).
-        estimator: the robust wrapper's knobs (``perception.pose.EstimatorParams``:
-            ``max_points``, ``noise_m``, ``accept_ratio``, ``screen_points``, ...).
-        seed_tool_from_object: optional first seed, 16 numbers (row-major 4x4, rigid).
-        poll_secs: period of the timer that solves the newest patch.
-    """
-
-    object: str = "mug"
-    body_only: bool = True
-    estimator: EstimatorParams = field(default_factory=EstimatorParams)
-    seed_tool_from_object: list[float] = field(default_factory=list)
-    poll_secs: float = 0.001
+    object: Annotated[str, Meta(description="the object model (``geometry.objects.NAMES``).")] = (
+        "mug"
+    )
+    body_only: Annotated[
+        bool,
+        Meta(
+            description=(
+                "fit only the object's main body (the paper fits the mug's cylinder); "
+                "otherwise its whole field (mug handle, bottle neck)."
+            )
+        ),
+    ] = True
+    estimator: Annotated[
+        EstimatorParams,
+        Meta(
+            description=(
+                "the robust wrapper's knobs (``perception.pose.EstimatorParams``: "
+                "``max_points``, ``noise_m``, ``accept_ratio``, ``screen_points``, "
+                "...)."
+            )
+        ),
+    ] = msgspec.field(default_factory=EstimatorParams)
+    seed_tool_from_object: Annotated[
+        list[float], Meta(description="optional first seed, 16 numbers (row-major 4x4, rigid).")
+    ] = msgspec.field(default_factory=list)
+    poll_secs: Annotated[
+        float, Meta(gt=0.0, description="period of the timer that solves the newest patch.")
+    ] = 0.001
 
     def __post_init__(self) -> None:
         if self.object not in objects.NAMES:
@@ -91,30 +104,25 @@ class PoseParams:
                 np.asarray(self.seed_tool_from_object, dtype=np.float64).reshape(4, 4),
                 "seed_tool_from_object",
             )
-        if not (self.poll_secs > 0.0):
-            raise ValueError(f"poll_secs must be > 0, got {self.poll_secs}")
 
 
-@dataclass(frozen=True, kw_only=True)
-class IpoptPoseParams(PoseParams):
+class IpoptPoseParams(PoseParams, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Plus IPOPT's knobs, ``ipopt`` (``perception.pose.ipopt.IpoptParams``: ``tol``,
     ``max_iterations``, ``hessian``, ``jit``, ``fit_dims``, ...)."""
 
-    ipopt: IpoptParams = field(default_factory=IpoptParams)
+    ipopt: IpoptParams = msgspec.field(default_factory=IpoptParams)
 
 
-@dataclass(frozen=True, kw_only=True)
-class LMPoseParams(PoseParams):
+class LMPoseParams(PoseParams, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Plus the LM solver's knobs, ``lm`` (``perception.pose.lm.LMParams``)."""
 
-    lm: LMParams = field(default_factory=LMParams)
+    lm: LMParams = msgspec.field(default_factory=LMParams)
 
 
-@dataclass(frozen=True, kw_only=True)
-class IcpPoseParams(PoseParams):
+class IcpPoseParams(PoseParams, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Plus ICP's knobs, ``icp`` (``perception.pose.icp.IcpParams``)."""
 
-    icp: IcpParams = field(default_factory=IcpParams)
+    icp: IcpParams = msgspec.field(default_factory=IcpParams)
 
 
 def fit_field(name: str, body_only: bool) -> tuple[objects.ObjectModel, Field]:

@@ -25,7 +25,10 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from typing import Annotated, Literal
+
+import msgspec
+from msgspec import Meta
 
 from devices import mcp2221
 from devices.abp import ADDRESS, COUNTS_MAX, COUNTS_MIN, PSI_PA, AbpSensor, AbpStatus, Reading
@@ -64,8 +67,7 @@ class SimPressure(Node):
         self.io.publish("pressure", pressure(snap, self.params.sensor, msg.header.stamp_nanos))
 
 
-@dataclass(frozen=True, kw_only=True)
-class UsbPressureParams:
+class UsbPressureParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """One bubble's ABP sensor behind an MCP2221A bridge (pascals, hertz, seconds).
 
     ``serial``: the bridge's USB serial number ("" when only one bridge is plugged in);
@@ -73,35 +75,40 @@ class UsbPressureParams:
     range (a 0..1 psi gauge part by default).
     """
 
-    sensor: str
-    serial: str = ""
-    address: int = ADDRESS
-    pmin_pa: float = 0.0
-    pmax_pa: float = PSI_PA
-    rate_hz: float = 100.0
-    i2c_speed_hz: int = 100_000
-    retry_secs: float = 0.5
-    calibration: str = ""
+    sensor: Annotated[Literal["left", "right"], Meta(description="which bubble: left or right")]
+    serial: Annotated[
+        str,
+        Meta(description="the bridge's USB serial number ('' when only one bridge is plugged in)"),
+    ] = ""
+    address: Annotated[int, Meta(description="the sensor's 7-bit I2C address", gt=0, lt=128)] = (
+        ADDRESS
+    )
+    pmin_pa: Annotated[float, Meta(description="the low end of the sensor's range")] = 0.0
+    pmax_pa: Annotated[
+        float,
+        Meta(description="the high end of the sensor's range (a 0..1 psi gauge part by default)"),
+    ] = PSI_PA
+    rate_hz: Annotated[float, Meta(description="readings per second", gt=0, le=1000)] = 100.0
+    i2c_speed_hz: Annotated[
+        int, Meta(description="the bridge's I2C clock", ge=47000, le=400000)
+    ] = 100_000
+    retry_secs: Annotated[
+        float, Meta(description="while the bridge is gone, look for it this often", gt=0)
+    ] = 0.5
+    calibration: Annotated[
+        str, Meta(description="the rig's calibration file, with the sensor's zero ('' for none)")
+    ] = ""
 
     def __post_init__(self) -> None:
-        SensorParams(sensor=self.sensor)
         if self.calibration:
             try:
                 load_calibration(self.calibration)
             except CalibrationError as err:
                 raise ValueError(f"`calibration`: {err}") from err
-        if not 0 < self.address < 0x80:
-            raise ValueError(f"`address` must be a 7-bit I2C address, got {self.address!r}")
         if not self.pmax_pa > self.pmin_pa:
             raise ValueError(
                 f"`pmax_pa` must be > pmin_pa ({self.pmin_pa!r}), got {self.pmax_pa!r}"
             )
-        if not 0 < self.rate_hz <= 1000:
-            raise ValueError(f"`rate_hz` must be in (0, 1000], got {self.rate_hz!r}")
-        if not 47_000 <= self.i2c_speed_hz <= 400_000:
-            raise ValueError(f"`i2c_speed_hz` must be in 47000..400000, got {self.i2c_speed_hz!r}")
-        if not self.retry_secs > 0:
-            raise ValueError(f"`retry_secs` must be > 0, got {self.retry_secs!r}")
 
 
 @register("pressure.usb")

@@ -19,9 +19,11 @@ file and how much the bag keeps: everything written before the last flush.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
+
+import msgspec
+from msgspec import Meta
 
 from messages.errors import BagError, NodeError
 from runtime.bag import MAGIC, BagWriter
@@ -29,8 +31,7 @@ from runtime.node import Node
 from runtime.registry import register
 
 
-@dataclass(frozen=True, kw_only=True)
-class RecorderParams:
+class RecorderParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Where and how to record.
 
     ``graph_yaml`` and ``command_line`` are stored in the bag so it can be replayed through
@@ -38,14 +39,22 @@ class RecorderParams:
     finished bag at ``path``.
     """
 
-    path: str
-    graph_yaml: str = ""
-    graph_source: str = ""
-    command_line: str = ""
-    flush_period_secs: float = 0.5
-    compression: str = "none"
-    chunk_size_bytes: int = 4 << 20
-    overwrite: bool = False
+    path: Annotated[str, Meta(description="the bag file (MCAP) to write")]
+    graph_yaml: Annotated[
+        str, Meta(description="the graph stored in the bag (the launcher fills it in)")
+    ] = ""
+    graph_source: Annotated[str, Meta(description="the graph file's path, stored in the bag")] = ""
+    command_line: Annotated[
+        str, Meta(description="the launcher's command line, stored in the bag")
+    ] = ""
+    flush_period_secs: Annotated[
+        float, Meta(description="how often written messages are flushed to the file", gt=0)
+    ] = 0.5
+    compression: Annotated[Literal["none", "lz4", "zstd"], Meta(description="of each chunk")] = (
+        "none"
+    )
+    chunk_size_bytes: Annotated[int, Meta(description="MCAP chunk size", gt=0)] = 4 << 20
+    overwrite: Annotated[bool, Meta(description="allow replacing a finished bag at path")] = False
 
     def __post_init__(self) -> None:
         if not self.path:
@@ -58,14 +67,6 @@ class RecorderParams:
                 f"path {self.path!r} is a finished bag; pass --overwrite (overwrite: true) "
                 "to replace it, or record to another path"
             )
-        if self.flush_period_secs <= 0:
-            raise ValueError(f"flush_period_secs must be > 0, got {self.flush_period_secs}")
-        if self.compression not in ("none", "lz4", "zstd"):
-            raise ValueError(
-                f"compression must be 'none', 'lz4' or 'zstd', got {self.compression!r}"
-            )
-        if self.chunk_size_bytes <= 0:
-            raise ValueError(f"chunk_size_bytes must be > 0, got {self.chunk_size_bytes}")
 
 
 def _interrupted(path: Path) -> bool:

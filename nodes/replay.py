@@ -41,8 +41,9 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any
+
+from msgspec import Meta
 
 from messages.base import Message
 from messages.codec import decode, encode
@@ -55,26 +56,20 @@ from runtime.replaygraph import ReplayOptions
 _LOGGED_SKIPS = 5  # undecodable messages logged one by one; the rest are counted
 
 
-@dataclass(frozen=True, kw_only=True)
-class ReplayParams(ReplayOptions):
+class ReplayParams(ReplayOptions, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """What to replay and how fast (see the module docstring)."""
 
     path: str
-    idle_timeout_secs: float = 60.0
-    tick_secs: float = 0.001
-    batch_secs: float = 0.02
+    idle_timeout_secs: Annotated[float, Meta(gt=0)] = 60.0
+    tick_secs: Annotated[float, Meta(gt=0)] = 0.001
+    batch_secs: Annotated[float, Meta(gt=0)] = 0.02
     stop_when_done: bool = True
-    window: int = 256
+    window: Annotated[int, Meta(ge=0)] = 256
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if not self.path:
             raise ValueError("path must name the bag file, got ''")
-        if self.window < 0:
-            raise ValueError(f"window must be >= 0 (0: unbounded), got {self.window}")
-        for name in ("idle_timeout_secs", "tick_secs", "batch_secs"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         topic_filter(self.topics)  # raises ValueError on a bad regex
 
 

@@ -17,9 +17,10 @@ when references are taken, is :class:`perception.shear.GraspShear` (no sockets).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Annotated, Literal
 
 import numpy as np
+from msgspec import Meta
 
 from geometry.camera import PinholeCamera
 from messages.base import Header
@@ -39,63 +40,44 @@ from runtime.registry import register
 SENSORS = ("left", "right")
 
 
-@dataclass(frozen=True, kw_only=True)
-class ShearTrackerParams(ShearParams):
-    """The flow and mask parameters, plus the frame of ``shear_m`` and the overlay's.
+class ShearTrackerParams(ShearParams, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """The flow and mask parameters, plus the frame of ``shear_m`` and the overlay's."""
 
-    Attributes:
-        shear_frame: ``"tool"``: ``shear_m`` is along the tool's y and z axes (the plane
-            orthogonal to the grip force, as the ground truth) and the torsion is about
-            tool x, for both bubbles, using the camera mount each frame carries
-            (``ToFImage.tool_from_sensor``); ``"membrane"``: along the plane fitted to
-            the reference membrane (see
-            ``perception.shear``).
-        overlay_every_n: publish an overlay every n-th frame per bubble (0: never).
-        overlay_step_px: spacing of the flow arrows drawn on the overlay.
-        overlay_arrow_gain: length of the mean-shear arrow per pixel of shear.
-    """
-
-    shear_frame: str = "tool"
-    overlay_every_n: int = 1
-    overlay_step_px: int = 12
-    overlay_arrow_gain: float = 10.0
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.shear_frame not in ("tool", "membrane"):
-            raise ValueError(
-                f"`shear_frame` must be 'tool' or 'membrane', got {self.shear_frame!r}"
+    shear_frame: Annotated[
+        Literal["tool", "membrane"],
+        Meta(
+            description=(
+                '``"tool"``: ``shear_m`` is along the tool\'s y and z axes (the plane '
+                "orthogonal to the grip force, as the ground truth) and the torsion is "
+                "about tool x, for both bubbles, using the camera mount each frame "
+                'carries (``ToFImage.tool_from_sensor``); ``"membrane"``: along the '
+                "plane fitted to the reference membrane (see ``perception.shear``)."
             )
-        if self.overlay_every_n < 0:
-            raise ValueError(f"`overlay_every_n` must be >= 0, got {self.overlay_every_n!r}")
-        if self.overlay_step_px < 2:
-            raise ValueError(f"`overlay_step_px` must be >= 2, got {self.overlay_step_px!r}")
-        if not self.overlay_arrow_gain > 0:
-            raise ValueError(f"`overlay_arrow_gain` must be > 0, got {self.overlay_arrow_gain!r}")
+        ),
+    ] = "tool"
+    overlay_every_n: Annotated[
+        int, Meta(ge=0, description="publish an overlay every n-th frame per bubble (0: never).")
+    ] = 1
+    overlay_step_px: Annotated[
+        int, Meta(ge=2, description="spacing of the flow arrows drawn on the overlay.")
+    ] = 12
+    overlay_arrow_gain: Annotated[
+        float, Meta(gt=0, description="length of the mean-shear arrow per pixel of shear.")
+    ] = 10.0
 
 
-@dataclass(frozen=True, kw_only=True)
-class FarnebackTrackerParams(ShearTrackerParams):
+class FarnebackTrackerParams(
+    ShearTrackerParams, frozen=True, kw_only=True, forbid_unknown_fields=True
+):
     """Parameters of ``shear_tracker.farneback`` (``method`` must stay ``"farneback"``)."""
 
-    method: str = "farneback"
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.method != "farneback":
-            raise ValueError(f"`method` must be 'farneback' for this node, got {self.method!r}")
+    method: Literal["farneback"] = "farneback"
 
 
-@dataclass(frozen=True, kw_only=True)
-class DisTrackerParams(ShearTrackerParams):
+class DisTrackerParams(ShearTrackerParams, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Parameters of ``shear_tracker.dis`` (``method`` must stay ``"dis"``)."""
 
-    method: str = "dis"
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.method != "dis":
-            raise ValueError(f"`method` must be 'dis' for this node, got {self.method!r}")
+    method: Literal["dis"] = "dis"
 
 
 class _ShearTrackerNode(Node):

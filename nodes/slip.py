@@ -17,7 +17,7 @@ Times are the messages' stamps, so a replayed bag gives the same onsets.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import msgspec
 
 from geometry.gripper import SIDES
 from messages.base import Header
@@ -32,11 +32,10 @@ from runtime.params import ExistingFile
 from runtime.registry import register
 
 
-@dataclass(frozen=True, kw_only=True)
-class SlipNodeParams:
+class SlipNodeParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """The detector's thresholds and the rig's calibration file (its friction)."""
 
-    detector: SlipParams = field(default_factory=SlipParams)
+    detector: SlipParams = msgspec.field(default_factory=SlipParams)
     calibration: ExistingFile = "models/force/sim.json"
 
 

@@ -17,9 +17,11 @@ Foxglove's live WebSocket server (``ws://HOST:PORT``; open it in the Foxglove ap
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
+
+import msgspec
+from msgspec import Meta
 
 from messages.codec import decode
 from messages.errors import FrameDecodeError
@@ -29,13 +31,19 @@ from runtime.registry import register
 TEARDOWN_FLUSH_SECS = 5.0  # a closed viewer window must not hold the graph's stop
 
 
-@dataclass(frozen=True, kw_only=True)
-class RerunViewerParams:
+class RerunViewerParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """``target``: ``spawn`` or a path ending in ``.rrd``; ``object``: the object drawn under
     the estimated pose until ground truth names one ("" for none)."""
 
-    target: str = "spawn"
-    object: str = ""
+    target: Annotated[str, Meta(description="spawn (a Rerun viewer) or a path ending in .rrd")] = (
+        "spawn"
+    )
+    object: Annotated[
+        str,
+        Meta(
+            description="the object drawn under the estimated pose until ground truth names one ('' for none)"
+        ),
+    ] = ""
 
     def __post_init__(self) -> None:
         if self.target != "spawn" and not self.target.endswith(".rrd"):
@@ -44,16 +52,13 @@ class RerunViewerParams:
             )
 
 
-@dataclass(frozen=True, kw_only=True)
-class FoxgloveViewerParams:
+class FoxgloveViewerParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Where Foxglove's WebSocket server listens."""
 
-    host: str = "127.0.0.1"
-    port: int = 8765
-
-    def __post_init__(self) -> None:
-        if not 0 <= self.port <= 65535:
-            raise ValueError(f"`port` must be in [0, 65535], got {self.port}")
+    host: Annotated[str, Meta(description="the address Foxglove's WebSocket server listens on")] = (
+        "127.0.0.1"
+    )
+    port: Annotated[int, Meta(description="its port", ge=0, le=65535)] = 8765
 
 
 class _DecodingViewer(Node):

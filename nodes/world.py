@@ -43,10 +43,11 @@ from __future__ import annotations
 import dataclasses
 import os
 import threading
-from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any
 
+import msgspec
 import zmq
+from msgspec import Meta
 
 from messages.base import Header
 from messages.codec import encode
@@ -64,25 +65,38 @@ from sim.wire import apply_command, to_message
 from sim.wsg50_server import WSG50Server, step_in_real_time
 
 
-@dataclass(frozen=True, kw_only=True)
-class WorldParams:
+class WorldParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """``scene``: a scene file; ``effects``/``seed`` override the scene's when given;
     ``rate_scale`` > 1 runs the scene faster than real time; ``wsg50_port`` >= 0 serves
     the jaws over the WSG 50 protocol on ``wsg50_host`` (0: a free port, logged)."""
 
-    scene: ExistingFile
-    effects: tuple[str, ...] = ()
-    seed: int = -1
-    rate_scale: float = 1.0
-    wsg50_port: int = -1
-    wsg50_host: str = "127.0.0.1"
-    rig_feed: str = ""
+    scene: Annotated[ExistingFile, Meta(description="a scene file (scenes/)")]
+    effects: Annotated[
+        tuple[str, ...], Meta(description="the scene's effects, replaced when given (sim.effects)")
+    ] = ()
+    seed: Annotated[int, Meta(description="the scene's seed, replaced when >= 0")] = -1
+    rate_scale: Annotated[
+        float, Meta(description="above 1, the scene runs faster than real time", gt=0)
+    ] = 1.0
+    wsg50_port: Annotated[
+        int,
+        Meta(
+            description=">= 0: serve the jaws over the WSG 50 protocol on this port (0: a free one, logged); -1: not",
+            ge=-1,
+            le=65535,
+        ),
+    ] = -1
+    wsg50_host: Annotated[str, Meta(description="where the WSG 50 protocol is served")] = (
+        "127.0.0.1"
+    )
+    rig_feed: Annotated[
+        str,
+        Meta(
+            description="a ZeroMQ endpoint the world also publishes each state on, for an emulated rig's devices ('' for none)"
+        ),
+    ] = ""
 
     def __post_init__(self) -> None:
-        if not self.rate_scale > 0:
-            raise ValueError(f"`rate_scale` must be > 0, got {self.rate_scale!r}")
-        if not -1 <= self.wsg50_port <= 65535:
-            raise ValueError(f"`wsg50_port` must be -1 (off) or 0..65535, got {self.wsg50_port!r}")
         if self.effects:
             try:
                 resolve(self.effects)
@@ -272,22 +286,17 @@ class WorldNode(Node):
         )
 
 
-@dataclass(frozen=True, kw_only=True)
-class MujocoWorldParams(WorldParams):
+class MujocoWorldParams(WorldParams, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """``world.sim``'s parameters plus ``mesh_spacing_m``: the membrane mesh's edge length
     (8 mm: 169 vertices a bubble, about 7 CPU s per simulated second; 3 mm: 1,100)."""
 
-    mesh_spacing_m: float = 0.008
+    mesh_spacing_m: Annotated[float, Meta(ge=0.003, le=0.02)] = 0.008
 
     def __post_init__(self) -> None:
         super().__post_init__()
         from sim.mujoco.model import ShellSpec
 
         ShellSpec(mesh_spacing_m=self.mesh_spacing_m)
-        if not 0.003 <= self.mesh_spacing_m <= 0.02:
-            raise ValueError(
-                f"`mesh_spacing_m` must be in [0.003, 0.02], got {self.mesh_spacing_m!r}"
-            )
         if self.load().support is not None:
             raise ValueError(f"`scene`: {self.scene}: world.mujoco has no support surface")
 

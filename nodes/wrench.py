@@ -26,10 +26,11 @@ file (``python -m bench.force_data`` writes the simulated rig's; docs/force.md).
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field
-from typing import Literal
+from typing import Annotated, Literal
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from geometry.camera import PinholeCamera
 from geometry.gripper import SIDES
@@ -49,44 +50,43 @@ PAIR_HISTORY = 8  # results of one bubble kept while waiting for the other's
 SINGLE_AFTER_FRAMES = 3  # frames of one bubble with none of the other: a one-bubble graph
 
 
-@dataclass(frozen=True, kw_only=True)
-class WrenchParams:
-    """The estimator, its calibration file, the features' knobs, and frame timing.
+class WrenchParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """The estimator, its calibration file, the features' knobs, and frame timing."""
 
-    Attributes:
-        method: ``physics`` (pressure x area, a shear stiffness) or ``ridge``.
-        calibration: the rig's calibration file (JSON, ``perception.force.estimators``).
-        features: the contact filter and dot-flow knobs.
-        reference_min_width_m: the gripper counts as open from this opening on ...
-        reference_max_speed_m_per_s: ... and as still below this finger speed.
-        max_skew_secs: the most two bubbles' frames may differ to make one estimate.
-        max_wait_secs: with no estimate for longer than this (data time), a frame is
-            paired with the other bubble's newest result (its partner was dropped) ...
-        max_stale_secs: ... when that result is at most this much older.
-    """
-
-    method: Literal["physics", "ridge"] = "physics"
-    calibration: ExistingFile = DEFAULT_CALIBRATION
-    features: FeatureParams = field(default_factory=FeatureParams)
-    reference_min_width_m: float = 0.1
-    reference_max_speed_m_per_s: float = 0.001
-    max_skew_secs: float = 0.011
-    max_wait_secs: float = 0.05
-    max_stale_secs: float = 0.1
-
-    def __post_init__(self) -> None:
-        if not self.reference_min_width_m >= 0:
-            raise ValueError(
-                f"`reference_min_width_m` must be >= 0, got {self.reference_min_width_m!r}"
-            )
-        if not self.reference_max_speed_m_per_s >= 0:
-            raise ValueError(
-                "`reference_max_speed_m_per_s` must be >= 0, got "
-                f"{self.reference_max_speed_m_per_s!r}"
-            )
-        for name in ("max_skew_secs", "max_wait_secs", "max_stale_secs"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"`{name}` must be >= 0, got {getattr(self, name)!r}")
+    method: Annotated[
+        Literal["physics", "ridge"],
+        Meta(description="``physics`` (pressure x area, a shear stiffness) or ``ridge``."),
+    ] = "physics"
+    calibration: Annotated[
+        ExistingFile,
+        Meta(description="the rig's calibration file (JSON, ``perception.force.estimators``)."),
+    ] = DEFAULT_CALIBRATION
+    features: Annotated[
+        FeatureParams, Meta(description="the contact filter and dot-flow knobs.")
+    ] = msgspec.field(default_factory=FeatureParams)
+    reference_min_width_m: Annotated[
+        float, Meta(ge=0, description="the gripper counts as open from this opening on ...")
+    ] = 0.1
+    reference_max_speed_m_per_s: Annotated[
+        float, Meta(ge=0, description="... and as still below this finger speed.")
+    ] = 0.001
+    max_skew_secs: Annotated[
+        float,
+        Meta(ge=0, description="the most two bubbles' frames may differ to make one estimate."),
+    ] = 0.011
+    max_wait_secs: Annotated[
+        float,
+        Meta(
+            ge=0,
+            description=(
+                "with no estimate for longer than this (data time), a frame is paired "
+                "with the other bubble's newest result (its partner was dropped) ..."
+            ),
+        ),
+    ] = 0.05
+    max_stale_secs: Annotated[
+        float, Meta(ge=0, description="... when that result is at most this much older.")
+    ] = 0.1
 
 
 @register("wrench")

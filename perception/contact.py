@@ -21,10 +21,12 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
-from typing import Generic, TypeVar
+from typing import Annotated, Generic, TypeVar
 
 import cv2
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from geometry.camera import PinholeCamera
 from geometry.gripper import SIDES
@@ -32,31 +34,27 @@ from geometry.gripper import SIDES
 T = TypeVar("T")
 
 
-@dataclass(frozen=True, kw_only=True)
-class ContactParams:
-    """Contact filter knobs.
+class ContactParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Contact filter knobs."""
 
-    Attributes:
-        threshold_m: depth decrease that counts as contact (docs/facts.md: 4.8-8.5 mm).
-        min_component_px: connected components smaller than this are dropped.
-        opening_px: side of the square opening kernel (0 or 1: no opening).
-        max_points: the grasp cloud is subsampled (evenly) to at most this many points.
-    """
-
-    threshold_m: float = 0.005
-    min_component_px: int = 150
-    opening_px: int = 3
-    max_points: int = 30000
-
-    def __post_init__(self) -> None:
-        if not (np.isfinite(self.threshold_m) and self.threshold_m > 0.0):
-            raise ValueError(f"threshold_m must be > 0, got {self.threshold_m}")
-        if self.min_component_px < 0:
-            raise ValueError(f"min_component_px must be >= 0, got {self.min_component_px}")
-        if self.opening_px < 0:
-            raise ValueError(f"opening_px must be >= 0, got {self.opening_px}")
-        if self.max_points < 1:
-            raise ValueError(f"max_points must be >= 1, got {self.max_points}")
+    threshold_m: Annotated[
+        float,
+        Meta(
+            gt=0.0, description="depth decrease that counts as contact (docs/facts.md: 4.8-8.5 mm)."
+        ),
+    ] = 0.005
+    min_component_px: Annotated[
+        int, Meta(ge=0, description="connected components smaller than this are dropped.")
+    ] = 150
+    opening_px: Annotated[
+        int, Meta(ge=0, description="side of the square opening kernel (0 or 1: no opening).")
+    ] = 3
+    max_points: Annotated[
+        int,
+        Meta(
+            ge=1, description="the grasp cloud is subsampled (evenly) to at most this many points."
+        ),
+    ] = 30000
 
 
 def contact_mask(depth_m: np.ndarray, reference_m: np.ndarray, params: ContactParams) -> np.ndarray:

@@ -26,7 +26,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Annotated, Literal
+
+import msgspec
+from msgspec import Meta
 
 # What happened to the grasp at a sample (``GraspState.event`` on the wire).
 GraspEvent = Literal["", "stable", "released"]
@@ -34,64 +37,54 @@ GraspEvent = Literal["", "stable", "released"]
 SENSORS = ("left", "right")
 
 
-@dataclass(frozen=True, kw_only=True)
-class GraspParams:
+class GraspParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Thresholds of the stable-grasp detector.
 
     The paper gives no values. Defaults assume the simulated bubble (about 1 kPa of
     inflation, docs/facts.md), where a firm grasp raises the pressure by a few percent.
-
-    Attributes:
-        contact_rise_pa: rise over the free baseline that starts contact.
-        release_rise_pa: rise under which contact ends (< ``contact_rise_pa``).
-        still_speed_m_per_s: finger speed under which the fingers count as still.
-        release_opening_m: opening beyond the tightest stable width that ends the grasp.
-        dwell_secs: how long contact and stillness must last before the grasp is stable.
-        filter_secs: time constant of the pressure low-pass filter (0: none).
-        baseline_secs: time constant of the free-baseline tracker.
-        baseline_pa: a fixed free baseline for both bubbles instead of tracking one
-            (None: track; the first sample starts the baseline).
     """
 
-    contact_rise_pa: float = 30.0
-    release_rise_pa: float = 15.0
-    still_speed_m_per_s: float = 0.002
-    release_opening_m: float = 0.002
-    dwell_secs: float = 0.3
-    filter_secs: float = 0.05
-    baseline_secs: float = 2.0
-    baseline_pa: float | None = None
+    contact_rise_pa: Annotated[
+        float, Meta(gt=0, description="rise over the free baseline that starts contact.")
+    ] = 30.0
+    release_rise_pa: Annotated[
+        float, Meta(ge=0, description="rise under which contact ends (< ``contact_rise_pa``).")
+    ] = 15.0
+    still_speed_m_per_s: Annotated[
+        float, Meta(gt=0, description="finger speed under which the fingers count as still.")
+    ] = 0.002
+    release_opening_m: Annotated[
+        float,
+        Meta(gt=0, description="opening beyond the tightest stable width that ends the grasp."),
+    ] = 0.002
+    dwell_secs: Annotated[
+        float,
+        Meta(
+            ge=0, description="how long contact and stillness must last before the grasp is stable."
+        ),
+    ] = 0.3
+    filter_secs: Annotated[
+        float, Meta(ge=0, description="time constant of the pressure low-pass filter (0: none).")
+    ] = 0.05
+    baseline_secs: Annotated[
+        float, Meta(gt=0, description="time constant of the free-baseline tracker.")
+    ] = 2.0
+    baseline_pa: Annotated[
+        float | None,
+        Meta(
+            description=(
+                "a fixed free baseline for both bubbles instead of tracking one (None: "
+                "track; the first sample starts the baseline)."
+            )
+        ),
+    ] = None
 
     def __post_init__(self) -> None:
-        def check(ok: bool, name: str, what: str) -> None:
-            if not ok:
-                raise ValueError(f"`{name}` must be {what}, got {getattr(self, name)!r}")
-
-        check(
-            math.isfinite(self.contact_rise_pa) and self.contact_rise_pa > 0,
-            "contact_rise_pa",
-            "> 0",
-        )
-        check(
-            math.isfinite(self.release_rise_pa)
-            and 0 <= self.release_rise_pa < self.contact_rise_pa,
-            "release_rise_pa",
-            f">= 0 and < contact_rise_pa ({self.contact_rise_pa})",
-        )
-        check(self.still_speed_m_per_s > 0, "still_speed_m_per_s", "> 0")
-        check(
-            math.isfinite(self.release_opening_m) and self.release_opening_m > 0,
-            "release_opening_m",
-            "> 0",
-        )
-        check(math.isfinite(self.dwell_secs) and self.dwell_secs >= 0, "dwell_secs", ">= 0")
-        check(math.isfinite(self.filter_secs) and self.filter_secs >= 0, "filter_secs", ">= 0")
-        check(math.isfinite(self.baseline_secs) and self.baseline_secs > 0, "baseline_secs", "> 0")
-        check(
-            self.baseline_pa is None or math.isfinite(self.baseline_pa),
-            "baseline_pa",
-            "None or finite",
-        )
+        if not self.release_rise_pa < self.contact_rise_pa:
+            raise ValueError(
+                f"`release_rise_pa` must be < contact_rise_pa ({self.contact_rise_pa}), "
+                f"got {self.release_rise_pa!r}"
+            )
 
 
 @dataclass(frozen=True)

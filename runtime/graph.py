@@ -36,9 +36,11 @@ from collections import defaultdict
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal, get_args
 
+import msgspec
 import zmq
+from msgspec import Meta
 
 from messages.base import Message
 from messages.errors import GraphError
@@ -53,12 +55,13 @@ __all__ = ["Graph", "InputSpec", "NodeSpec", "RestartSpec", "check", "load"]
 __all__ += ["apply_overrides", "load_document", "parse_yaml"]  # the file side, for callers
 
 POLICIES = ("queue", "latest")
-RESTART_POLICIES = ("never", "on-failure")
+RestartPolicy = Literal["never", "on-failure"]
+RESTART_POLICIES: tuple[str, ...] = get_args(RestartPolicy)
 NODE_KEYS = {"impl", "params", "inputs", "restart", "required", "host", "hang_timeout_secs"}
 TOP_KEYS = {"nodes", "name", "description", *HOSTS_TOP_KEYS}
 MAX_QUEUE_SIZE = 2**31 - 1  # ZeroMQ's high-water mark is a C int
 MAX_RESTARTS = 1000
-_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_\-]*")
+NODE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_\-]*")
 # The launcher's run directory: tempfile.mkdtemp(prefix=f"{RUNDIR_PREFIX}{pid}-").
 RUNDIR_PREFIX = "sbg-"
 
@@ -84,24 +87,19 @@ class InputSpec:
     queue_size: int = 1000
 
 
-@dataclass(frozen=True, kw_only=True)
-class RestartSpec:
+class RestartSpec(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """What the supervisor does when a node dies or stops answering."""
 
-    policy: str = "never"
-    max_restarts: int = 5
-    backoff_secs: float = 0.5
-    backoff_max_secs: float = 8.0
+    policy: Annotated[RestartPolicy, Meta(description="restart a node that fails, or not")] = (
+        "never"
+    )
+    max_restarts: Annotated[int, Meta(ge=0, le=MAX_RESTARTS)] = 5
+    backoff_secs: Annotated[float, Meta(ge=0, description="wait before the first restart")] = 0.5
+    backoff_max_secs: Annotated[
+        float, Meta(ge=0, description="the wait doubles up to this (>= backoff_secs)")
+    ] = 8.0
 
     def __post_init__(self) -> None:
-        if self.policy not in RESTART_POLICIES:
-            raise ValueError(f"`policy` must be one of {RESTART_POLICIES}, got {self.policy!r}")
-        if not 0 <= self.max_restarts <= MAX_RESTARTS:
-            raise ValueError(
-                f"`max_restarts` must be in [0, {MAX_RESTARTS}], got {self.max_restarts!r}"
-            )
-        if not self.backoff_secs >= 0:
-            raise ValueError(f"`backoff_secs` must be >= 0, got {self.backoff_secs!r}")
         if not self.backoff_max_secs >= self.backoff_secs:
             raise ValueError(
                 f"`backoff_max_secs` must be >= backoff_secs ({self.backoff_secs}), "
@@ -348,7 +346,7 @@ def _host(host: Any, where: str, errors: list[str], table: Hosts) -> str | None:
 
 
 def _check_name(name: Any, where: str, errors: list[str]) -> bool:
-    if not isinstance(name, str) or not _NAME.fullmatch(name):
+    if not isinstance(name, str) or not NODE_NAME.fullmatch(name):
         errors.append(
             f"{where}: a node name must be a letter or '_' then letters, digits, '_' or '-'"
         )

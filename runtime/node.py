@@ -8,7 +8,7 @@ A node class declares::
 
     @register("shear_tracker.farneback")
     class FarnebackShearTracker(Node):
-        Params = ShearParams                 # frozen, kw-only dataclass; checks itself
+        Params = ShearParams                 # a declared msgspec Struct (runtime.params)
         inputs = {"image": ToFImage, "grasp": GraspState}
         outputs = {"shear": ShearEstimate}
         optional_inputs = frozenset({"grasp"})   # others are required in a graph
@@ -25,15 +25,15 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
+
+import msgspec
 
 from messages.base import Message
 from messages.errors import NodeError
 
 
-@dataclass(frozen=True, kw_only=True)
-class NoParams:
+class NoParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Parameters of a node that takes none."""
 
 

@@ -1,16 +1,16 @@
-"""Typed node parameters from plain mappings (YAML, ``--set``), with one error style.
+"""Node parameters: declared once, checked and described from the declaration.
 
-Parameter classes are frozen, keyword-only dataclasses that check their own values in
-``__post_init__`` and raise ``ValueError`` naming the field: "`rate_hz` must be > 0,
-got -3". This module adds the checks every class shares (unknown keys at any depth,
-wrong types, NaN or infinite numbers, paths that must name a readable file) and turns
-every failure, msgspec's included, into one :class:`ParamError` that names the field
-(a dotted path for nested parameters), what is allowed, and the value given.
-
-A field declares that it is a path to an existing, readable file with
-:data:`ExistingFile` (``model: ExistingFile = "models/net.pt"``); it is checked when
-the parameters are built, so ``launch.py GRAPH --check`` catches a missing file before
-any node starts.
+A parameter class is a frozen, keyword-only ``msgspec.Struct`` that refuses unknown
+fields; each field declares its type, limits and help with ``Annotated`` and
+``msgspec.Meta`` (``rate_hz: Annotated[float, Meta(gt=0, description="...")] = 20.0``),
+its choices with ``Literal``, and its unit by its name's suffix (``messages.meaning``).
+msgspec checks a mapping (YAML, ``--set``) against it; this module turns msgspec's error
+into one :class:`ParamError` naming the dotted field, the declared limit and the value,
+describes every parameter for ``launch.py nodes IMPL``, and adds what a declaration cannot
+say: numbers must be finite, times and rates must be ones a run can keep, and a field
+declared :data:`ExistingFile` must name a readable file (checked when the parameters are
+built, so ``launch.py GRAPH --check`` catches a missing file before any node starts).
+Checks across fields stay in the class's ``__post_init__``.
 """
 
 from __future__ import annotations
@@ -19,24 +19,17 @@ import dataclasses
 import math
 import os
 import re
-import types
-import typing
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
 import msgspec
+import msgspec.inspect as mi
 
+from messages.meaning import unit_of
 
-class _MustExist:
-    """Annotation marker: this ``str`` field names a file that must exist and be readable."""
-
-    def __repr__(self) -> str:
-        return "ExistingFile"
-
-
-MUST_EXIST = _MustExist()
-ExistingFile = Annotated[str, MUST_EXIST]
+ExistingFile = Annotated[str, msgspec.Meta(extra={"existing_file": True})]
+"""A ``str`` field naming a file that must exist and be readable."""
 
 
 class ParamError(ValueError):
@@ -69,55 +62,100 @@ class ParamError(ValueError):
         return f"{prefix}.{self.path}: {self.rule}{self._got()}"
 
 
-# -- declarations ----------------------------------------------------------------------------
+# -- reading a declaration -------------------------------------------------------------------
 
 
-def field_hints(cls: type[Any]) -> dict[str, Any]:
-    """Resolved type hints of a params dataclass, ``Annotated`` metadata kept."""
-    return typing.get_type_hints(cls, include_extras=True)
+@dataclasses.dataclass(frozen=True)
+class _Decl:
+    """A field's type with its ``Metadata`` layers folded in, and whether it may be null."""
+
+    type: Any
+    nullable: bool = False
+    description: str = ""
+    existing_file: bool = False
 
 
-def _dataclass_of(hint: Any) -> type[Any] | None:
-    """The params dataclass a field holds (through ``Annotated`` and ``X | None``), if any."""
-    if typing.get_origin(hint) is Annotated:
-        hint = typing.get_args(hint)[0]
-    if isinstance(hint, type) and dataclasses.is_dataclass(hint):
-        return hint
-    if typing.get_origin(hint) not in (typing.Union, types.UnionType):
-        return None
-    options = [a for a in typing.get_args(hint) if a is not type(None)]
-    if len(options) == 1 and isinstance(options[0], type) and dataclasses.is_dataclass(options[0]):
-        return options[0]
-    return None
+def _decl(t: Any) -> _Decl:
+    description, existing, nullable = "", False, False
+    while True:
+        if isinstance(t, mi.Metadata):
+            description = (t.extra_json_schema or {}).get("description", description)
+            existing = existing or bool((t.extra or {}).get("existing_file"))
+            t = t.type
+        elif isinstance(t, mi.UnionType) and t.includes_none and len(t.types) == 2:
+            nullable = True
+            t = next(x for x in t.types if not isinstance(x, mi.NoneType))
+        else:
+            return _Decl(t, nullable, description, existing)
 
 
-def _must_exist(hint: Any) -> bool:
-    return typing.get_origin(hint) is Annotated and any(
-        m is MUST_EXIST for m in typing.get_args(hint)[1:]
-    )
+def _fields(cls: Any) -> tuple[mi.Field, ...]:
+    info = cls if isinstance(cls, mi.StructType) else mi.type_info(cls)
+    if not isinstance(info, mi.StructType):
+        raise TypeError(f"{cls!r} is no parameter class (a msgspec Struct)")
+    return info.fields
 
 
-def _default(f: dataclasses.Field[Any]) -> Any:
-    if f.default is not dataclasses.MISSING:
+def _default(f: mi.Field) -> Any:
+    if f.default is not msgspec.NODEFAULT:
         return f.default
-    if f.default_factory is not dataclasses.MISSING:
+    if f.default_factory is not msgspec.NODEFAULT:
         return f.default_factory()
-    return dataclasses.MISSING
+    return msgspec.NODEFAULT
 
 
-# -- the checks every class shares -------------------------------------------------------------
+def _num(x: float) -> str:
+    return f"{x:g}"
 
 
-def _unknown_keys(cls: type[Any], values: Mapping[str, Any], prefix: str) -> None:
-    hints = field_hints(cls)
-    names = [f.name for f in dataclasses.fields(cls)]
-    for key, value in values.items():
-        path = f"{prefix}{key}"
-        if key not in names:
-            raise ParamError(path, f"is unknown; {cls.__name__} takes {', '.join(names)}", value)
-        nested = _dataclass_of(hints[key])
-        if nested is not None and isinstance(value, Mapping):
-            _unknown_keys(nested, value, f"{path}.")
+def limits_of(t: Any) -> str:
+    """What a type's declaration allows beyond its type: ``> 0``, ``in [3, 201]``,
+    ``one of ('a', 'b')``; "" when nothing (a declared length or pattern is not shown)."""
+    if isinstance(t, mi.LiteralType):
+        return f"one of {tuple(t.values)!r}"
+    if isinstance(t, mi.IntType | mi.FloatType):
+        low = (">", t.gt) if t.gt is not None else (">=", t.ge) if t.ge is not None else None
+        high = ("<", t.lt) if t.lt is not None else ("<=", t.le) if t.le is not None else None
+        if low and high:
+            left, right = "(" if low[0] == ">" else "[", ")" if high[0] == "<" else "]"
+            return f"in {left}{_num(low[1])}, {_num(high[1])}{right}"
+        bound = low or high
+        return f"{bound[0]} {_num(bound[1])}" if bound else ""
+    return ""
+
+
+_KINDS = (
+    (mi.BoolType, "true or false"),
+    (mi.IntType, "an integer"),
+    (mi.FloatType, "a number"),
+    (mi.StrType, "a string"),
+    ((mi.StructType, mi.DictType), "a mapping"),
+    ((mi.ListType, mi.VarTupleType, mi.TupleType), "a list"),
+)
+
+
+def _kind(decl: _Decl) -> str:
+    text = next((text for types, text in _KINDS if isinstance(decl.type, types)), "a value")
+    return f"{text} or null" if decl.nullable else text
+
+
+def _type_name(t: Any) -> str:
+    names: dict[type, str] = {
+        mi.BoolType: "bool",
+        mi.IntType: "int",
+        mi.FloatType: "float",
+        mi.StrType: "str",
+    }
+    if isinstance(t, mi.LiteralType):
+        return " | ".join(dict.fromkeys(type(v).__name__ for v in t.values))
+    if isinstance(t, mi.ListType | mi.VarTupleType):
+        return f"list of {_type_name(_decl(t.item_type).type)}"
+    if isinstance(t, mi.TupleType):
+        return f"list of {len(t.item_types)}"
+    return names.get(type(t), type(t).__name__.removesuffix("Type").lower())
+
+
+# -- what a declaration cannot say -----------------------------------------------------------
 
 
 def _numbers(value: Any, path: str) -> Iterator[tuple[str, float | int]]:
@@ -144,7 +182,7 @@ def check_finite(values: Mapping[str, Any], prefix: str = "") -> None:
 
 
 # What a run can do with a time or a rate (a timer's period, a back-off, a timeout): a
-# field whose name says seconds or hertz (``unit_of``) is checked against these.
+# field whose name says seconds or hertz (``param_unit``) is checked against these.
 MAX_SECS = 1e6  # 11.6 days: the longest wait, period or timeout a run takes
 MIN_PERIOD_SECS = 1e-6  # a rate above 1 MHz is no rate a timer or a device keeps
 
@@ -162,10 +200,18 @@ def timer_period_nanos(period_secs: float) -> int:
     return round(period_secs * 1e9)
 
 
+_COUNTS = ("poly_n", "every_n")  # parameter names whose ``_n`` is a count, not newtons
+
+
+def param_unit(name: str) -> str:
+    """The unit a parameter's name ends in (``messages.meaning``), or ""."""
+    return "" if name.endswith(_COUNTS) else unit_of(name) or ""
+
+
 def _check_units(name: str, value: Any, path: str) -> None:
     if not isinstance(value, float | int) or isinstance(value, bool):
         return
-    unit = unit_of(name)
+    unit = param_unit(name)
     if unit == "s" and not abs(value) <= MAX_SECS:
         raise ParamError(path, f"must be at most {MAX_SECS:g} s in size", value)
     if unit == "Hz" and value and not 1 / MAX_SECS <= abs(value) <= 1 / MIN_PERIOD_SECS:
@@ -177,62 +223,16 @@ def _check_units(name: str, value: Any, path: str) -> None:
         )
 
 
-def _check_fields(cls: type[Any], built: Any, prefix: str) -> None:
+def _check_fields(cls: Any, built: Any, prefix: str) -> None:
     """Files that must exist, and times and rates a run can use, at every depth."""
-    hints = field_hints(cls)
-    for f in dataclasses.fields(cls):
+    for f in _fields(cls):
         value = getattr(built, f.name)
-        if _must_exist(hints[f.name]):
+        decl = _decl(f.type)
+        if decl.existing_file and value is not None:
             readable_file(value, f"{prefix}{f.name}")
         _check_units(f.name, value, f"{prefix}{f.name}")
-        nested = _dataclass_of(hints[f.name])
-        if nested is not None and value is not None:
-            _check_fields(nested, value, f"{prefix}{f.name}.")
-
-
-def anchor_files(
-    cls: type[Any],
-    values: Mapping[str, Any],
-    folders: Sequence[Path],
-    default_folders: Sequence[Path] = (),
-) -> dict[str, Any]:
-    """``values`` with each relative :data:`ExistingFile` path (nested ones too) found in
-    the first of ``folders`` that has it, made absolute; a path none has stays as it is
-    (it is then read from the working directory, and the check names it if missing). A
-    relative default that the working directory lacks is looked for in ``default_folders``
-    (where the class ships its files) and, found there, written into the result."""
-    hints = field_hints(cls)
-    out = dict(values)
-    for f in dataclasses.fields(cls):
-        value = out.get(f.name)
-        if _must_exist(hints[f.name]) and isinstance(value, str) and value:
-            out[f.name] = _anchor(value, folders)
-        default = _default(f)
-        if (
-            f.name not in out
-            and _must_exist(hints[f.name])
-            and isinstance(default, str)
-            and default
-        ):
-            found = _anchor(default, default_folders)
-            if found != default:
-                out[f.name] = found
-        nested = _dataclass_of(hints[f.name])
-        if nested is not None and isinstance(value, Mapping):
-            out[f.name] = anchor_files(nested, value, folders, default_folders)
-    return out
-
-
-def _anchor(value: str, folders: Sequence[Path]) -> str:
-    path = Path(value).expanduser()
-    if path.is_absolute():
-        return value
-    for folder in folders:
-        found = (folder / path).resolve()
-        if found.exists():
-            here = path.resolve()
-            return value if here.exists() and here.samefile(found) else str(found)
-    return value
+        if isinstance(decl.type, mi.StructType) and value is not None:
+            _check_fields(decl.type, value, f"{prefix}{f.name}.")
 
 
 def readable_file(value: str, path: str) -> None:
@@ -250,27 +250,57 @@ def readable_file(value: str, path: str) -> None:
         raise ParamError(path, "must name a readable file (permission denied)", value)
 
 
+def anchor_files(
+    cls: Any,
+    values: Mapping[str, Any],
+    folders: Sequence[Path],
+    default_folders: Sequence[Path] = (),
+) -> dict[str, Any]:
+    """``values`` with each relative :data:`ExistingFile` path (nested ones too) found in
+    the first of ``folders`` that has it, made absolute; a path none has stays as it is
+    (it is then read from the working directory, and the check names it if missing). A
+    relative default that the working directory lacks is looked for in ``default_folders``
+    (where the class ships its files) and, found there, written into the result."""
+    out = dict(values)
+    for f in _fields(cls):
+        value = out.get(f.name)
+        decl = _decl(f.type)
+        if decl.existing_file and isinstance(value, str) and value:
+            out[f.name] = _anchor(value, folders)
+        default = _default(f)
+        if f.name not in out and decl.existing_file and isinstance(default, str) and default:
+            found = _anchor(default, default_folders)
+            if found != default:
+                out[f.name] = found
+        if isinstance(decl.type, mi.StructType) and isinstance(value, Mapping):
+            out[f.name] = anchor_files(decl.type, value, folders, default_folders)
+    return out
+
+
+def _anchor(value: str, folders: Sequence[Path]) -> str:
+    path = Path(value).expanduser()
+    if path.is_absolute():
+        return value
+    for folder in folders:
+        found = (folder / path).resolve()
+        if found.exists():
+            here = path.resolve()
+            return value if here.exists() and here.samefile(found) else str(found)
+    return value
+
+
 # -- msgspec's and the classes' messages in the one style ------------------------------------
 
 _AT = re.compile(r"^(?P<msg>.*?)(?: - at `\$(?P<at>[^`]*)`)?$", re.S)
-_EXPECTED = re.compile(r"^Expected `(?P<type>[^`]+)`(?P<rule>[^,]*)(?:, got `(?P<got>[^`]+)`)?$")
-_MISSING = re.compile(r"^Object missing required field `(?P<name>[^`]+)`$")
+_NAMED = re.compile(r"^Object (?P<what>contains unknown|missing required) field `(?P<name>[^`]+)`$")
 _FIELD_FIRST = re.compile(r"^`?(?P<name>[A-Za-z_][A-Za-z0-9_]*)`?(?P<sep>:? )(?P<rest>.*)$", re.S)
-_TYPES = {
-    "int": "an integer",
-    "float": "a number",
-    "str": "a string",
-    "bool": "true or false",
-    "array": "a list",
-    "object": "a mapping",
-    "null": "null",
-}
+_PARTS = re.compile(r"[^.\[\]]+|\[\d+\]")
 
 
 def _lookup(values: Any, path: str) -> tuple[bool, Any]:
     """The value at a dotted path with ``[i]`` indices, or ``(False, None)``."""
     current = values
-    for part in re.findall(r"[^.\[\]]+|\[\d+\]", path):
+    for part in _PARTS.findall(path):
         if part.startswith("["):
             index = int(part[1:-1])
             if not isinstance(current, list | tuple) or index >= len(current):
@@ -283,62 +313,71 @@ def _lookup(values: Any, path: str) -> tuple[bool, Any]:
     return True, current
 
 
-def _field_of(cls: type[Any], at: str) -> tuple[type[Any] | None, dict[str, Any]]:
-    """The dataclass and the field defaults at a dotted msgspec path (``.farneback``)."""
-    current: type[Any] | None = cls
-    for part in [p for p in at.split(".") if p]:
-        if current is None or not dataclasses.is_dataclass(current):
-            return None, {}
-        current = _dataclass_of(field_hints(current).get(part))
-    if current is None:
-        return None, {}
-    return current, {f.name: _default(f) for f in dataclasses.fields(current)}
+def _declared(cls: Any, path: str) -> tuple[Any, _Decl | None]:
+    """The struct at ``path`` (None where it is no struct) and the declaration of the field
+    there (None at the top, or where the path leaves the declaration)."""
+    decl: _Decl | None = None
+    here: Any = mi.type_info(cls)
+    for part in _PARTS.findall(path):
+        if part.startswith("["):
+            if not isinstance(here, mi.ListType | mi.VarTupleType):
+                return None, None
+            decl = _decl(here.item_type)
+        else:
+            field = next((f for f in getattr(here, "fields", ()) if f.name == part), None)
+            if field is None:
+                return None, None
+            decl = _decl(field.type)
+        here = decl.type
+    return (here if isinstance(here, mi.StructType) else None), decl
 
 
-def _describe_type(text: str) -> str:
-    return " or ".join(_TYPES.get(part.strip(), f"`{part.strip()}`") for part in text.split("|"))
-
-
-def rewrite(err: Exception, cls: type[Any], values: Mapping[str, Any]) -> ParamError:
+def rewrite(err: Exception, cls: Any, values: Mapping[str, Any]) -> ParamError:
     """One :class:`ParamError` from msgspec's or a class's own message."""
     match = _AT.match(str(err))
     assert match is not None  # the pattern matches any text
     msg, at = match["msg"].strip(), (match["at"] or "").lstrip(".")
-    expected = _EXPECTED.match(msg)
-    if expected:
-        found, value = _lookup(values, at)
-        rule = f"must be {_describe_type(expected['type'])}{expected['rule']}"
-        return ParamError(at, rule, value, has_value=found)
-    missing = _MISSING.match(msg)
-    if missing:
-        path = f"{at}.{missing['name']}" if at else missing["name"]
-        return ParamError(path, "is required (it has no default)", has_value=False)
-    # A class's own check: "`name` must be ..., got ..." or "`name`: why" (at its level).
-    owner, defaults = _field_of(cls, at)
-    first = _FIELD_FIRST.match(msg)
     base = f"{at}." if at else ""
-    if owner is not None and first and first["name"] in defaults:
-        path = base + first["name"]
-        rest = first["rest"]
-        if first["sep"] == " " and not rest.startswith("must"):
-            return _several(msg, base, defaults, values)
-        rest = re.sub(r",? got .*$", "", rest, flags=re.S) if rest.startswith("must") else rest
+    struct, decl = _declared(cls, at)
+    named = _NAMED.match(msg)
+    if named:
+        path = base + named["name"]
+        if named["what"] == "missing required":
+            return ParamError(path, "is required (it has no default)", has_value=False)
+        takes = ", ".join(f.name for f in struct.fields) if struct is not None else "?"
+        name = struct.cls.__name__ if struct is not None else "it"
+        return ParamError(path, f"is unknown; {name} takes {takes}", _lookup(values, path)[1])
+    if decl is not None and (msg.startswith("Expected `") or msg.startswith("Invalid enum")):
+        found, value = _lookup(values, at)
+        limits = limits_of(decl.type)
+        if isinstance(decl.type, mi.LiteralType) or (", got `" not in msg and limits):
+            return ParamError(at, f"must be {limits}", value, has_value=found)
+        return ParamError(at, f"must be {_kind(decl)}", value, has_value=found)
+    return _own(msg, base, struct, values)
+
+
+def _own(msg: str, base: str, owner: Any, values: Mapping[str, Any]) -> ParamError:
+    """A class's own check: "name must ..." about one field, or a message about several
+    (the values of the fields it names are appended)."""
+    defaults = (
+        {f.name: _default(f) for f in owner.fields} if isinstance(owner, mi.StructType) else {}
+    )
+    first = _FIELD_FIRST.match(msg)
+    if (
+        first
+        and first["name"] in defaults
+        and (first["sep"] == ": " or first["rest"][:4] == "must")
+    ):
+        path, rule = base + first["name"], first["rest"]
         found, value = _lookup(values, path)
-        if not found:
-            value, found = defaults[first["name"]], True
-        if not rest.startswith("must") and str(value) in rest:
-            found = False  # the class's message already shows the value
-        return ParamError(path, rest, value, has_value=found)
-    return _several(msg, base, defaults, values)
-
-
-def _several(
-    msg: str, base: str, defaults: dict[str, Any], values: Mapping[str, Any]
-) -> ParamError:
-    """A message about no one field: the values of the fields it names are appended."""
-    named = [n for n in dict.fromkeys(re.findall(r"[A-Za-z_]\w*", msg)) if n in defaults]
+        value = value if found else defaults[first["name"]]
+        if rule.startswith("must"):
+            return ParamError(path, re.sub(r",? got .*$", "", rule, flags=re.S), value)
+        # "`name`: why" (a file that cannot be read): shown once if the text has the value
+        return ParamError(path, rule, value, has_value=str(value) not in rule)
+    names = [n for n in dict.fromkeys(re.findall(r"[A-Za-z_]\w*", msg)) if n in defaults]
     shown = []
-    for name in named:
+    for name in names:
         found, value = _lookup(values, base + name)
         shown.append(f"{base}{name}={(value if found else defaults[name])!r}")
     text = f"{base.rstrip('.')}: {msg}" if base else msg
@@ -352,13 +391,13 @@ def build_params(cls: type[Any], values: Mapping[str, Any] | None) -> Any:
 
     Raises:
         ParamError: (a ``ValueError``) an unknown key at any depth, a value of the wrong
-            type, a NaN or infinite number, an integer beyond 64 bits, a time (``_secs``)
-            or rate (``_hz``) no run can use (:data:`MAX_SECS`, :data:`MIN_PERIOD_SECS`),
-            a missing or unreadable :data:`ExistingFile`, or the class's own check; it
-            names the field, what is allowed and the value.
+            type or beyond its declared limits, a NaN or infinite number, an integer beyond
+            64 bits, a time (``_secs``) or rate (``_hz``) no run can use
+            (:data:`MAX_SECS`, :data:`MIN_PERIOD_SECS`), a missing or unreadable
+            :data:`ExistingFile`, or the class's own check; it names the field, what is
+            allowed and the value.
     """
     values = dict(values or {})
-    _unknown_keys(cls, values, "")
     check_finite(values)
     try:
         built = msgspec.convert(values, cls, strict=False)
@@ -368,23 +407,12 @@ def build_params(cls: type[Any], values: Mapping[str, Any] | None) -> Any:
     return built
 
 
-# -- what a params class takes, for ``launch.py nodes IMPL`` -------------------------------------
+def field_names(cls: type[Any]) -> list[str]:
+    """The names of a parameter class's fields."""
+    return [f.name for f in _fields(cls)]
 
-_UNITS = (
-    ("_m_per_s", "m/s"),
-    ("_force_n", "N"),
-    ("_secs", "s"),
-    ("_nanos", "ns"),
-    ("_hz", "Hz"),
-    ("_pa", "Pa"),
-    ("_mm", "mm"),
-    ("_m", "m"),
-    ("_px", "px"),
-    ("_deg", "deg"),
-    ("_rad", "rad"),
-    ("_bytes", "bytes"),
-)
-_PROBES: dict[type, tuple[Any, ...]] = {int: (-(10**9), 10**9), float: (-1e9, 1e9), str: ("?",)}
+
+# -- what a params class takes, for ``launch.py nodes IMPL`` -------------------------------------
 
 
 class _Required:
@@ -407,103 +435,29 @@ class ParamInfo:
     doc: str
 
 
-def unit_of(name: str) -> str:
-    """The unit a field's name carries (``grasp_width_m`` -> ``m``), or ``""``."""
-    return next((unit for suffix, unit in _UNITS if name.endswith(suffix)), "")
-
-
-def _type_text(hint: Any) -> str:
-    if typing.get_origin(hint) is Annotated:
-        args = typing.get_args(hint)
-        return ("path of an existing file" if MUST_EXIST in args[1:] else "") or _type_text(args[0])
-    if isinstance(hint, type):
-        return hint.__name__
-    return str(hint).replace("typing.", "")
-
-
-def _attribute_docs(cls: type[Any]) -> dict[str, str]:
-    """``name: text`` entries of the Google-style ``Attributes:`` sections of ``cls``'s MRO."""
-    docs: dict[str, str] = {}
-    for klass in reversed(cls.__mro__):
-        lines = (klass.__doc__ or "").splitlines()
-        inside, name = False, ""
-        for line in lines:
-            stripped = line.strip()
-            if stripped == "Attributes:":
-                inside = True
-                continue
-            if not inside:
-                continue
-            entry = re.match(r"^([A-Za-z_][\w, ]*):\s*(.*)$", stripped)
-            if entry and line.startswith(" " * 8) and not line.startswith(" " * 9):
-                name = entry[1]
-                for each in name.split(","):
-                    docs[each.strip()] = entry[2]
-            elif stripped and name:
-                for each in name.split(","):
-                    docs[each.strip()] += " " + stripped
-            elif not stripped and name:
-                inside, name = False, ""
-    return docs
-
-
-def _probe(cls: type[Any], name: str, kind: type) -> tuple[str, ...]:
-    """The limits the class's own check states for ``name``, found by trying far-out values.
-
-    Required string fields get a placeholder, so that a class with a required path still
-    reaches its other checks.
-    """
-    hints = field_hints(cls)
-    base: dict[str, Any] = {
-        f.name: "?"
-        for f in dataclasses.fields(cls)
-        if _default(f) is dataclasses.MISSING and _base_type(hints[f.name]) is str
-    }
-    rules: list[str] = []
-    for value in _PROBES[kind]:
-        values = {**base, name: value}
-        try:
-            msgspec.convert(values, cls, strict=False)
-        except (msgspec.ValidationError, ValueError, TypeError) as err:
-            found = rewrite(err, cls, values)
-            if found.path == name and found.rule.startswith("must be "):
-                rule = found.rule.removeprefix("must be ")
-                if rule not in rules:
-                    rules.append(rule)
-    return tuple(rules)
-
-
-def _base_type(hint: Any) -> Any:
-    """``int`` for ``int``, ``int | None`` and ``Annotated[int, ...]``; None for other unions."""
-    if typing.get_origin(hint) is Annotated:
-        hint = typing.get_args(hint)[0]
-    if typing.get_origin(hint) in (typing.Union, types.UnionType):
-        options = [a for a in typing.get_args(hint) if a is not type(None)]
-        return options[0] if len(options) == 1 else None
-    return hint
-
-
-def describe(cls: type[Any], prefix: str = "") -> list[ParamInfo]:
-    """Every parameter of ``cls``, nested ones as dotted paths, with default, unit and limits."""
-    hints = field_hints(cls)
-    docs = _attribute_docs(cls)
+def describe(cls: Any, prefix: str = "") -> list[ParamInfo]:
+    """Every parameter of ``cls``, nested ones as dotted paths, with default, unit, limits
+    and help, all read from the declaration."""
     out: list[ParamInfo] = []
-    for f in dataclasses.fields(cls):
-        hint = hints[f.name]
-        nested = _dataclass_of(hint)
-        if nested is not None:
-            out += describe(nested, f"{prefix}{f.name}.")
+    for f in _fields(cls):
+        decl = _decl(f.type)
+        if isinstance(decl.type, mi.StructType):
+            out += describe(decl.type, f"{prefix}{f.name}.")
             continue
-        kind = _base_type(hint)
         default = _default(f)
+        if decl.existing_file:
+            kind = "path of an existing file"
+        else:
+            kind = _type_name(decl.type) + (" | None" if decl.nullable else "")
+        limits = limits_of(decl.type)
         out.append(
             ParamInfo(
                 path=f"{prefix}{f.name}",
-                type=_type_text(hint),
-                default=REQUIRED if default is dataclasses.MISSING else default,
-                unit=unit_of(f.name),
-                limits=_probe(cls, f.name, kind) if kind in _PROBES else (),
-                doc=docs.get(f.name, ""),
+                type=kind,
+                default=REQUIRED if default is msgspec.NODEFAULT else default,
+                unit=param_unit(f.name),
+                limits=(limits,) if limits else (),
+                doc=decl.description,
             )
         )
     return out

@@ -14,9 +14,11 @@ import copy
 import logging
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
+
+import msgspec
+from msgspec import Meta
 
 from messages.errors import GraphError
 from runtime.bag import BagReader, topic_filter
@@ -24,25 +26,41 @@ from runtime.bag import BagReader, topic_filter
 log = logging.getLogger(__name__)
 
 
-@dataclass(frozen=True, kw_only=True)
-class ReplayOptions:
+class ReplayOptions(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """How the replay node plays the bag (see :mod:`nodes.replay`)."""
 
-    rate: float = 1.0
-    fast: bool = False
-    loop: bool = False
-    start_secs: float = 0.0
-    end_secs: float | None = None
-    topics: str = ""
-    remap: dict[str, str] = field(default_factory=dict)
-    lockstep: bool = False
-    strict: bool = False  # stop at a message that cannot be decoded (default: skip, count)
+    rate: Annotated[
+        float,
+        Meta(description="pace by the recorded receive times, scaled (2.0 = twice as fast)", gt=0),
+    ] = 1.0
+    fast: Annotated[
+        bool,
+        Meta(description="as fast as the graph takes them (at most window messages in flight)"),
+    ] = False
+    loop: Annotated[bool, Meta(description="start over at the end")] = False
+    start_secs: Annotated[
+        float, Meta(description="cut the bag: seconds from its first message", ge=0)
+    ] = 0.0
+    end_secs: Annotated[
+        float | None,
+        Meta(description="cut the bag: seconds from its first message (None: to its end)"),
+    ] = None
+    topics: Annotated[str, Meta(description="select topics: a regular expression (re.search)")] = ""
+    remap: Annotated[
+        dict[str, str], Meta(description="rename topics: {bag_topic: published_topic}")
+    ] = msgspec.field(default_factory=dict)
+    lockstep: Annotated[
+        bool,
+        Meta(
+            description="the same bag through the same nodes gives the same outputs whatever the load"
+        ),
+    ] = False
+    strict: Annotated[
+        bool,
+        Meta(description="stop at the first message that does not decode (else skip and count it)"),
+    ] = False
 
     def __post_init__(self) -> None:
-        if self.rate <= 0:
-            raise ValueError(f"rate must be > 0, got {self.rate}")
-        if self.start_secs < 0:
-            raise ValueError(f"start_secs must be >= 0, got {self.start_secs}")
         if self.end_secs is not None and self.end_secs <= self.start_secs:
             raise ValueError(
                 f"end_secs must be > start_secs ({self.start_secs}), got {self.end_secs}"
@@ -59,15 +77,14 @@ def exact_topics(topics: Sequence[str]) -> str:
 
 def _keep_known_params(name: str, body: dict[str, Any]) -> None:
     """Drop the parameters a swapped-in implementation does not take (they were the old one's)."""
-    import dataclasses
-
+    from runtime.params import field_names
     from runtime.registry import resolve
 
     try:
         cls = resolve(body["impl"])
     except KeyError:
         return  # the checker reports the unknown implementation
-    known = {f.name for f in dataclasses.fields(cls.Params)}
+    known = set(field_names(cls.Params))
     params = body.get("params") or {}
     dropped = sorted(set(params) - known)
     if dropped:

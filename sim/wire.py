@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from dataclasses import dataclass
+from typing import Literal
 
+import msgspec
 import numpy as np
 
 from geometry.gripper import SIDES
@@ -21,15 +22,10 @@ from sim.scene import Scene, load_scene
 from sim.world import World, WorldSnapshot
 
 
-@dataclass(frozen=True, kw_only=True)
-class SensorParams:
+class SensorParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Parameters of a per-bubble sensor node: ``sensor`` is ``left`` or ``right``."""
 
-    sensor: str
-
-    def __post_init__(self) -> None:
-        if self.sensor not in ("left", "right"):
-            raise ValueError(f"`sensor` must be 'left' or 'right', got {self.sensor!r}")
+    sensor: Literal["left", "right"]
 
 
 def to_message(snap: WorldSnapshot, scene: Scene, stamp_nanos: int) -> WorldState:

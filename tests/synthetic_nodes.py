@@ -18,10 +18,12 @@ from __future__ import annotations
 import json
 import os
 import time
-from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from bench.hosts import TickMerge
 from messages import Header, Tick
@@ -29,20 +31,11 @@ from runtime.node import Node
 from runtime.registry import class_path, register
 
 
-@dataclass(frozen=True, kw_only=True)
-class SourceParams:
-    rate_hz: float = 20.0
-    count: int = 100
-    payload_bytes: int = 0
+class SourceParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    rate_hz: Annotated[float, Meta(gt=0, description="ticks per second")] = 20.0
+    count: Annotated[int, Meta(ge=0, description="ticks to send")] = 100
+    payload_bytes: Annotated[int, Meta(ge=0, description="zero bytes carried by each tick")] = 0
     stop_when_done: bool = True
-
-    def __post_init__(self) -> None:
-        if self.rate_hz <= 0:
-            raise ValueError(f"rate_hz must be > 0, got {self.rate_hz}")
-        if self.count < 0:
-            raise ValueError(f"count must be >= 0, got {self.count}")
-        if self.payload_bytes < 0:
-            raise ValueError(f"payload_bytes must be >= 0, got {self.payload_bytes}")
 
 
 @register("synthetic.source")
@@ -71,18 +64,11 @@ class SyntheticSource(Node):
             self.io.request_stop(f"sent {self.sent} ticks")
 
 
-@dataclass(frozen=True, kw_only=True)
-class RelayParams:
+class RelayParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     add: float = 0.0
-    work_secs: float = 0.0
-    crash_after: int = 0
+    work_secs: Annotated[float, Meta(ge=0)] = 0.0
+    crash_after: Annotated[int, Meta(ge=0)] = 0
     crash_marker: str = ""
-
-    def __post_init__(self) -> None:
-        if self.work_secs < 0:
-            raise ValueError(f"work_secs must be >= 0, got {self.work_secs}")
-        if self.crash_after < 0:
-            raise ValueError(f"crash_after must be >= 0, got {self.crash_after}")
 
 
 @register("synthetic.relay")
@@ -124,14 +110,9 @@ class SyntheticRelay(Node):
 SyntheticMerge = register("synthetic.merge")(TickMerge)
 
 
-@dataclass(frozen=True, kw_only=True)
-class SinkParams:
+class SinkParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     out_path: str = ""
-    work_secs: float = 0.0
-
-    def __post_init__(self) -> None:
-        if self.work_secs < 0:
-            raise ValueError(f"work_secs must be >= 0, got {self.work_secs}")
+    work_secs: Annotated[float, Meta(ge=0)] = 0.0
 
 
 @register("synthetic.sink")

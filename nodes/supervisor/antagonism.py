@@ -33,8 +33,10 @@ from __future__ import annotations
 import json
 from collections import OrderedDict
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
+from msgspec import Meta
 
 from messages import GraspState, GroundTruth, PoseEstimate
 from nodes.supervisor.base import SingleGraspTask, TaskParams
@@ -44,33 +46,17 @@ from runtime.registry import register
 TRUTH_KEPT = 600  # truths kept for matching (20 s at 30 fps): estimates trail by less
 
 
-@dataclass(frozen=True, kw_only=True)
-class AntagonismParams(TaskParams):
-    track_secs: float = 6.0
-    lag_secs: float = 10.0
+class AntagonismParams(TaskParams, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    track_secs: Annotated[float, Meta(gt=0)] = 6.0
+    lag_secs: Annotated[float, Meta(gt=0)] = 10.0
     flip_symmetric: bool = True
-    jolt_mm: float = 1.5
-    jolt_deg: float = 4.0
-    track_deg: float = 5.0
-    track_mm: float = 2.0
-    max_p95_deg: float = 5.0
-    max_p95_mm: float = 3.0
+    jolt_mm: Annotated[float, Meta(gt=0)] = 1.5
+    jolt_deg: Annotated[float, Meta(gt=0)] = 4.0
+    track_deg: Annotated[float, Meta(gt=0)] = 5.0
+    track_mm: Annotated[float, Meta(gt=0)] = 2.0
+    max_p95_deg: Annotated[float, Meta(gt=0)] = 5.0
+    max_p95_mm: Annotated[float, Meta(gt=0)] = 3.0
     grasp_speed_m_per_s: float = 0.1
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        for name in (
-            "track_secs",
-            "lag_secs",
-            "jolt_mm",
-            "jolt_deg",
-            "track_deg",
-            "track_mm",
-            "max_p95_deg",
-            "max_p95_mm",
-        ):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"`{name}` must be > 0, got {getattr(self, name)!r}")
 
 
 @dataclass

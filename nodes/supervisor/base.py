@@ -14,7 +14,10 @@ that failed (an object in a wrong bin, an object dropped) passes a non-zero
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from typing import Annotated
+
+import msgspec
+from msgspec import Meta
 
 from messages import GraspState, GripperCommand, Header, PoseEstimate, TaskEvent
 from messages.base import Message
@@ -22,24 +25,32 @@ from messages.types import GripperAction
 from runtime.node import Node
 
 
-@dataclass(frozen=True, kw_only=True)
-class TaskParams:
+class TaskParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """What every task shares: how it grasps, releases and gives up."""
 
-    grasp_on_start: bool = True
-    start_delay_secs: float = 0.3
-    grasp_width_m: float = 0.0
-    grasp_speed_m_per_s: float = 0.05
-    grasp_force_n: float = 12.0
-    release_width_m: float = 0.11
-    timeout_secs: float = 30.0
-
-    def __post_init__(self) -> None:
-        for name in ("grasp_speed_m_per_s", "grasp_force_n", "release_width_m", "timeout_secs"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"`{name}` must be > 0, got {getattr(self, name)!r}")
-        if self.start_delay_secs < 0 or self.grasp_width_m < 0:
-            raise ValueError("`start_delay_secs` and `grasp_width_m` must be >= 0")
+    grasp_on_start: Annotated[
+        bool,
+        Meta(description="send a grasp command once start_delay_secs have passed"),
+    ] = True
+    start_delay_secs: Annotated[
+        float, Meta(description="data time from the first message received to the start", ge=0)
+    ] = 0.3
+    grasp_width_m: Annotated[float, Meta(description="the width_m of that grasp command", ge=0)] = (
+        0.0
+    )
+    grasp_speed_m_per_s: Annotated[float, Meta(description="finger speed of the grasp", gt=0)] = (
+        0.05
+    )
+    grasp_force_n: Annotated[float, Meta(description="grip force of the grasp", gt=0)] = 12.0
+    release_width_m: Annotated[
+        float, Meta(description="the opening a release command opens to", gt=0)
+    ] = 0.11
+    timeout_secs: Annotated[
+        float,
+        Meta(
+            description="data time after the first message at which an unfinished task fails", gt=0
+        ),
+    ] = 30.0
 
 
 class Task(Node):

@@ -36,7 +36,11 @@ Ports:
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
+from typing import Annotated
+
+import msgspec
+from msgspec import Meta
 
 from messages import ClassProbabilities, GraspState, GroundTruth, Header
 from messages.classify import GraspRequest
@@ -48,46 +52,31 @@ from perception.classify.autolabel import (
     GraspGeneratorParams,
     GraspSample,
 )
+from runtime.params import build_params
 from runtime.registry import register
 
 REGRASP_STRIDE = 100_000  # grasp ids of regrasps: the object's index + j * stride, j >= 1
 
 
-@dataclass(frozen=True, kw_only=True)
-class DishLoadingParams(TaskParams):
+class DishLoadingParams(TaskParams, frozen=True, kw_only=True, forbid_unknown_fields=True):
     seed: int = 0
-    objects: int = 6
+    objects: Annotated[int, Meta(ge=1)] = 6
     classes: tuple[str, ...] = DEFAULT_OBJECTS
-    bins: tuple[tuple[str, str], ...] = field(default=DEFAULT_BINS)
+    bins: tuple[tuple[str, str], ...] = msgspec.field(default=DEFAULT_BINS)
     truth_bins: tuple[tuple[str, str], ...] = ()
-    vote_frames: int = 3
-    min_confidence: float = 0.9
-    max_regrasps: int = 2
+    vote_frames: Annotated[int, Meta(ge=1)] = 3
+    min_confidence: Annotated[float, Meta(ge=0.0, le=1.0)] = 0.9
+    max_regrasps: Annotated[int, Meta(ge=0)] = 2
     unsure_bin: str = "manual"
-    min_height_change_m: float = 0.015
-    settle_secs: float = 0.2
-    stable_timeout_secs: float = 3.0
-    vote_timeout_secs: float = 5.0
-    release_secs: float = 0.3
+    min_height_change_m: Annotated[float, Meta(ge=0)] = 0.015
+    settle_secs: Annotated[float, Meta(ge=0)] = 0.2
+    stable_timeout_secs: Annotated[float, Meta(gt=0)] = 3.0
+    vote_timeout_secs: Annotated[float, Meta(gt=0)] = 5.0
+    release_secs: Annotated[float, Meta(ge=0)] = 0.3
     grasp_speed_m_per_s: float = 0.1
     timeout_secs: float = 180.0
 
     def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.objects < 1:
-            raise ValueError(f"`objects` must be >= 1, got {self.objects!r}")
-        if self.vote_frames < 1:
-            raise ValueError(f"`vote_frames` must be >= 1, got {self.vote_frames!r}")
-        if not 0.0 <= self.min_confidence <= 1.0:
-            raise ValueError(f"`min_confidence` must be in [0, 1], got {self.min_confidence!r}")
-        if self.max_regrasps < 0:
-            raise ValueError(f"`max_regrasps` must be >= 0, got {self.max_regrasps!r}")
-        for name in ("stable_timeout_secs", "vote_timeout_secs"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"`{name}` must be > 0, got {getattr(self, name)!r}")
-        for name in ("settle_secs", "release_secs", "min_height_change_m"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"`{name}` must be >= 0, got {getattr(self, name)!r}")
         for name in ("bins", "truth_bins"):
             table = getattr(self, name)
             missing = sorted(set(self.classes) - {c for c, _ in table})
@@ -96,7 +85,10 @@ class DishLoadingParams(TaskParams):
         self.generator_params()  # checks the class names
 
     def generator_params(self, classes: tuple[str, ...] | None = None) -> GraspGeneratorParams:
-        return GraspGeneratorParams(objects=classes or self.classes, seed=self.seed)
+        """The generator's parameters, checked against its declaration."""
+        given = {"objects": classes or self.classes, "seed": self.seed}
+        params: GraspGeneratorParams = build_params(GraspGeneratorParams, given)
+        return params
 
 
 @dataclass

@@ -31,11 +31,12 @@ Ports:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
+from msgspec import Meta
 
+from devices.wsg50 import MAX_FORCE_N
 from messages import GraspState, PoseEstimate, ShearEstimate
 from messages.force import SlipState, WrenchEstimate
 from nodes.supervisor.base import SingleGraspTask, TaskParams
@@ -43,39 +44,23 @@ from perception.force.reflex import GripReflex, PullWatch, ReflexParams
 from runtime.registry import register
 
 
-@dataclass(frozen=True, kw_only=True)
-class HandoverParams(TaskParams):
+class HandoverParams(TaskParams, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """The release rule (``release_on``: force, with ``wrench`` wired, or shear) and the
     slip reflex."""
 
     release_on: Literal["force", "shear"] = "force"
-    release_shear_px: float = 1.5
-    confirm_frames: int = 3
-    release_force_n: float = 0.6
-    force_confirm_frames: int = 2
-    force_max_lag_secs: float = 0.2
+    release_shear_px: Annotated[float, Meta(gt=0)] = 1.5
+    confirm_frames: Annotated[int, Meta(ge=1)] = 3
+    release_force_n: Annotated[float, Meta(gt=0)] = 0.6
+    force_confirm_frames: Annotated[int, Meta(ge=1)] = 2
+    force_max_lag_secs: Annotated[float, Meta(gt=0)] = 0.2
     gravity_in_tool: tuple[float, float, float] = (0.0, -1.0, 0.0)
     reflex: bool = True
-    max_grip_force_n: float = 40.0
-    friction: float = 0.8
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if not self.release_shear_px > 0:
-            raise ValueError(f"`release_shear_px` must be > 0, got {self.release_shear_px!r}")
-        if self.confirm_frames < 1:
-            raise ValueError(f"`confirm_frames` must be >= 1, got {self.confirm_frames!r}")
-        if not self.release_force_n > 0:
-            raise ValueError(f"`release_force_n` must be > 0, got {self.release_force_n!r}")
-        if self.force_confirm_frames < 1:
-            raise ValueError(
-                f"`force_confirm_frames` must be >= 1, got {self.force_confirm_frames!r}"
-            )
-        if not self.friction > 0:
-            raise ValueError(f"`friction` must be > 0, got {self.friction!r}")
-        if not self.force_max_lag_secs > 0:
-            raise ValueError(f"`force_max_lag_secs` must be > 0, got {self.force_max_lag_secs!r}")
-        ReflexParams(max_force_n=self.max_grip_force_n)
+    max_grip_force_n: Annotated[
+        float,
+        Meta(gt=0, le=MAX_FORCE_N, description="the reflex's bound on the grip force"),
+    ] = 40.0
+    friction: Annotated[float, Meta(gt=0)] = 0.8
 
 
 class ShearWatch:

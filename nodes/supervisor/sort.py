@@ -15,9 +15,11 @@ Ports:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from typing import Annotated
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from messages import ClassProbabilities, GraspState, PoseEstimate
 from nodes.supervisor.base import SingleGraspTask, TaskParams
@@ -55,19 +57,18 @@ class Vote:
         self.votes.clear()
 
 
-@dataclass(frozen=True, kw_only=True)
-class SortParams(TaskParams):
-    vote_frames: int = 5
-    bins: tuple[tuple[str, str], ...] = field(default=DEFAULT_BINS)
-    min_confidence: float = 0.0  # 0: always route to the best class's bin
+class SortParams(TaskParams, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    vote_frames: Annotated[int, Meta(ge=1)] = 5
+    bins: tuple[tuple[str, str], ...] = msgspec.field(default=DEFAULT_BINS)
+    min_confidence: Annotated[
+        float,
+        Meta(
+            description="below this the unsure bin is used (0: always route to the best class's bin)",
+            ge=0.0,
+            le=1.0,
+        ),
+    ] = 0.0
     unsure_bin: str = "manual"
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.vote_frames < 1:
-            raise ValueError(f"`vote_frames` must be >= 1, got {self.vote_frames!r}")
-        if not 0.0 <= self.min_confidence <= 1.0:
-            raise ValueError(f"`min_confidence` must be in [0, 1], got {self.min_confidence!r}")
 
 
 @register("supervisor.sort")

@@ -22,7 +22,9 @@ Ports:
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from typing import Annotated
+
+from msgspec import Meta
 
 from messages import GraspState, ShearEstimate
 from messages.sim import PlacementTruth
@@ -31,23 +33,11 @@ from nodes.supervisor.handover import ShearWatch, describe_shear
 from runtime.registry import register
 
 
-@dataclass(frozen=True, kw_only=True)
-class StackingParams(TaskParams):
-    touch_shear_px: float = 1.0
-    confirm_frames: int = 2
-    placement_wait_secs: float = 1.0
+class StackingParams(TaskParams, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    touch_shear_px: Annotated[float, Meta(gt=0)] = 1.0
+    confirm_frames: Annotated[int, Meta(ge=1)] = 2
+    placement_wait_secs: Annotated[float, Meta(ge=0)] = 1.0
     grasp_speed_m_per_s: float = 0.1
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if not self.touch_shear_px > 0:
-            raise ValueError(f"`touch_shear_px` must be > 0, got {self.touch_shear_px!r}")
-        if self.confirm_frames < 1:
-            raise ValueError(f"`confirm_frames` must be >= 1, got {self.confirm_frames!r}")
-        if not self.placement_wait_secs >= 0:
-            raise ValueError(
-                f"`placement_wait_secs` must be >= 0, got {self.placement_wait_secs!r}"
-            )
 
 
 @register("supervisor.stacking")

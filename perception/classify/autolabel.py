@@ -30,9 +30,11 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Annotated, Any
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from geometry import objects, variants
 from geometry.gripper import DEFAULT_GRIPPER, GripperGeometry
@@ -43,45 +45,76 @@ VARIANT_CHOICES = ("none", *variants.SPLITS)
 _X, _Y, _Z = np.eye(3)
 
 
-@dataclass(frozen=True, kw_only=True)
-class GraspGeneratorParams:
-    """Ranges of the random grasps (uniform draws within +- each value).
+class GraspGeneratorParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Ranges of the random grasps (uniform draws within +- each value)."""
 
-    Attributes:
-        objects: object names (``geometry.objects``) to grasp.
-        variants: ``none`` (each class's reference shape), or ``train`` / ``held_out``:
-            a variant of the class from that split of ``geometry.variants.SPLITS``.
-        seed: the run's seed; grasp ``i`` depends only on ``(seed, i)``.
-        approach_tilt_deg: tilt of the object axis from across the fingers towards the
-            approach direction (90 would be a grasp straight down the axis).
-        skew_deg: tilt of the object axis towards the closing direction.
-        offset_m: shift of the grasp point across the fingers and along the approach.
-        height_margin_m: grasp heights stay this far from the object's ends.
-        end_fraction: share of the draws whose height lies within ``end_band_m`` of an
-            end (either, at random) instead of anywhere. 0 (the default) draws exactly
-            what a run without it draws.
-        end_band_m: width of that band, from the object's end (margin included).
-        squeeze_min_m, squeeze_max_m: how much the jaws close past first contact.
-        force_min_n, force_max_n: grasp force limit.
-        clearance_m: what the gripper must have to spare at full opening.
-        max_tries: draws before giving up on a grasp (an object that never fits).
-    """
-
-    objects: tuple[str, ...] = DEFAULT_OBJECTS
-    variants: str = "none"
-    seed: int = 0
-    approach_tilt_deg: float = 40.0
-    skew_deg: float = 8.0
-    offset_m: float = 0.006
-    height_margin_m: float = 0.006
-    end_fraction: float = 0.0
-    end_band_m: float = 0.02
-    squeeze_min_m: float = 0.006
-    squeeze_max_m: float = 0.014
-    force_min_n: float = 8.0
-    force_max_n: float = 25.0
-    clearance_m: float = 0.004
-    max_tries: int = 500
+    objects: Annotated[
+        tuple[str, ...], Meta(description="object names (``geometry.objects``) to grasp.")
+    ] = DEFAULT_OBJECTS
+    variants: Annotated[
+        str,
+        Meta(
+            description=(
+                "``none`` (each class's reference shape), or ``train`` / ``held_out``: a "
+                "variant of the class from that split of ``geometry.variants.SPLITS``."
+            )
+        ),
+    ] = "none"
+    seed: Annotated[
+        int, Meta(description="the run's seed; grasp ``i`` depends only on ``(seed, i)``.")
+    ] = 0
+    approach_tilt_deg: Annotated[
+        float,
+        Meta(
+            ge=0,
+            description=(
+                "tilt of the object axis from across the fingers towards the approach "
+                "direction (90 would be a grasp straight down the axis)."
+            ),
+        ),
+    ] = 40.0
+    skew_deg: Annotated[
+        float, Meta(ge=0, description="tilt of the object axis towards the closing direction.")
+    ] = 8.0
+    offset_m: Annotated[
+        float,
+        Meta(
+            ge=0, description="shift of the grasp point across the fingers and along the approach."
+        ),
+    ] = 0.006
+    height_margin_m: Annotated[
+        float, Meta(ge=0, description="grasp heights stay this far from the object's ends.")
+    ] = 0.006
+    end_fraction: Annotated[
+        float,
+        Meta(
+            ge=0,
+            le=1,
+            description=(
+                "share of the draws whose height lies within ``end_band_m`` of an end "
+                "(either, at random) instead of anywhere. 0 (the default) draws exactly"
+                " what a run without it draws."
+            ),
+        ),
+    ] = 0.0
+    end_band_m: Annotated[
+        float, Meta(description="width of that band, from the object's end (margin included).")
+    ] = 0.02
+    squeeze_min_m: Annotated[
+        float, Meta(description="how much the jaws close past first contact.")
+    ] = 0.006
+    squeeze_max_m: Annotated[
+        float, Meta(description="how much the jaws close past first contact.")
+    ] = 0.014
+    force_min_n: Annotated[float, Meta(description="grasp force limit.")] = 8.0
+    force_max_n: Annotated[float, Meta(description="grasp force limit.")] = 25.0
+    clearance_m: Annotated[
+        float, Meta(description="what the gripper must have to spare at full opening.")
+    ] = 0.004
+    max_tries: Annotated[
+        int,
+        Meta(ge=1, description="draws before giving up on a grasp (an object that never fits)."),
+    ] = 500
 
     def __post_init__(self) -> None:
         if not self.objects:
@@ -95,12 +128,6 @@ class GraspGeneratorParams:
             missing = [n for n in self.objects if n not in variants.FAMILIES]
             if missing:
                 raise ValueError(f"`variants`: no variant family for {missing}")
-        for name in ("approach_tilt_deg", "skew_deg", "offset_m", "height_margin_m"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"`{name}` must be >= 0, got {value!r}")
-        if not 0 <= self.end_fraction <= 1:
-            raise ValueError(f"`end_fraction` must be in [0, 1], got {self.end_fraction!r}")
         if not self.end_band_m > self.height_margin_m:
             raise ValueError(
                 f"`end_band_m` must be > height_margin_m ({self.height_margin_m!r}), "
@@ -112,8 +139,6 @@ class GraspGeneratorParams:
             )
         if not 0 < self.force_min_n <= self.force_max_n:
             raise ValueError(f"`force_max_n` must be >= force_min_n > 0, got {self.force_max_n!r}")
-        if self.max_tries < 1:
-            raise ValueError(f"`max_tries` must be >= 1, got {self.max_tries!r}")
 
 
 @dataclass(frozen=True)

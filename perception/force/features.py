@@ -27,10 +27,13 @@ pose that each frame carries.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import Annotated
 
 import cv2
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from geometry.camera import PinholeCamera
 from geometry.planar import rotation_about_centroid
@@ -38,36 +41,52 @@ from perception.contact import ContactParams, ContactPatcher, contact_mask
 from perception.shear import ShearParams, ShearTracker, resize_for_flow, tool_basis
 
 
-@dataclass(frozen=True, kw_only=True)
-class FeatureParams:
-    """Knobs of the feature extraction.
+class FeatureParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Knobs of the feature extraction."""
 
-    Attributes:
-        contact: the contact filter against the free bubble (a lower threshold than the
-            pose's patch: a force needs the whole pressed area, rim included).
-        flow: the dot flow (Farneback at half resolution, warm-started). DIS's ``fast``
-            preset at half resolution is faster but estimates its finest flow at an
-            eighth of the image: on ``world.sim``'s grasps it missed the object's slide
-            on the latex by 0.26 mm at the median (Farneback: 0.018 mm; ``bench.force``,
-            ``shift_err_mm_median``), and read a third of it on the square bottle's
-            flat face, where no shift limit could see the slide coming.
-        edge_px: working-resolution pixels from the patch's border that count as its edge.
-        min_patch_px: fewer working pixels of tracked patch than this: no tangential
-            measurement (the patch is too small to measure).
-    """
-
-    contact: ContactParams = field(
+    contact: Annotated[
+        ContactParams,
+        Meta(
+            description=(
+                "the contact filter against the free bubble (a lower threshold than the"
+                " pose's patch: a force needs the whole pressed area, rim included)."
+            )
+        ),
+    ] = msgspec.field(
         default_factory=lambda: ContactParams(threshold_m=0.0015, min_component_px=40)
     )
-    flow: ShearParams = field(default_factory=lambda: ShearParams(scale=0.5, warm_start=True))
-    edge_px: int = 3
-    min_patch_px: int = 12
-
-    def __post_init__(self) -> None:
-        if self.edge_px < 1:
-            raise ValueError(f"`edge_px` must be >= 1, got {self.edge_px!r}")
-        if self.min_patch_px < 3:
-            raise ValueError(f"`min_patch_px` must be >= 3, got {self.min_patch_px!r}")
+    flow: Annotated[
+        ShearParams,
+        Meta(
+            description=(
+                "the dot flow (Farneback at half resolution, warm-started). DIS's ``fast``"
+                " preset at half resolution is faster but estimates its finest flow at an"
+                " eighth of the image: on ``world.sim``'s grasps it missed the object's"
+                " slide on the latex by 0.26 mm at the median (Farneback: 0.018 mm;"
+                " ``bench.force``, ``shift_err_mm_median``), and read a third of it on the"
+                " square bottle's flat face, where no shift limit could see the slide coming."
+            )
+        ),
+    ] = msgspec.field(default_factory=lambda: ShearParams(scale=0.5, warm_start=True))
+    edge_px: Annotated[
+        int,
+        Meta(
+            ge=1,
+            description=(
+                "working-resolution pixels from the patch's border that count as its edge."
+            ),
+        ),
+    ] = 3
+    min_patch_px: Annotated[
+        int,
+        Meta(
+            ge=3,
+            description=(
+                "fewer working pixels of tracked patch than this: no tangential "
+                "measurement (the patch is too small to measure)."
+            ),
+        ),
+    ] = 12
 
 
 @dataclass(frozen=True)

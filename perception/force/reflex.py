@@ -18,37 +18,41 @@ as a heavier object: what the force cannot tell apart.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import Annotated
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 
-@dataclass(frozen=True, kw_only=True)
-class ReflexParams:
-    """The reflex's knobs (newtons, seconds).
+class ReflexParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """The reflex's knobs (newtons, seconds)."""
 
-    Attributes:
-        max_force_n: the object's bound on the grip force (WSG 50: 80 N at most).
-        step: each raise is at least this factor of the present grip force.
-        margin: the new grip keeps the load this far inside the friction cone
-            (tangential / (friction * normal) = 1 / margin).
-        cooldown_secs: no second raise within this time of the last.
-    """
-
-    max_force_n: float = 40.0
-    step: float = 1.5
-    margin: float = 1.6
-    cooldown_secs: float = 0.15
-
-    def __post_init__(self) -> None:
-        if not 0 < self.max_force_n <= 80.0:
-            raise ValueError(f"`max_force_n` must be in (0, 80], got {self.max_force_n!r}")
-        if not self.step >= 1.0:
-            raise ValueError(f"`step` must be >= 1, got {self.step!r}")
-        if not self.margin >= 1.0:
-            raise ValueError(f"`margin` must be >= 1, got {self.margin!r}")
-        if not self.cooldown_secs >= 0.0:
-            raise ValueError(f"`cooldown_secs` must be >= 0, got {self.cooldown_secs!r}")
+    max_force_n: Annotated[
+        float,
+        Meta(
+            gt=0,
+            le=80.0,
+            description="the object's bound on the grip force (WSG 50: 80 N at most).",
+        ),
+    ] = 40.0
+    step: Annotated[
+        float,
+        Meta(ge=1.0, description="each raise is at least this factor of the present grip force."),
+    ] = 1.5
+    margin: Annotated[
+        float,
+        Meta(
+            ge=1.0,
+            description=(
+                "the new grip keeps the load this far inside the friction cone "
+                "(tangential / (friction * normal) = 1 / margin)."
+            ),
+        ),
+    ] = 1.6
+    cooldown_secs: Annotated[
+        float, Meta(ge=0.0, description="no second raise within this time of the last.")
+    ] = 0.15
 
 
 class GripReflex:

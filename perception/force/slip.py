@@ -39,9 +39,11 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
-from typing import Literal
+from typing import Annotated, Literal
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from perception.force.estimators import Calibration
 from perception.force.features import ContactFeatures, shift_per_pressure
@@ -49,8 +51,7 @@ from perception.force.features import ContactFeatures, shift_per_pressure
 SlipPhase = Literal["stick", "edge", "patch"]
 
 
-@dataclass(frozen=True, kw_only=True)
-class SlipParams:
+class SlipParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Thresholds of the slip detector.
 
     ``strain`` is the core's tangential shift over the shift at which the rig's patch
@@ -60,39 +61,71 @@ class SlipParams:
     The limits are medians over the calibration's onsets, which spread by about 10%
     (0.63-0.78 um/Pa for the edge over ``world.sim``'s calibration grasps): both
     thresholds sit at 0.9 of them, so a low one fires a frame early rather than late.
-
-    Attributes:
-        edge_strain: ``strain`` from which the patch's edge counts as slipping.
-        patch_strain: the core's shift over the whole patch's limit
-            (``patch_m_per_pa * p``) from which the whole patch counts as slipping.
-        edge_follow: an edge following the core by less than this (over ``window``
-            frames) slips ...
-        edge_min_strain: ... when ``strain`` is at least this (the edge's lag alone is
-            noise under a light load; a patch that grows or settles moves its edge for
-            other reasons).
-        min_core_shift_m: the core must move at least this over ``window`` frames for
-            the edge's lag to mean anything (noise otherwise).
-        squeeze_change: a change of the normal force by more than this fraction within
-            ``window`` frames (the grip was raised or eased) restarts the window: the
-            patch changes shape, which is no slip.
-        window: frames over which the edge's lag is measured.
-        release_strain: an episode ends when ``strain`` falls under this ...
-        settle_frames: ... for this many frames.
-        min_normal_n: under this normal force there is no grip to slip from.
-        min_pressure_pa: under this gauge pressure there is no limit to compare with.
     """
 
-    edge_strain: float = 0.9
-    patch_strain: float = 0.9
-    edge_follow: float = 0.5
-    edge_min_strain: float = 0.8
-    min_core_shift_m: float = 0.00025
-    squeeze_change: float = 0.15
-    window: int = 4
-    release_strain: float = 0.8
-    settle_frames: int = 5
-    min_normal_n: float = 0.3
-    min_pressure_pa: float = 100.0
+    edge_strain: Annotated[
+        float, Meta(description="``strain`` from which the patch's edge counts as slipping.")
+    ] = 0.9
+    patch_strain: Annotated[
+        float,
+        Meta(
+            gt=0,
+            description=(
+                "the core's shift over the whole patch's limit (``patch_m_per_pa * p``)"
+                " from which the whole patch counts as slipping."
+            ),
+        ),
+    ] = 0.9
+    edge_follow: Annotated[
+        float,
+        Meta(
+            description=(
+                "an edge following the core by less than this (over ``window`` frames) slips ..."
+            )
+        ),
+    ] = 0.5
+    edge_min_strain: Annotated[
+        float,
+        Meta(
+            description=(
+                "... when ``strain`` is at least this (the edge's lag alone is noise "
+                "under a light load; a patch that grows or settles moves its edge for "
+                "other reasons)."
+            )
+        ),
+    ] = 0.8
+    min_core_shift_m: Annotated[
+        float,
+        Meta(
+            description=(
+                "the core must move at least this over ``window`` frames for the edge's"
+                " lag to mean anything (noise otherwise)."
+            )
+        ),
+    ] = 0.00025
+    squeeze_change: Annotated[
+        float,
+        Meta(
+            description=(
+                "a change of the normal force by more than this fraction within "
+                "``window`` frames (the grip was raised or eased) restarts the window: "
+                "the patch changes shape, which is no slip."
+            )
+        ),
+    ] = 0.15
+    window: Annotated[
+        int, Meta(ge=2, description="frames over which the edge's lag is measured.")
+    ] = 4
+    release_strain: Annotated[
+        float, Meta(description="an episode ends when ``strain`` falls under this ...")
+    ] = 0.8
+    settle_frames: Annotated[int, Meta(ge=1, description="... for this many frames.")] = 5
+    min_normal_n: Annotated[
+        float, Meta(description="under this normal force there is no grip to slip from.")
+    ] = 0.3
+    min_pressure_pa: Annotated[
+        float, Meta(description="under this gauge pressure there is no limit to compare with.")
+    ] = 100.0
 
     def __post_init__(self) -> None:
         if not 0 < self.release_strain <= self.edge_strain:
@@ -100,12 +133,6 @@ class SlipParams:
                 "`release_strain`, `edge_strain` must satisfy 0 < release <= edge, got"
                 f" {self.release_strain}, {self.edge_strain}"
             )
-        if not self.patch_strain > 0:
-            raise ValueError(f"`patch_strain` must be > 0, got {self.patch_strain!r}")
-        if self.window < 2:
-            raise ValueError(f"`window` must be >= 2, got {self.window!r}")
-        if self.settle_frames < 1:
-            raise ValueError(f"`settle_frames` must be >= 1, got {self.settle_frames!r}")
 
 
 @dataclass(frozen=True)

@@ -14,10 +14,11 @@ from __future__ import annotations
 
 import functools
 import time
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Annotated
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from geometry.fields import Field
 from perception.pose.problem import (
@@ -33,23 +34,14 @@ if TYPE_CHECKING:
     from scipy.spatial import cKDTree
 
 
-@dataclass(frozen=True, kw_only=True)
-class IcpParams:
+class IcpParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Knobs of the ICP baseline (defaults from docs/facts.md, iterations capped lower)."""
 
-    max_correspondence_m: float = 0.005
-    max_iterations: int = 100
+    max_correspondence_m: Annotated[float, Meta(gt=0.0)] = 0.005
+    max_iterations: Annotated[int, Meta(ge=1)] = 100
     rms_tol_m: float = 1e-7
-    model_points: int = 40000
+    model_points: Annotated[int, Meta(ge=100)] = 40000
     observability_floor: float = 1e-4
-
-    def __post_init__(self) -> None:
-        if not (self.max_correspondence_m > 0.0):
-            raise ValueError(f"max_correspondence_m must be > 0, got {self.max_correspondence_m}")
-        if self.max_iterations < 1:
-            raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
-        if self.model_points < 100:
-            raise ValueError(f"model_points must be >= 100, got {self.model_points}")
 
 
 @functools.lru_cache(maxsize=8)

@@ -54,11 +54,12 @@ from __future__ import annotations
 
 import functools
 import time
-from dataclasses import dataclass
-from typing import Any, TypeVar, cast
+from typing import Annotated, Any, Literal, TypeVar, cast
 
 import casadi as ca
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from geometry import se3
 from geometry.fields import Field
@@ -73,58 +74,58 @@ from perception.pose.problem import (
 )
 
 
-@dataclass(frozen=True, kw_only=True)
-class IpoptParams:
-    """Knobs of the IPOPT solve.
+class IpoptParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Knobs of the IPOPT solve."""
 
-    Attributes:
-        tol: IPOPT's ``tol`` (scaled NLP error).
-        max_iterations: IPOPT's ``max_iter``.
-        hessian: ``gauss_newton`` or ``exact``.
-        jit: ``auto`` (compile when a C compiler works), ``on`` (required) or ``off``.
-        compiler: the C compiler for ``jit`` (looked up on PATH).
-        min_bucket: the smallest padded point count.
-        observability_floor: as in ``LMParams``.
-        gauge_weight: weight of the prior on unobservable directions.
-        fit_dims: dimensions fitted beside the pose: ``radius``, ``height`` (the
-            field's ``dims_m`` without ``_m``).
-        dims_bound_ratio: a fitted dimension stays within this fraction of the model's.
-        dims_prior_weight: weight of the faint prior holding a dimension at the model.
-        cache_dir: where compiled solvers are kept ("" for the per-user default).
-    """
-
-    tol: float = 1e-8
-    max_iterations: int = 100
-    hessian: str = "gauss_newton"
-    jit: str = "auto"
-    compiler: str = "gcc"
-    min_bucket: int = 256
-    observability_floor: float = 1e-4
-    gauge_weight: float = 1.0
-    fit_dims: tuple[str, ...] = ()
-    dims_bound_ratio: float = 0.2
-    dims_prior_weight: float = 1e-6
-    cache_dir: str = ""
+    tol: Annotated[float, Meta(gt=0.0, description="IPOPT's ``tol`` (scaled NLP error).")] = 1e-8
+    max_iterations: Annotated[int, Meta(ge=1, description="IPOPT's ``max_iter``.")] = 100
+    hessian: Annotated[
+        Literal["gauss_newton", "exact"], Meta(description="``gauss_newton`` or ``exact``.")
+    ] = "gauss_newton"
+    jit: Annotated[
+        Literal["auto", "on", "off"],
+        Meta(
+            description=(
+                "``auto`` (compile when a C compiler works), ``on`` (required) or ``off``."
+            )
+        ),
+    ] = "auto"
+    compiler: Annotated[
+        str, Meta(description="the C compiler for ``jit`` (looked up on PATH).")
+    ] = "gcc"
+    min_bucket: Annotated[int, Meta(ge=8, description="the smallest padded point count.")] = 256
+    observability_floor: Annotated[float, Meta(description="as in ``LMParams``.")] = 1e-4
+    gauge_weight: Annotated[
+        float, Meta(ge=0.0, description="weight of the prior on unobservable directions.")
+    ] = 1.0
+    fit_dims: Annotated[
+        tuple[str, ...],
+        Meta(
+            description=(
+                "dimensions fitted beside the pose: ``radius``, ``height`` (the field's"
+                " ``dims_m`` without ``_m``)."
+            )
+        ),
+    ] = ()
+    dims_bound_ratio: Annotated[
+        float,
+        Meta(
+            gt=0.0,
+            lt=1.0,
+            description="a fitted dimension stays within this fraction of the model's.",
+        ),
+    ] = 0.2
+    dims_prior_weight: Annotated[
+        float,
+        Meta(ge=0.0, description="weight of the faint prior holding a dimension at the model."),
+    ] = 1e-6
+    cache_dir: Annotated[
+        str, Meta(description='where compiled solvers are kept ("" for the per-user default).')
+    ] = ""
 
     def __post_init__(self) -> None:
-        if self.hessian not in ("gauss_newton", "exact"):
-            raise ValueError(f"hessian must be 'gauss_newton' or 'exact', got {self.hessian!r}")
-        if self.jit not in ("auto", "on", "off"):
-            raise ValueError(f"jit must be 'auto', 'on' or 'off', got {self.jit!r}")
-        if not (self.tol > 0.0):
-            raise ValueError(f"tol must be > 0, got {self.tol}")
-        if self.max_iterations < 1:
-            raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
-        if self.min_bucket < 8:
-            raise ValueError(f"min_bucket must be >= 8, got {self.min_bucket}")
-        if not (self.gauge_weight >= 0.0):
-            raise ValueError(f"gauge_weight must be >= 0, got {self.gauge_weight}")
         if len(set(self.fit_dims)) != len(self.fit_dims):
             raise ValueError(f"fit_dims must not repeat a name, got {list(self.fit_dims)}")
-        if not (0.0 < self.dims_bound_ratio < 1.0):
-            raise ValueError(f"dims_bound_ratio must be in (0, 1), got {self.dims_bound_ratio}")
-        if not (self.dims_prior_weight >= 0.0):
-            raise ValueError(f"dims_prior_weight must be >= 0, got {self.dims_prior_weight}")
 
 
 #: IPOPT return statuses that mean a converged solve.

@@ -19,9 +19,11 @@ rigid seed, else ``ValueError``.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from typing import Annotated
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from geometry import se3
 from geometry.fields import Field
@@ -35,23 +37,14 @@ from perception.pose.problem import (
 )
 
 
-@dataclass(frozen=True, kw_only=True)
-class LMParams:
+class LMParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Knobs of the LM solver (defaults: converged to well below depth noise)."""
 
-    max_iterations: int = 60
-    cost_tol: float = 1e-8
-    step_tol_m: float = 1e-8
-    observability_floor: float = 1e-4
-    damping_init: float = 1e-4
-
-    def __post_init__(self) -> None:
-        if self.max_iterations < 1:
-            raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
-        for name in ("cost_tol", "step_tol_m", "observability_floor", "damping_init"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be > 0, got {value}")
+    max_iterations: Annotated[int, Meta(ge=1)] = 60
+    cost_tol: Annotated[float, Meta(gt=0)] = 1e-8
+    step_tol_m: Annotated[float, Meta(gt=0)] = 1e-8
+    observability_floor: Annotated[float, Meta(gt=0)] = 1e-4
+    damping_init: Annotated[float, Meta(gt=0)] = 1e-4
 
 
 class LMSolver:

@@ -48,9 +48,11 @@ def test_nodes_impl_shows_params_with_defaults_units_and_limits(
 ) -> None:
     assert launch.main(["nodes", "synthetic.source"]) == 0
     out = capsys.readouterr().out
-    (rate,) = [line.split() for line in out.splitlines() if line.strip().startswith("rate_hz")]
+    rows = [line.split() for line in out.splitlines() if line.strip()]
+    (rate,) = [row for row in rows if row[0] == "rate_hz"]
     assert rate == ["rate_hz", "float", "20.0", "Hz", ">", "0"]
-    (count,) = [line.split() for line in out.splitlines() if line.strip().startswith("count")]
+    (count,) = [row for row in rows if row[0] == "count"]
+    assert "  rate_hz: ticks per second" in out  # the declared description
     assert count == ["count", "int", "100", "-", ">=", "0"]
     text = node_details(NESTED)
     assert "inputs:  tick:Tick" in text

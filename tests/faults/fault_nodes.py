@@ -7,16 +7,16 @@ import os
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import msgspec
 
 from messages import Header, Pressure, Tick, encode
 from runtime.node import IO, Node
 
 
-@dataclass(frozen=True, kw_only=True)
-class TickerParams:
+class TickerParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     rate_hz: float = 50.0
     init_secs: float = 0.0  # sleep while being built: a node still importing its module
     crash_after: int = 0  # ticks, then exit 3 once (a marker file remembers it)
@@ -57,8 +57,7 @@ class Ticker(Node):
             os._exit(3)
 
 
-@dataclass(frozen=True, kw_only=True)
-class CorruptParams:
+class CorruptParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     count: int = 120
     corrupt_every: int = 30  # every n-th tick carries a wild seq
     garbage_every: int = 20  # every n-th publication is followed by an undecodable frame
@@ -90,8 +89,7 @@ class SeqCorrupter(Node):
             self.io.request_stop("corrupting done")
 
 
-@dataclass(frozen=True, kw_only=True)
-class BadPressureParams:
+class BadPressureParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     count: int = 40
 
 
@@ -125,8 +123,7 @@ class PressureSink(Node):
         pass
 
 
-@dataclass(frozen=True, kw_only=True)
-class SpawnerParams:
+class SpawnerParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     pid_file: str
 
 

@@ -11,6 +11,7 @@ from geometry import objects
 from geometry.gripper import DEFAULT_GRIPPER
 from geometry.se3 import invert
 from perception.classify.autolabel import GraspGenerator, GraspGeneratorParams, end_distance_m
+from runtime.params import build_params
 
 
 @pytest.fixture(scope="module")
@@ -82,13 +83,13 @@ def test_end_fraction_draws_near_the_ends_and_zero_changes_nothing(grasps) -> No
 
 def test_bad_params_and_impossible_grasps() -> None:
     with pytest.raises(ValueError, match="objects"):
-        GraspGeneratorParams(objects=("teapot",))
+        build_params(GraspGeneratorParams, {"objects": ("teapot",)})
     with pytest.raises(ValueError, match="squeeze_max_m"):
-        GraspGeneratorParams(squeeze_min_m=0.01, squeeze_max_m=0.005)
+        build_params(GraspGeneratorParams, {"squeeze_min_m": 0.01, "squeeze_max_m": 0.005})
     with pytest.raises(ValueError, match="end_fraction"):
-        GraspGeneratorParams(end_fraction=1.5)
+        build_params(GraspGeneratorParams, {"end_fraction": 1.5})
     with pytest.raises(ValueError, match="end_band_m"):
-        GraspGeneratorParams(end_band_m=0.004)
+        build_params(GraspGeneratorParams, {"end_band_m": 0.004})
     with pytest.raises(ValueError, match="grasp_id"):
         GraspGenerator(GraspGeneratorParams()).sample(-1)
     # A clearance larger than the stroke leaves no feasible grasp: a clear error.

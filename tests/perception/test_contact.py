@@ -8,6 +8,7 @@ import pytest
 from geometry.camera import PinholeCamera
 from geometry.gripper import tool_from_sensor
 from perception.contact import ContactParams, ContactPatcher, contact_mask
+from runtime.params import build_params
 
 CAM = PinholeCamera.from_fov(64, 48)
 
@@ -96,6 +97,6 @@ def test_reference_averages_valid_frames_only() -> None:
 
 def test_params_checked() -> None:
     with pytest.raises(ValueError, match="threshold_m"):
-        ContactParams(threshold_m=0.0)
+        build_params(ContactParams, {"threshold_m": 0.0})
     with pytest.raises(ValueError, match="shape"):
         contact_mask(np.zeros((2, 2)), np.zeros((3, 3)), ContactParams())

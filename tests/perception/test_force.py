@@ -23,6 +23,7 @@ from perception.force.estimators import (
 from perception.force.features import BubbleFeatures, ContactFeatures, rim_correction
 from perception.force.reflex import GripReflex, PullWatch, ReflexParams
 from perception.force.slip import SlipDetector
+from runtime.params import build_params
 
 LEFT_NORMAL = np.array([-1.0, 0.0, 0.0])
 
@@ -224,7 +225,7 @@ def test_reflex_raises_to_what_the_load_needs_bounded_and_not_twice_at_once() ->
     assert reflex.on_slip(1.2, 20.0) == 12.0  # the object's bound
     assert reflex.on_slip(1.5, 30.0) is None
     with pytest.raises(ValueError, match="max_force_n"):
-        ReflexParams(max_force_n=100.0)
+        build_params(ReflexParams, {"max_force_n": 100.0})
 
 
 def test_pull_is_told_from_a_heavier_load_by_its_direction() -> None:

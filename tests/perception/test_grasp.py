@@ -10,6 +10,7 @@ import pytest
 
 import sim
 from perception.grasp import GraspMonitor, GraspParams
+from runtime.params import build_params
 
 RATE_HZ = 100.0
 BASE_PA = 1000.0
@@ -158,11 +159,11 @@ def test_unknown_sensor_and_bad_params():
     with pytest.raises(ValueError, match="sensor"):
         GraspMonitor().update_pressure("middle", 1.0, 0)
     with pytest.raises(ValueError, match="release_rise_pa"):
-        GraspParams(contact_rise_pa=10.0, release_rise_pa=20.0)
+        build_params(GraspParams, {"contact_rise_pa": 10.0, "release_rise_pa": 20.0})
     with pytest.raises(ValueError, match="release_opening_m"):
-        GraspParams(release_opening_m=0.0)
+        build_params(GraspParams, {"release_opening_m": 0.0})
     with pytest.raises(ValueError, match="dwell_secs"):
-        GraspParams(dwell_secs=-1.0)
+        build_params(GraspParams, {"dwell_secs": -1.0})
 
 
 def run_scene(path: str, monitor: GraspMonitor, noise_pa: float = 0.0, seed: int = 0):

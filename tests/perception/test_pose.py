@@ -10,6 +10,7 @@ from geometry.objects import ObjectModel
 from perception.pose import metrics, problem, synthetic
 from perception.pose.estimator import EstimatorParams, PoseEstimator
 from perception.pose.lm import LMSolver
+from runtime.params import build_params
 
 CYL = ObjectModel(
     name="cylinder",
@@ -148,6 +149,6 @@ def test_solver_errors_become_failed_status() -> None:
 
 def test_params_are_checked() -> None:
     with pytest.raises(ValueError, match="noise_m"):
-        EstimatorParams(noise_m=-1.0)
+        build_params(EstimatorParams, {"noise_m": -1.0})
     with pytest.raises(ValueError, match="min_points"):
-        EstimatorParams(min_points=2)
+        build_params(EstimatorParams, {"min_points": 2})

@@ -30,6 +30,7 @@ from perception.shear import (
     tangent_basis,
     tool_basis,
 )
+from runtime.params import build_params
 from sim.material_flow import SimGrasp, truth
 
 
@@ -256,16 +257,16 @@ def test_shape_mismatch_is_an_error():
 )
 def test_params_name_the_bad_field(kwargs, field):
     with pytest.raises(ValueError, match=field):
-        ShearParams(**kwargs)
+        build_params(ShearParams, kwargs)
 
 
 def test_flow_params_name_the_bad_field():
     with pytest.raises(ValueError, match="poly_n"):
-        FarnebackParams(poly_n=4)
+        build_params(FarnebackParams, {"poly_n": 4})
     with pytest.raises(ValueError, match="preset"):
-        DisParams(preset="slow")
+        build_params(DisParams, {"preset": "slow"})
     with pytest.raises(ValueError, match="patch_stride"):
-        DisParams(patch_size=4, patch_stride=8)
+        build_params(DisParams, {"patch_size": 4, "patch_stride": 8})
 
 
 def test_stretch_ir_flat_and_empty_images_are_mid_grey():

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import random
-from dataclasses import dataclass, field
+from typing import Annotated
+
+import msgspec
+from msgspec import Meta
 
 from messages import Header, Pressure, Tick, encode
 from runtime.node import Node
@@ -16,8 +19,7 @@ class PressureSource(Node):
     outputs = {"pressure": Pressure}
 
 
-@dataclass(frozen=True, kw_only=True)
-class FuzzParams:
+class FuzzParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     count: int = 50
     seed: int = 0
 
@@ -63,32 +65,18 @@ class Fuzzer(Node):
             self.io.request_stop("fuzzing done")
 
 
-@dataclass(frozen=True, kw_only=True)
-class InnerParams:
-    winsize: int = 15
-
-    def __post_init__(self) -> None:
-        if not 3 <= self.winsize <= 201:
-            raise ValueError(f"`winsize` must be in [3, 201], got {self.winsize!r}")
+class InnerParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    winsize: Annotated[int, Meta(ge=3, le=201)] = 15
 
 
-@dataclass(frozen=True, kw_only=True)
-class NestedParams:
-    """Nested parameters and a file that must exist, as the graph checker sees them.
+class NestedParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Nested parameters and a file that must exist, as the graph checker sees them."""
 
-    Attributes:
-        inner: the nested knobs.
-        tol: a solver tolerance.
-        model: a file read at start.
-    """
-
-    inner: InnerParams = field(default_factory=InnerParams)
-    tol: float = 1e-6
-    model: ExistingFile = __file__
-
-    def __post_init__(self) -> None:
-        if not self.tol > 0:
-            raise ValueError(f"tol must be > 0, got {self.tol}")
+    inner: Annotated[InnerParams, Meta(description="the nested knobs")] = msgspec.field(
+        default_factory=InnerParams
+    )
+    tol: Annotated[float, Meta(gt=0, description="a solver tolerance.")] = 1e-6
+    model: Annotated[ExistingFile, Meta(description="a file read at start.")] = __file__
 
 
 class NestedNode(Node):

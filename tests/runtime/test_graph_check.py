@@ -455,3 +455,62 @@ def test_every_registered_implementation_reports_bad_params_in_the_one_style() -
                 assert ", got " in text or err.rule.startswith("is required"), (impl, text)
                 checked += 1
     assert checked > 50
+
+
+def test_every_parameter_class_is_a_declared_struct_that_refuses_unknown_fields() -> None:
+    import inspect
+
+    import msgspec.inspect as mi
+
+    import nodes
+
+    nodes.import_all()
+    seen: dict[type, mi.Type] = {}
+
+    def walk(t: mi.Type) -> None:
+        if isinstance(t, mi.Metadata):
+            walk(t.type)
+        elif isinstance(t, mi.UnionType):
+            for member in t.types:
+                walk(member)
+        elif isinstance(t, mi.StructType | mi.DataclassType):
+            seen[t.cls] = t
+            for f in t.fields:
+                walk(f.type)
+
+    for impl in known():
+        walk(mi.type_info(graphs.resolve(impl).Params))
+    loose = sorted(
+        cls.__qualname__
+        for cls, t in seen.items()
+        if not (
+            isinstance(t, mi.StructType)
+            and t.forbid_unknown_fields
+            and cls.__struct_config__.frozen
+            and all(p.kind is p.KEYWORD_ONLY for p in inspect.signature(cls).parameters.values())
+        )
+    )
+    assert len(seen) > 30 and loose == []
+
+
+@pytest.mark.parametrize(
+    "values, line",
+    [
+        ({"method": 5}, "params.method: must be one of ('farneback',), got 5"),
+        ({"farneback": {"poly_n": 6}}, "params.farneback.poly_n: must be one of (5, 7), got 6"),
+        ({"dis": {"patch_size": 1}}, "params.dis.patch_size: must be >= 2, got 1"),
+        (
+            {"dis": {"patch_size": "a"}},
+            "params.dis.patch_size: must be an integer or null, got 'a'",
+        ),
+        ({"farneback": {"pyr_scale": 1}}, "params.farneback.pyr_scale: must be in (0, 1), got 1"),
+        ({"max_depth_m": 0.0}, "params.max_depth_m: must be > min_depth_m (0.01), got 0.0"),
+    ],
+)
+def test_declared_choices_and_limits_read_in_the_one_style(values: dict, line: str) -> None:
+    from nodes.shear_tracker import FarnebackTrackerParams
+    from runtime.params import ParamError, build_params
+
+    with pytest.raises(ParamError) as info:
+        build_params(FarnebackTrackerParams, values)
+    assert info.value.line() == line

@@ -19,7 +19,6 @@ devices (``--emulate``). The two replays of a case run at the same time.
 from __future__ import annotations
 
 import copy
-import dataclasses
 import functools
 import logging
 from collections.abc import Callable
@@ -34,6 +33,7 @@ from messages.errors import GraphError
 from runtime.bag import BagReader
 from runtime.bag.diff import diff_bags
 from runtime.graph import check
+from runtime.params import field_names
 from runtime.registry import known, resolve
 from runtime.replaygraph import ReplayOptions, build_replay_graph
 from sim.rig_launch import DEVICE_IMPLS
@@ -116,7 +116,7 @@ def alternatives(doc: dict[str, Any], node: str) -> list[str]:
         trial = copy.deepcopy(doc)
         body = trial["nodes"][node]
         body["impl"] = impl
-        fields = {f.name for f in dataclasses.fields(resolve(impl).Params)}
+        fields = set(field_names(resolve(impl).Params))
         body["params"] = {k: v for k, v in (body.get("params") or {}).items() if k in fields}
         try:
             check(trial)

@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
+
+import msgspec
 
 from messages import Header, Tick
 from runtime.node import Node
 from tests.runtime.conftest import GraphRun, sink
 
 
-@dataclass(frozen=True, kw_only=True)
-class VerdictParams:
+class VerdictParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     count: int = 20
     exit_code: int = 0
 
