@@ -279,7 +279,9 @@ def video_bag(
     ``stills`` (a folder) receives PNG frames at moments: the first and last frame, the
     first after each grasp or task event, and the first with the pose tracked (``ok`` or
     ``recovered``) after it was not; each named ``STEM_FRAME_tSECONDS_MOMENT.png``, the
-    moment written on its bar too. A message that cannot be drawn (undecodable, or a NaN
+    moment written on its bar too. Moments that fall on one frame (a grasp's ``stable``
+    and the task's answer to it, stamped alike) are all named there, sorted, so the name
+    does not depend on which of them the bag holds first. A message that cannot be drawn (undecodable, or a NaN
     where a number must be finite) is skipped and counted in ``skipped``.
     """
     samples = []
@@ -295,7 +297,7 @@ def video_bag(
     if fps <= 0:  # the cameras' rate: the median interval, which one wild stamp cannot move
         gaps = np.diff(np.array(stamps, dtype=np.float64)) * 1e-9
         fps = float(np.clip(1 / np.median(gaps), 1.0, 1000.0)) if len(gaps) else 30.0
-    moments = {0: "first", len(stamps) - 1: "last"}  # frame -> what a still shows there
+    moments: dict[int, set[str]] = {0: {"first"}, len(stamps) - 1: {"last"}}  # frame -> stills
     state = MosaicState(object_name=object_name, depth_span_m=depth_range(np.concatenate(samples)))
     writer: Any = None
     frames = 0
@@ -305,7 +307,7 @@ def video_bag(
 
     def emit() -> None:
         nonlocal writer, frames, size
-        moment = moments.get(frames, "") if stills is not None else ""
+        moment = ", ".join(sorted(moments.get(frames, ()))) if stills is not None else ""
         image = state.render(scale, moment)
         if writer is None:
             size = (image.shape[0], image.shape[1])
@@ -333,13 +335,13 @@ def video_bag(
                         skipped.guard(topic, msg, emit)
                     pending = max(pending or 0, msg.header.stamp_nanos)
                 elif isinstance(msg, TaskEvent):
-                    moments.setdefault(frames, f"{msg.task} {msg.event}")
+                    moments.setdefault(frames, set()).add(f"{msg.task} {msg.event}")
                 elif isinstance(msg, GraspState) and msg.event:
-                    moments.setdefault(frames, f"grasp {msg.event}")
+                    moments.setdefault(frames, set()).add(f"grasp {msg.event}")
                 elif isinstance(msg, PoseEstimate):
                     now_tracked = msg.status in ("ok", "recovered")
                     if now_tracked and not tracked:
-                        moments.setdefault(frames, f"pose {msg.status}")
+                        moments.setdefault(frames, set()).add(f"pose {msg.status}")
                     tracked = now_tracked
                 skipped.guard(topic, msg, lambda: state.update(topic, msg))  # noqa: B023
             if pending is not None:

@@ -202,9 +202,12 @@ def test_video_has_one_frame_per_camera_instant(run: tuple[Path, Path], tmp_path
     names = [re.fullmatch(r"run_(\d{5})_t(\d\d\.\d\d)s_(\w+)\.png", p.name) for p in pngs]
     assert all(names), [p.name for p in pngs]
     moments = [m.group(3) for m in names if m]
-    assert moments[0] == "first" and moments[-1] == "last"
-    assert "handover_release" in moments and "grasp_stable" in moments
-    assert sum(m.startswith("handover_") for m in moments) <= events
+    assert "first" in moments[0] and "last" in moments[-1]
+    # moments on one frame share its still, all named, sorted (a grasp's stable and the
+    # task's answer to it are stamped alike)
+    assert any("handover_release" in m for m in moments)
+    assert any("grasp_stable" in m for m in moments)
+    assert sum(m.count("handover_") for m in moments) <= events
     for png in pngs:
         assert cv2.imread(str(png)).shape == (BAR_PX + 3 * height, 2 * width + LEGEND_PX, 3)
 
