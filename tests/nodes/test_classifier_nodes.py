@@ -237,6 +237,39 @@ def test_world_builds_the_requested_variant() -> None:
     assert reference.object.model().dims_m == objects.make(request.object_name).dims_m
 
 
+def test_cameras_render_the_variant_the_world_holds() -> None:
+    """The sensor nodes rebuild the world's scene from its ``WorldState``: a variant the
+    auto-labeller placed must reach them, not the scene file's reference shape."""
+    from nodes.bubble_camera import SimBubbleCamera
+    from sim.tof import BubbleRenderer
+    from sim.wire import from_message, scene_of
+
+    request = _request(seed=5, variants="held_out")
+    held = AutolabelWorldParams(seed=13).scene_for(request)
+    world, wio = make_node(AutolabelWorld, {"seed": 13}, name="world")
+    feed(world, "place", request)
+    feed(world, "command", _close_on(request))
+    wio.advance(1.5)
+    state = wio.published["state"][-1]
+    assert all(state.in_contact)
+    assert scene_of(state).object == held.object
+    camera, cio = make_node(SimBubbleCamera, {"sensor": "left"})
+    feed(camera, "world", state)
+    image = cio.published["image"][-1]
+    renderer = BubbleRenderer(held, "left")
+    expected = renderer.render(from_message(state)).tof_image(
+        renderer.camera, state.header.stamp_nanos
+    )
+    np.testing.assert_array_equal(image.depth_m, expected.depth_m)
+    # and the reference shape at the same pose and opening looks different
+    reference = AutolabelWorldParams(seed=13).scene_for(
+        msgspec.structs.replace(request, variant=-1)
+    )
+    other = BubbleRenderer(reference, "left").render(from_message(state))
+    depth = other.tof_image(renderer.camera, state.header.stamp_nanos).depth_m
+    assert not np.array_equal(depth, expected.depth_m, equal_nan=True)
+
+
 def _close_on(request: GraspRequest) -> GripperCommand:
     """The command that closes the jaws on a requested grasp, as the supervisor sends it."""
     return GripperCommand(
