@@ -45,7 +45,8 @@ class WorldState(Message):
     it; empty (0, 3) arrays, spacing 0, from a world without one. ``object_dims_m`` and
     ``object_variant`` are the object the world holds when it is not the scene file's
     (the auto-labeller's variants, ``geometry.variants``; -1: no variant): the sensor
-    nodes build that object, not the file's.
+    nodes build that object, not the file's; ``tension_n_per_m`` the membrane's tension
+    when the world drew one (``sim.rig.BubbleSpec``; 0: the file's).
     """
 
     header: Header
@@ -71,6 +72,7 @@ class WorldState(Message):
     membrane_right_m: _Points = msgspec.field(default_factory=_no_points)
     object_dims_m: dict[str, float] = msgspec.field(default_factory=dict)
     object_variant: int = -1
+    tension_n_per_m: float = 0.0
 
 
 class PlacementTruth(Message):

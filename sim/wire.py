@@ -53,6 +53,7 @@ def to_message(snap: WorldSnapshot, scene: Scene, stamp_nanos: int) -> WorldStat
         **_membranes(snap),
         object_dims_m=dict(scene.object.dims_m),
         object_variant=-1 if scene.object.variant is None else int(scene.object.variant),
+        tension_n_per_m=float(scene.bubble.tension_n_per_m),
     )
 
 
@@ -98,15 +99,19 @@ def from_message(msg: WorldState) -> WorldSnapshot:
 
 def scene_of(msg: WorldState) -> Scene:
     """The scene a ``WorldState`` was produced from, holding the message's object (a
-    variant the world placed in the file's scene; loaded once per path, effects, seed
-    and object)."""
-    return _scene(
+    variant the world placed in the file's scene) and membrane tension (loaded once per
+    path, effects, seed, object and tension)."""
+    scene = _scene(
         msg.scene_path,
         tuple(msg.effects),
         msg.seed,
         tuple(sorted(msg.object_dims_m.items())),
         msg.object_variant,
     )
+    if msg.tension_n_per_m > 0 and msg.tension_n_per_m != scene.bubble.tension_n_per_m:
+        bubble = dataclasses.replace(scene.bubble, tension_n_per_m=msg.tension_n_per_m)
+        scene = dataclasses.replace(scene, bubble=bubble)
+    return scene
 
 
 @functools.lru_cache(maxsize=8)
