@@ -388,7 +388,15 @@ class AutolabelWorldParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unk
     effects: tuple[str, ...] = DEFAULT_EFFECTS
     seed: int = 0
     rate_scale: Annotated[float, Meta(gt=0)] = 1.0
-    tension_n_per_m: tuple[float, float] = (0.0, 0.0)
+    tension_n_per_m: Annotated[
+        tuple[float, float],
+        Meta(
+            description=(
+                "[low, high]: each grasp's membrane tension, N/m, drawn uniformly from "
+                "(seed, grasp id); [0, 0]: the scenes' slack membrane."
+            )
+        ),
+    ] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         low, high = self.tension_n_per_m
