@@ -119,6 +119,7 @@ class Launcher:
         self.exit_code = 0
         self.verdict_code = 0  # a node's verdict on the run (stop_request's exit_code)
         self.idle_waiters: list[bytes] = []
+        self.last_sent = False  # a source waited for idle after its last message (lockstep)
         # What the graph had received when a waiter was last told it is busy (see _serve).
         self.received_total = 0
         self.received_told = -1
@@ -299,10 +300,12 @@ class Launcher:
             proc.counts_published = msg.published
             proc.counts_received = msg.received
             proc.counts_held = msg.held
+            proc.counts_pending = msg.pending
             proc.released = False
             self.counts_changed = True
         elif isinstance(msg, WaitIdle):
             self.idle_waiters.append(rid)
+            self.last_sent = self.last_sent or bool(msg.last)
         elif isinstance(msg, StopRequest):
             reason = msg.reason
             verdict = msg.exit_code
@@ -342,7 +345,19 @@ class Launcher:
             if proc is not None and not proc.released:
                 proc.released = True  # once, until its next counts
                 self.control.send(proc.rid, Release())
-        return arrived and not held
+        # Messages waiting in a node's stamp order (runtime.ordering) wait for later ones,
+        # which come until the source has sent its last message; then they go, the
+        # nodes upstream first, as the held ones do.
+        pending = self.last_sent and [
+            n for n, p in self.procs.items() if any(p.counts_pending.values())
+        ]
+        if arrived and not held and pending:
+            first = next((n for n in self.release_order if n in pending), "")
+            proc = self.procs.get(first)
+            if proc is not None and not proc.released:
+                proc.released = True
+                self.control.send(proc.rid, Release(pending=1))
+        return arrived and not held and not pending
 
     def _serve(self, timeout_ms: int) -> None:
         # Wakes for a node's message or for the link's (an event, or another host's counts).

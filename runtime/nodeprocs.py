@@ -49,6 +49,8 @@ class Proc:
     counts_received: dict[str, int] = field(default_factory=dict)
     signalled: set[int] = field(default_factory=set)  # what the launcher sent this incarnation
     counts_held: dict[str, int] = field(default_factory=dict)  # an ordered fan-in's, per port
+    # Waiting for its other ordered inputs (``runtime.ordering``), per port.
+    counts_pending: dict[str, int] = field(default_factory=dict)
     released: bool = False  # told to handle what it holds (lockstep), since its last counts
 
 

@@ -102,6 +102,10 @@ class HandoverSupervisor(SingleGraspTask):
         "slip": SlipState,
     }
     optional_inputs = frozenset({"pose", "wrench", "slip"})
+    # A release (shear, wrench) and a squeeze (slip) answer frames that reach the task by
+    # paths of different lengths: taken in stamp order, live as in a replay. The pose is
+    # for information only and goes straight through.
+    ordered_inputs = ("grasp", "shear", "wrench", "slip")
     task = "handover"
 
     def setup(self) -> None:
