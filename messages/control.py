@@ -40,9 +40,10 @@ launcher <-> launcher (one per host, ``runtime.hostlink``; CURVE-encrypted tcp)
                                                  nodes are ready (or running)
     link_ping  {host, t1} / link_pong {host, t1, t2, t3}   clock offset (NTP-style)
     link_stop  {host, reason, exit_code}         the graph stops
-    link_counts {host, published, received, held}  lockstep: its nodes' newest counts,
-                                                 sent when one changes (received and
-                                                 held: "node/port")
+    link_counts {host, published, received, held, pending, last}  lockstep: its nodes'
+                                                 newest counts, sent when one changes
+                                                 (received, held and pending: "node/port";
+                                                 last=1: its replay sent its last message)
     link_final {host, published}                 stopping: its nodes (but for listeners fed
                                                  from other hosts) have stopped, and
                                                  published this much in all, per topic
@@ -164,6 +165,8 @@ class LinkCounts(FromHost, tag="link_counts"):
     published: dict[str, Count]
     received: dict[str, Count]
     held: dict[str, Count]
+    pending: dict[str, Count] = msgspec.field(default_factory=dict)
+    last: Flag = 0
 
 
 class LinkFinal(FromHost, tag="link_final"):

@@ -150,6 +150,11 @@ def counts(
     return published, received, held
 
 
+def pending(procs: Mapping[str, Proc]) -> dict[str, int]:
+    """What these nodes hold in stamp order (``runtime.ordering``), per node/port."""
+    return {f"{x}/{port}": n for x, p in procs.items() for port, n in p.counts_pending.items() if n}
+
+
 def totals(procs: Mapping[str, Proc]) -> dict[str, int]:
     """What these nodes published, per topic, every incarnation summed."""
     stats = [add_stats(p.stats_base, p.stats) for p in procs.values()]
