@@ -171,8 +171,8 @@ class PoseEstimator:
         # The sensor's noise does not change between frames: measured on a search, kept
         # while tracking.
         kept = self.last_noise_m if tracking else 0.0
-        noise = prm.noise_m or kept or max(estimate_noise_m(pts), prm.min_noise_m)
         rays = camera_rays(pts, sides)
+        noise = prm.noise_m or kept or max(estimate_noise_m(pts, rays), prm.min_noise_m)
         if prior is not None:
             first = self._solve(pts, prior)
             if self._warm_stands(first, prior, tracking, noise):
