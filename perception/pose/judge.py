@@ -79,7 +79,7 @@ from perception.pose.problem import (
 #: chi-square 95% quantiles for 0-6 degrees of freedom.
 CHI2_95 = (0.0, 3.841, 5.991, 7.815, 9.488, 11.070, 12.592)
 #: Fitted calibration (module docstring; measured by ``bench.pose_hard``).
-INFLATION = 1.5
+INFLATION = 1.0
 BIAS_ERROR = 0.6
 #: Points already in the object frame (``ray_bias`` evaluates rows there).
 IDENTITY = np.eye(4)
