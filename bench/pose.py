@@ -466,6 +466,8 @@ COLUMNS = [
     "right_suspect_share",
     "silent_wrong",
     "coverage95",
+    "coverage95_lo",
+    "coverage95_hi",
     "coverage95_ok",
     "region95_deg_median",
     "fit_dims",

@@ -10,7 +10,11 @@ Uncertainty (:func:`uncertainty`), from the fit at the estimate whatever solver 
   covariance is zero along them and ``observable`` says so. Only the points where the
   field is smooth across the noise count here: a slide seen only through the few noisy
   points pushed past a rim is not observed (its Gaussian spread would not describe
-  its error).
+  its error). A direction those points miss counts still when the whole cloud observes
+  it through at least ``SPREAD`` of its points (a box's corner at 3 mm noise, where the
+  noise crosses an edge almost everywhere but each face holds a third of the points).
+  The spread's curvature is measured (:func:`curvature`): where points cross an edge
+  or a corner the cost is flatter than ``J^T J`` says.
 - Noise: the residuals themselves, point by point (the "sandwich" covariance
   ``H^-1 (sum r_i^2 a_i a_i^T) H^-1`` with ``H = sum a_i a_i^T``): noise along the
   camera rays leaves less in the residual where a ray meets the surface obliquely, and
@@ -38,15 +42,18 @@ Uncertainty (:func:`uncertainty`), from the fit at the estimate whatever solver 
   coherent bias of ``b = MODEL_ERROR * noise^2 / length`` per point, ``b^2 n H^-1``,
   with ``length`` the object's half diagonal; it does not know the rays' direction and
   is not calibrated.
-- Calibration: the statistical part is scaled by ``INFLATION``. ``INFLATION`` and
-  ``BIAS_ERROR`` were fitted on synthetic two-bubble clouds (cylinders of radius 30-50
-  mm, a 60x60x160 mm box on a face, an edge and a corner, the PET bottle by its body;
-  0.5-3 mm noise along the rays; 3000 points; LM, cold starts; 280 estimates) so that
-  the 95% region holds the truth at least 95% of the time over all of them (97%; with
-  less, cells at 3 mm fell under 90%); ``EDGE_ERROR`` the least of 0.05, 0.1, 0.2 and
-  0.3 that covered every one of 8 box-corner clouds at 3 mm noise (0.05: 6, 0.1: 7;
-  at 2 mm, and on the other shapes at 2-3 mm, it changed no case);
-  ``bench.pose_hard`` measures the coverage per shape, noise and solver.
+- Calibration: the statistical part is scaled by ``INFLATION``, 1: no factor is needed.
+  It was fitted on synthetic two-bubble clouds 100-111 of ``bench.pose_hard`` (cylinders
+  of radius 30-50 mm, a 60x60x160 mm box on a face, an edge and a corner, the PET
+  bottle by its body; 0.5, 1, 2 and 3 mm noise along the rays; 3000 points; LM; 12
+  clouds per shape and noise): with 1.5 (the round before, when the curvature was
+  ``J^T J`` and a box corner's region spanned one or two directions) every one of the
+  336 regions held the truth; with 1 and ``J^T J``, 311 of the 324 off the box corner
+  at 3 mm (96%) and 4 of 12 there; with 1 and the measured curvature, see
+  ``bench.pose_hard``'s ``coverage`` rows, scored on other clouds (200 on).
+  ``BIAS_ERROR`` was fitted with it on 280 cold starts; ``EDGE_ERROR`` is the least of
+  0.05, 0.1, 0.2 and 0.3 that covered every one of 8 box-corner clouds at 3 mm (0.05:
+  6, 0.1: 7; at 2 mm, and on the other shapes at 2-3 mm, it changed no case).
 - Short of the minimum: ``step`` is the Gauss-Newton step from the estimate to the
   minimum of the fit, ``step_sigma`` its size in 95% regions; the estimator takes a
   solver that stopped short one such step further before it judges.
@@ -234,6 +241,40 @@ def ray_bias(
     return bias
 
 
+def curvature(
+    fld: Field,
+    object_from_tool: np.ndarray,
+    points_in_tool: np.ndarray,
+    directions: np.ndarray,
+    gauss_newton: np.ndarray,
+    r: np.ndarray,
+) -> np.ndarray:
+    """The curvature of the half cost along ``directions`` (6, m: left twists), measured:
+    the change of its gradient over two standard deviations either way (central
+    differences, at most ``BIAS_POINTS`` points scaled to all). Gauss-Newton's ``J^T J``
+    (``gauss_newton``, m x m) leaves out where a point crosses an edge or a corner of the
+    field and its gradient turns: there the cost is flatter than ``J^T J`` says (a box's
+    corner at 3 mm noise: by a third along the rotation about its diagonal), and the spread
+    it gives is too narrow. ``gauss_newton`` is kept where the measured curvature is not
+    positive definite."""
+    stride = -(-len(r) // BIAS_POINTS)
+    pts = points_in_tool[::stride]
+    weight = len(points_in_tool) / len(pts)
+    sigma = np.sqrt(np.maximum(np.diag(np.linalg.inv(gauss_newton)), 0.0) * float(r @ r) / len(r))
+    measured = np.empty_like(gauss_newton)
+    for j in range(directions.shape[1]):
+        grads = []
+        for sign in (1.0, -1.0):
+            pose = se3.exp_se3(sign * sigma[j] * directions[:, j]) @ object_from_tool
+            value, rows = residuals_and_jacobian(fld, pose, pts)
+            grads.append(weight * ((rows @ directions).T @ value))
+        measured[:, j] = (grads[0] - grads[1]) / (2.0 * sigma[j])
+    measured = 0.5 * (measured + measured.T)
+    if np.linalg.eigvalsh(measured)[0] <= 0.0:
+        return gauss_newton
+    return measured
+
+
 def _widely_observed(
     basis: np.ndarray, info: np.ndarray, jac: np.ndarray, length: float, floor: float
 ) -> np.ndarray:
@@ -299,7 +340,9 @@ def uncertainty(
     if n <= joint.shape[1]:
         return _nothing(length)
     a = js @ joint
-    h_inv = np.linalg.inv(a.T @ a)
+    h_inv = np.linalg.inv(
+        curvature(fld, object_from_tool, points_in_tool, joint * scale[:, None], a.T @ a, r)
+    )
     meat = (a * (r * r)[:, None]).T @ a
     cov = inflation**2 * (h_inv @ meat @ h_inv) * n / (n - joint.shape[1])
     # Past an edge or a corner the noise leaves a residual whose mean the rays' bias does

@@ -182,7 +182,9 @@ def test_a_box_corner_at_3_mm_is_observed_and_its_noise_measured() -> None:
     the noise off). The answers are right, finite, and held against nothing but the
     width of their region (the rotation about the body diagonal)."""
     model = pose_hard.OBJECTS["box_corner"]
-    est = PoseEstimator(LMSolver(model.field), EstimatorParams(track=False), symmetric_about_z=False)
+    est = PoseEstimator(
+        LMSolver(model.field), EstimatorParams(track=False), symmetric_about_z=False
+    )
     for k in range(4):
         rng = np.random.default_rng(900 + k)
         truth = pose_hard.truth_pose("box_corner", rng)
