@@ -16,7 +16,8 @@ Uncertainty (:func:`uncertainty`), from the fit at the estimate whatever solver 
   The spread's curvature is measured (:func:`curvature`): where points cross an edge
   or a corner the cost is flatter than ``J^T J`` says.
 - Noise: the residuals themselves, point by point (the "sandwich" covariance
-  ``H^-1 (sum r_i^2 a_i a_i^T) H^-1`` with ``H = sum a_i a_i^T``): noise along the
+  ``H^-1 (sum r_i^2 a_i a_i^T) H^-1``, ``H`` the measured curvature, about
+  ``sum a_i a_i^T``): noise along the
   camera rays leaves less in the residual where a ray meets the surface obliquely, and
   the sandwich follows that without a noise model. It is taken over every direction
   the whole cloud constrains (the solver moves along all of them, the points past an

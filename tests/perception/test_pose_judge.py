@@ -209,8 +209,8 @@ def test_a_box_corner_at_3_mm_is_observed_and_its_noise_measured() -> None:
 @pytest.mark.xfail(
     strict=True,
     reason="not met: with all six directions observed and no inflation, the region at a "
-    "box corner at 3 mm holds the truth in 3 of these 8 (the linearised spread misses "
-    "what noise across the edges does along the best-determined direction)",
+    "box corner at 3 mm holds the truth in 6 of these 8 (3 with J^T J for the curvature; "
+    "the spread still misses what noise across the edges does there)",
 )
 def test_the_95_percent_region_holds_a_box_corner_at_3_mm() -> None:
     """A box squeezed over its corners at 3 mm noise along the rays: the region over the
