@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 
 from bench.common import Row, main, median, one_core, percentile, progress
+from bench.heldout import wilson_interval
 from geometry import fields, objects, se3
 from geometry.objects import ObjectModel
 from perception.pose import metrics, problem, synthetic
@@ -162,17 +163,6 @@ def judged(
     )
 
 
-def wilson95(hits: int, count: int) -> tuple[float, float]:
-    """The Wilson score 95% interval of a binomial proportion ``hits / count``."""
-    if count == 0:
-        return float("nan"), float("nan")
-    z = 1.959964
-    p = hits / count
-    centre = (p + z * z / (2 * count)) / (1 + z * z / count)
-    half = z * np.sqrt(p * (1 - p) / count + z * z / (4 * count * count)) / (1 + z * z / count)
-    return float(centre - half), float(centre + half)
-
-
 def summary(results: list[Judged], extra: dict[str, Any]) -> Row:
     """The verdict's quality over ``results``: right-and-ok, right-but-suspect (a share
     of the right answers), wrong-but-ok (``silent_wrong``), and the coverage of the
@@ -183,7 +173,7 @@ def summary(results: list[Judged], extra: dict[str, Any]) -> Row:
     right_count = sum(1 for _, ok, _, _ in results if ok)
     stated = [cov for r, _, cov, _ in results if r.status not in ("no_patch", "failed")]
     vouched = [cov for r, _, cov, _ in results if r.status in GOOD]
-    low, high = wilson95(sum(stated), len(stated))
+    low, high = wilson_interval(sum(stated), len(stated))
     return {
         **extra,
         "default": "*" if extra.get("solver") == "ipopt" and not extra.get("fit_dims") else "",
