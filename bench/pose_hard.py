@@ -163,6 +163,23 @@ def judged(
     )
 
 
+def _estimate_judged(
+    est: PoseEstimator,
+    kind: str,
+    truth: np.ndarray,
+    pts: np.ndarray,
+    bub: np.ndarray,
+    prior: np.ndarray | None,
+) -> Judged:
+    """One estimate of an ``OBJECTS[kind]`` cloud, timed (process CPU) and scored."""
+    c0 = time.process_time()
+    res = est.estimate(pts, bub, seed_tool_from_object=prior)
+    cpu = time.process_time() - c0
+    return judged(
+        OBJECTS[kind].field, res, truth, cpu, ends_alike=kind == "bottle", points_in_tool=pts
+    )
+
+
 def summary(results: list[Judged], extra: dict[str, Any]) -> Row:
     """The verdict's quality over ``results``: right-and-ok, right-but-suspect (a share
     of the right answers), wrong-but-ok (``silent_wrong``), and the coverage of the
@@ -231,19 +248,7 @@ def estimator_rows(
                         prior = seed if start == "bad_seed" else None
                         if start == "track":
                             est.estimate(pts, bub)
-                        c0 = time.process_time()
-                        res = est.estimate(pts, bub, seed_tool_from_object=prior)
-                        cpu = time.process_time() - c0
-                        results.append(
-                            judged(
-                                model.field,
-                                res,
-                                truth,
-                                cpu,
-                                ends_alike=kind == "bottle",
-                                points_in_tool=pts,
-                            )
-                        )
+                        results.append(_estimate_judged(est, kind, truth, pts, bub, prior))
                     rows.append(
                         summary(
                             results,
@@ -283,19 +288,7 @@ def coverage_rows(kinds: list[str], noises: list[float], n_cases: int, n_points:
                     model, truth, n_points=n_points, noise_m=noise, rng=rng
                 )
                 seed = synthetic.tilted_seed(truth, 5.0, rng, offset_m=0.002)
-                c0 = time.process_time()
-                res = est.estimate(pts, bub, seed_tool_from_object=seed)
-                cpu = time.process_time() - c0
-                results.append(
-                    judged(
-                        model.field,
-                        res,
-                        truth,
-                        cpu,
-                        ends_alike=kind == "bottle",
-                        points_in_tool=pts,
-                    )
-                )
+                results.append(_estimate_judged(est, kind, truth, pts, bub, seed))
             rows.append(
                 summary(
                     results,
