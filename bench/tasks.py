@@ -48,6 +48,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 import yaml
 
@@ -99,7 +100,8 @@ def events(topics: dict[str, list], name: str) -> list[tuple[int, Any]]:
 
 def summary(topics: dict[str, list]) -> dict[str, Any]:
     found = events(topics, "summary")
-    return json.loads(found[-1][1].detail) if found else {}
+    # The summary's record as plain values (its ``kind`` names which record it is).
+    return msgspec.to_builtins(found[-1][1].data) if found and found[-1][1].data else {}
 
 
 def latencies_ms(topics: dict[str, list], topic: str) -> list[float]:

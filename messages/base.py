@@ -158,12 +158,16 @@ def describe_type(hint: Any) -> Any:
         return {"array": {"dtype": np.dtype(spec.dtype).str, "shape": list(spec.shape)}}
     if isinstance(hint, type) and issubclass(hint, msgspec.Struct):
         hints = typing.get_type_hints(hint)
-        return {
+        out: dict[str, Any] = {
             "struct": hint.__name__,
             "fields": [
                 [f.name, describe_type(hints[f.name])] for f in msgspec.structs.fields(hint)
             ],
         }
+        config = hint.__struct_config__
+        if config.tag is not None:  # one of a tagged union: the wire names it so
+            out["tag"] = [config.tag_field, config.tag]
+        return out
     origin = typing.get_origin(hint)
     if origin is not None:
         return {

@@ -30,7 +30,6 @@ Ports:
 
 from __future__ import annotations
 
-import json
 from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Annotated
@@ -39,6 +38,7 @@ import numpy as np
 from msgspec import Meta
 
 from messages import GraspState, GroundTruth, PoseEstimate
+from messages.tasks import JoltRecord, Spread, TrackingSummary
 from nodes.supervisor.base import SingleGraspTask, TaskParams
 from perception.pose.symmetry import axis_error_deg, offaxis_error_m
 from runtime.registry import register
@@ -183,26 +183,26 @@ class AntagonismSupervisor(SingleGraspTask):
             and off["p95"] <= p.max_p95_mm
             and not lost
         )
-        summary = {
-            "estimates": len(self.axis_deg),
-            "unmatched": len(self.waiting),
-            "axis_deg": axis,
-            "offaxis_mm": off,
-            "statuses": dict(sorted(self.statuses.items())),
-            "jolts": [
-                {
-                    "t_secs": round((j.stamp_nanos - self.stable_nanos) / 1e9, 3),
-                    "moved_mm": round(j.moved_mm, 2),
-                    "turned_deg": round(j.turned_deg, 2),
-                    "reacquire_secs": None
+        summary = TrackingSummary(
+            estimates=len(self.axis_deg),
+            unmatched=len(self.waiting),
+            axis_deg=Spread(**axis),
+            offaxis_mm=Spread(**off),
+            statuses=dict(sorted(self.statuses.items())),
+            jolts=[
+                JoltRecord(
+                    t_secs=round((j.stamp_nanos - self.stable_nanos) / 1e9, 3),
+                    moved_mm=round(j.moved_mm, 2),
+                    turned_deg=round(j.turned_deg, 2),
+                    reacquire_secs=None
                     if j.reacquired_secs is None
                     else round(j.reacquired_secs, 3),
-                }
+                )
                 for j in self.jolts
             ],
-            "success": ok,
-        }
-        self.event("summary", json.dumps(summary, sort_keys=True), with_pose=False)
+            success=ok,
+        )
+        self.event("summary", data=summary, with_pose=False)
         self.release("tracking done")
         self.finish(
             f"{self.task}: {len(self.axis_deg)} estimates, axis p95 {axis['p95']:.2f} deg,"
