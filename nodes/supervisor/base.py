@@ -137,11 +137,11 @@ class Task(Node):
         with_pose: bool = True,
     ) -> None:
         """Publish and log a TaskEvent; ``with_pose`` appends the last pose estimate to the
-        detail. The log line shows ``data`` as JSON where the event has no detail."""
+        detail. The log line shows ``data`` as JSON, then the detail."""
         if with_pose and self.pose is not None and self.pose.status in ("ok", "recovered"):
             xyz_mm = self.pose.tool_from_object[:3, 3] * 1000
             detail += f" | pose xyz_mm=({xyz_mm[0]:.1f}, {xyz_mm[1]:.1f}, {xyz_mm[2]:.1f})"
-        said = detail or (msgspec.json.encode(data).decode() if data is not None else "")
+        said = detail if data is None else f"{msgspec.json.encode(data).decode()}{detail}"
         self.io.log.info("%s: %s %s", self.task, event, said)
         self.io.publish(
             "event",
