@@ -40,7 +40,6 @@ task's; ``--quick`` runs one stacking scene; ``--tasks a,b`` picks tasks.
 from __future__ import annotations
 
 import argparse
-import json
 import subprocess
 import sys
 import tempfile
@@ -53,6 +52,7 @@ import numpy as np
 import yaml
 
 from bench.common import Row, main, median, percentile, progress
+from messages.tasks import ObjectOutcome
 
 ROOT = Path(__file__).resolve().parents[1]
 TASKS = ("dish_loading", "antagonism", "handover", "handover_force", "stacking")
@@ -131,15 +131,15 @@ def dish_loading(seed: int, tmp: Path) -> list[dict[str, Any]]:
     code, _, topics, wall = launch(
         "graphs/dish_loading.yaml", tmp / "dish.mcap", "--set", f"supervisor.seed={seed}"
     )
-    objects = [json.loads(e.detail) for _, e in events(topics, "object")]
+    objects = [e.data for _, e in events(topics, "object") if isinstance(e.data, ObjectOutcome)]
     s = summary(topics)
     return [
         {
             "success": code == 0 and bool(s) and s["wrong"] == 0,
             "objects": len(objects),
             "objects_per_minute": s.get("objects_per_minute", float("nan")),
-            "classified_right": sum(o["predicted"] == o["true_class"] for o in objects),
-            "routed_right": sum(bool(o["right"]) for o in objects),
+            "classified_right": sum(o.predicted == o.true_class for o in objects),
+            "routed_right": sum(bool(o.right) for o in objects),
             "manual": s.get("manual", 0),
             "regrasps": s.get("regrasps", 0),
             "classify_latency_ms": latencies_ms(topics, "classifier/probabilities"),
