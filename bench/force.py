@@ -86,13 +86,14 @@ from geometry.camera import PinholeCamera
 from geometry.gripper import SIDES
 from perception.force.estimators import METHODS, Calibration, calibrate, estimate
 from perception.force.reflex import GripReflex, PullWatch, ReflexParams
-from perception.force.slip import SlipDetector
+from perception.force.slip import SlipDetector, SlipParams
 from perception.grasp import GraspMonitor
 from perception.shear import ShearParams, ShearTracker, tool_basis
 
 TIMING_REPEATS = 3
 MAX_LATE_FRAMES = 15
 MAX_EARLY_FRAMES = 15
+MIN_SCORED_FRAMES = 5  # a true onset this near the recording's end is not scored
 GOAL_FRACTION, GOAL_N = 0.10, 0.3
 
 
@@ -194,15 +195,20 @@ def first(flags: list[bool]) -> int | None:
 
 
 def slip_rows(
-    world: str, test_recs: list[Recorded], cal: Calibration, period_secs: float
+    world: str,
+    test_recs: list[Recorded],
+    cal: Calibration,
+    period_secs: float,
+    params: SlipParams | None = None,
 ) -> list[Row]:
     """Onsets against the truth's, and false alarms while held still (module docstring)."""
     found: dict[str, list[float]] = {"edge": [], "patch": []}
     missed = {"edge": 0, "patch": 0}
+    cut = {"edge": 0, "patch": 0}
     false_alarms, still_secs = 0, 0.0
     for rec in test_recs:
         for side in SIDES:
-            detector = SlipDetector.for_rig(cal)
+            detector = SlipDetector.for_rig(cal, params)
             onsets: dict[str, int] = {}
             stable = False
             for i, f in enumerate(rec.frames):
@@ -221,7 +227,7 @@ def slip_rows(
                 soon = [g.slipping[side] for g in rec.frames[i : i + MAX_EARLY_FRAMES]]
                 if report.onset:
                     onsets.setdefault(report.onset, i)
-                    if report.onset == "edge" and max(soon) == 0.0:
+                    if max(soon) == 0.0:
                         false_alarms += 1
                 if stable and max(soon) == 0.0 and truth_now == 0.0:
                     still_secs += period_secs
@@ -232,10 +238,14 @@ def slip_rows(
             for phase in ("edge", "patch"):
                 if truth[phase] is None:
                     continue
-                # A patch onset found as an edge onset counts (the detector went there).
-                got = [onsets.get(p) for p in (("edge",) if phase == "edge" else ("patch",))]
-                got = [g for g in got if g is not None]
-                lag = got[0] - truth[phase] if got else None
+                if len(rec.frames) - truth[phase] < MIN_SCORED_FRAMES:
+                    cut[phase] += 1  # the recording ends before a detector could tell
+                    continue
+                # The edge's onset is the first of either (a whole patch sliding has
+                # its edge slipping too); the whole patch's, the patch onset.
+                got = [onsets[p] for p in (("edge", "patch") if phase == "edge" else ("patch",))
+                       if p in onsets]  # fmt: skip
+                lag = min(got) - truth[phase] if got else None
                 if lag is not None and -MAX_EARLY_FRAMES <= lag <= MAX_LATE_FRAMES:
                     found[phase].append(float(lag))
                 else:
@@ -251,6 +261,7 @@ def slip_rows(
                 "setting": DEFAULT_SETTING,
                 "method": f"onset_{phase}",
                 "samples": total,
+                "cut_at_end": cut[phase],
                 "detected_fraction": len(lags) / total if total else float("nan"),
                 "onset_frames_median": median(lags),
                 "onset_ms_median": median(lags) * period_secs * 1000.0,
