@@ -73,10 +73,12 @@ class FeatureParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
         Meta(
             ge=1,
             description=(
-                "working-resolution pixels from the patch's border that count as its edge."
+                "working-resolution pixels from the patch's border that count as its edge"
+                " (the ring that slips first: 3 averaged in dots that still stick, and the"
+                " edge's lag behind the core showed later)."
             ),
         ),
-    ] = 3
+    ] = 1
     min_patch_px: Annotated[
         int,
         Meta(

@@ -58,14 +58,16 @@ class SlipParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     edge begins to slip at this pressure (``edge_m_per_pa * p``, from the calibration);
     ``use`` the estimated tangential force over ``friction`` times the normal force.
 
-    The limits are medians over the calibration's onsets, which spread by about 10%
-    (0.63-0.78 um/Pa for the edge over ``world.sim``'s calibration grasps): both
-    thresholds sit at 0.9 of them, so a low one fires a frame early rather than late.
+    The limits are medians over the calibration's onsets, which spread by about 8%
+    (0.77-0.91 um/Pa for the edge over ``world.sim``'s calibration grasps): the edge's
+    threshold sits at 0.95 of its limit, confirmed from 0.85 by the edge's lag behind
+    the core; the whole patch's cue is its imprint running ahead of the dots, with the
+    limit as a backstop.
     """
 
     edge_strain: Annotated[
         float, Meta(description="``strain`` from which the patch's edge counts as slipping.")
-    ] = 0.9
+    ] = 0.95
     patch_lead_m: Annotated[
         float,
         Meta(
@@ -95,7 +97,7 @@ class SlipParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
                 "an edge following the core by less than this (over ``window`` frames) slips ..."
             )
         ),
-    ] = 0.5
+    ] = 0.7
     edge_min_strain: Annotated[
         float,
         Meta(
@@ -105,7 +107,7 @@ class SlipParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
                 "other reasons)."
             )
         ),
-    ] = 0.8
+    ] = 0.85
     min_core_shift_m: Annotated[
         float,
         Meta(
