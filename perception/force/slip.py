@@ -60,14 +60,14 @@ class SlipParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
 
     The limits are medians over the calibration's onsets, which spread by about 8%
     (0.77-0.91 um/Pa for the edge over ``world.sim``'s calibration grasps): the edge's
-    threshold sits at 0.95 of its limit, confirmed from 0.85 by the edge's lag behind
+    threshold sits at 0.92 of its limit, confirmed from 0.85 by the edge's lag behind
     the core; the whole patch's cue is its imprint running ahead of the dots, with the
     limit as a backstop.
     """
 
     edge_strain: Annotated[
         float, Meta(description="``strain`` from which the patch's edge counts as slipping.")
-    ] = 0.95
+    ] = 0.92
     patch_lead_m: Annotated[
         float,
         Meta(

@@ -149,7 +149,7 @@ def run_detector(
     imprint: list[tuple[float, float]] | None = None,
 ) -> list[str]:
     """Onsets of a detector whose rig's edge slips at 0.7 um/Pa of the core's shift and
-    its whole patch at 0.95 um/Pa (at 2 kPa: 1.4 mm and 1.9 mm; it fires at 0.95 of the
+    its whole patch at 0.95 um/Pa (at 2 kPa: 1.4 mm and 1.9 mm; it fires at 0.92 of the
     edge's and 1.1 of the patch's); ``imprint``: the patch's centroid (tool y, z) per
     frame (still by default)."""
     cal = Calibration(slip_edge_m_per_pa=0.7e-6, slip_patch_m_per_pa=0.95e-6, friction=0.8)
@@ -168,13 +168,13 @@ def run_detector(
 
 
 def test_slip_detector_fires_at_the_pressures_limit_edge_then_patch() -> None:
-    # The core's shift grows 0.1 mm a frame: 1.33 mm (0.95 x 0.7 um/Pa x 2 kPa) at frame
-    # 14, 2.09 mm (1.1 x 0.95 um/Pa x 2 kPa) at frame 21; the force estimate says
+    # The core's shift grows 0.1 mm a frame: 1.29 mm (0.92 x 0.7 um/Pa x 2 kPa) at frame
+    # 13, 2.09 mm (1.1 x 0.95 um/Pa x 2 kPa) at frame 21; the force estimate says
     # nothing of it (a light, constant load), the imprint does not move (a slide it
     # cannot see: the shift's backstop decides).
     shifts = [(0.0001 * i, 0.0001 * i) for i in range(25)]
     onsets = run_detector(shifts, [0.5] * 25)
-    assert onsets.index("edge") == 14 and onsets.index("patch") == 21
+    assert onsets.index("edge") == 13 and onsets.index("patch") == 21
     assert onsets.count("edge") == 1 and onsets.count("patch") == 1
     # A firmer grip (twice the pressure) doubles the limits: the same shifts stick.
     assert not any(run_detector(shifts, [0.5] * 25, pressure_pa=4000.0))
@@ -182,7 +182,7 @@ def test_slip_detector_fires_at_the_pressures_limit_edge_then_patch() -> None:
 
 def test_slip_detector_sees_the_edge_lag_near_the_limit() -> None:
     # The edge stalls while the core goes on; at 0.86 of the edge's limit (1.2 mm, past
-    # the 0.85 that confirms) the lag calls an edge slip the strain alone (0.95) has not
+    # the 0.85 that confirms) the lag calls an edge slip the strain alone (0.92) has not
     # reached.
     shifts = [(0.0001 * i, 0.0001 * i) for i in range(10)]
     shifts += [(0.00114 + 0.00003 * i, 0.00100) for i in range(5)]
