@@ -73,12 +73,10 @@ class FeatureParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
         Meta(
             ge=1,
             description=(
-                "working-resolution pixels from the patch's border that count as its edge"
-                " (the ring that slips first: 3 averaged in dots that still stick, and the"
-                " edge's lag behind the core showed later)."
+                "working-resolution pixels from the patch's border that count as its edge."
             ),
         ),
-    ] = 1
+    ] = 3
     min_patch_px: Annotated[
         int,
         Meta(

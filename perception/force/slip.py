@@ -97,7 +97,7 @@ class SlipParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
                 "an edge following the core by less than this (over ``window`` frames) slips ..."
             )
         ),
-    ] = 0.7
+    ] = 0.5
     edge_min_strain: Annotated[
         float,
         Meta(
