@@ -25,9 +25,11 @@ every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` e
 * ``slip``: per bubble and held-out grasp whose patch slipped (truth), the detector's
   edge onset against the truth's (the first frame any of the patch slips) and its patch
   onset against the first frame the whole patch slips: detected (within
-  ``MAX_LATE_FRAMES`` after), latency in frames and ms (negative: before the truth);
-  false alarms per minute of still holding (onsets while the truth is stuck and stays
-  so for ``MAX_EARLY_FRAMES``). On both worlds: ``world.sim``'s held-out grasps and
+  ``MAX_LATE_FRAMES`` after), latency in frames and ms (negative: before the truth;
+  the edge's is the detector's first onset of either kind, a whole patch sliding has
+  its edge slipping too); a true onset in the recording's last ``MIN_SCORED_FRAMES``
+  is not scored (``cut_at_end``); false alarms per minute of still holding (any onset
+  while the truth is stuck and stays so for ``MAX_EARLY_FRAMES``). On both worlds: ``world.sim``'s held-out grasps and
   long still holds (the detector's limits from its calibration grasps); MuJoCo's
   grasps slid past the stick limit (``bench.force_mujoco``: its truth of slip, and the
   limits fitted on the first half of them with the calibration grasps, the second half

@@ -13,6 +13,14 @@ Two observations, both from what the bubble measures (docs/force.md):
   enter. The rig's two limits (the core's shift per pascal at which the edge, then the
   whole patch, begins to slip) come from the calibration (``edge_m_per_pa``,
   ``patch_m_per_pa``); ``strain`` is the core's shift over the edge's limit.
+* **The imprint runs ahead of the dots** (the whole patch). While the patch sticks its
+  dots move with the object, and so does the object's imprint (the patch's centroid in
+  the depth image), along the directions in which its shape changes the depth; once the
+  whole patch slides the dots stop at their limit and the imprint runs on. Over the
+  last ``window`` frames: the imprint moved at least ``patch_lead_m`` and that much
+  further along its own motion than the core's dots (``imprint_lead_m``). The core's
+  shift past ``patch_strain`` of the whole patch's limit is a backstop for a slide the
+  imprint cannot see (a cylinder along its axis, a slide slower than the cue needs).
 * **The edge lags the core.** Once the edge slips its dots stop following while the
   core's go on: over the last ``window`` frames, the edge's displacement along the
   core's, divided by the core's (``edge_follow``), drops. A confirmation near the edge's
