@@ -25,9 +25,11 @@ every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` e
 * ``slip``: per bubble and held-out grasp whose patch slipped (truth), the detector's
   edge onset against the truth's (the first frame any of the patch slips) and its patch
   onset against the first frame the whole patch slips: detected (within
-  ``MAX_LATE_FRAMES`` after), latency in frames and ms (negative: before the truth);
-  false alarms per minute of still holding (onsets while the truth is stuck and stays
-  so for ``MAX_EARLY_FRAMES``). On both worlds: ``world.sim``'s held-out grasps and
+  ``MAX_LATE_FRAMES`` after), latency in frames and ms (negative: before the truth;
+  the edge's is the detector's first onset of either kind, a whole patch sliding has
+  its edge slipping too); a true onset in the recording's last ``MIN_SCORED_FRAMES``
+  is not scored (``cut_at_end``); false alarms per minute of still holding (any onset
+  while the truth is stuck and stays so for ``MAX_EARLY_FRAMES``). On both worlds: ``world.sim``'s held-out grasps and
   long still holds (the detector's limits from its calibration grasps); MuJoCo's
   grasps slid past the stick limit (``bench.force_mujoco``: its truth of slip, and the
   limits fitted on the first half of them with the calibration grasps, the second half
@@ -86,13 +88,14 @@ from geometry.camera import PinholeCamera
 from geometry.gripper import SIDES
 from perception.force.estimators import METHODS, Calibration, calibrate, estimate
 from perception.force.reflex import GripReflex, PullWatch, ReflexParams
-from perception.force.slip import SlipDetector
+from perception.force.slip import SlipDetector, SlipParams
 from perception.grasp import GraspMonitor
 from perception.shear import ShearParams, ShearTracker, tool_basis
 
 TIMING_REPEATS = 3
 MAX_LATE_FRAMES = 15
 MAX_EARLY_FRAMES = 15
+MIN_SCORED_FRAMES = 5  # a true onset this near the recording's end is not scored
 GOAL_FRACTION, GOAL_N = 0.10, 0.3
 
 
@@ -194,15 +197,20 @@ def first(flags: list[bool]) -> int | None:
 
 
 def slip_rows(
-    world: str, test_recs: list[Recorded], cal: Calibration, period_secs: float
+    world: str,
+    test_recs: list[Recorded],
+    cal: Calibration,
+    period_secs: float,
+    params: SlipParams | None = None,
 ) -> list[Row]:
     """Onsets against the truth's, and false alarms while held still (module docstring)."""
     found: dict[str, list[float]] = {"edge": [], "patch": []}
     missed = {"edge": 0, "patch": 0}
+    cut = {"edge": 0, "patch": 0}
     false_alarms, still_secs = 0, 0.0
     for rec in test_recs:
         for side in SIDES:
-            detector = SlipDetector.for_rig(cal)
+            detector = SlipDetector.for_rig(cal, params)
             onsets: dict[str, int] = {}
             stable = False
             for i, f in enumerate(rec.frames):
@@ -221,7 +229,7 @@ def slip_rows(
                 soon = [g.slipping[side] for g in rec.frames[i : i + MAX_EARLY_FRAMES]]
                 if report.onset:
                     onsets.setdefault(report.onset, i)
-                    if report.onset == "edge" and max(soon) == 0.0:
+                    if max(soon) == 0.0:
                         false_alarms += 1
                 if stable and max(soon) == 0.0 and truth_now == 0.0:
                     still_secs += period_secs
@@ -232,10 +240,14 @@ def slip_rows(
             for phase in ("edge", "patch"):
                 if truth[phase] is None:
                     continue
-                # A patch onset found as an edge onset counts (the detector went there).
-                got = [onsets.get(p) for p in (("edge",) if phase == "edge" else ("patch",))]
-                got = [g for g in got if g is not None]
-                lag = got[0] - truth[phase] if got else None
+                if len(rec.frames) - truth[phase] < MIN_SCORED_FRAMES:
+                    cut[phase] += 1  # the recording ends before a detector could tell
+                    continue
+                # The edge's onset is the first of either (a whole patch sliding has
+                # its edge slipping too); the whole patch's, the patch onset.
+                got = [onsets[p] for p in (("edge", "patch") if phase == "edge" else ("patch",))
+                       if p in onsets]  # fmt: skip
+                lag = min(got) - truth[phase] if got else None
                 if lag is not None and -MAX_EARLY_FRAMES <= lag <= MAX_LATE_FRAMES:
                     found[phase].append(float(lag))
                 else:
@@ -251,6 +263,7 @@ def slip_rows(
                 "setting": DEFAULT_SETTING,
                 "method": f"onset_{phase}",
                 "samples": total,
+                "cut_at_end": cut[phase],
                 "detected_fraction": len(lags) / total if total else float("nan"),
                 "onset_frames_median": median(lags),
                 "onset_ms_median": median(lags) * period_secs * 1000.0,

@@ -281,12 +281,13 @@ def warm_cost_rows(cases: list[Case], n: int, solvers: list[str], use_jit: bool)
                     answer = solver.solve(pts, se3.invert(seed))
                     tried = 1
                 elif start == "judgement":
-                    cloud.estimate_noise_m(pts)
+                    rays = cloud.camera_rays(pts, bub)
+                    cloud.estimate_noise_m(pts, rays)
                     judge.uncertainty(
                         solver.field.resized(**answer.dims_m),
                         answer.object_from_tool,
                         pts,
-                        rays_in_tool=cloud.camera_rays(pts, bub),
+                        rays_in_tool=rays,
                     )
                     tried = 0
                 else:
@@ -465,6 +466,8 @@ COLUMNS = [
     "right_suspect_share",
     "silent_wrong",
     "coverage95",
+    "coverage95_lo",
+    "coverage95_hi",
     "coverage95_ok",
     "region95_deg_median",
     "fit_dims",

@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from typing import Any
 
 from cli.bag import show_value, stamp_text
 from messages.errors import FrameDecodeError, GraphError
@@ -106,8 +107,8 @@ def hz(run: Run, topic: str, *, secs: float | None, window: int) -> dict[str, fl
     with tap(run, topic) as source:
         while secs is None or time.monotonic() - start < secs:
             left = 0.2 if secs is None else min(0.2, max(0.0, secs - (time.monotonic() - start)))
-            if source.receive(left) is not None:
-                rate.add(time.monotonic())
+            if (frames := source.receive(left)) is not None:
+                rate.add(time.monotonic(), _stamp_and_seq(frames))
             now = time.monotonic()
             if now - printed >= 1.0:
                 printed = now
@@ -118,14 +119,30 @@ def hz(run: Run, topic: str, *, secs: float | None, window: int) -> dict[str, fl
     return last
 
 
+def _stamp_and_seq(frames: list[Any]) -> tuple[int, int] | None:
+    """The message's ``(header.stamp_nanos, header.seq)``; None without a header (or for
+    a frame that does not decode: it still arrived)."""
+    try:
+        header = getattr(decode_message(frames), "header", None)
+    except FrameDecodeError:
+        return None
+    return None if header is None else (header.stamp_nanos, header.seq)
+
+
 def _rate_line(topic: str, summary: dict[str, float] | None, count: int) -> str:
     if summary is None:
         return f"{topic}: {count} message(s), no rate yet"
-    return (
+    line = (
         f"{topic}: rate {summary['rate_hz']:.2f} Hz  min {summary['min_secs']:.4f} s  "
         f"max {summary['max_secs']:.4f} s  std {summary['std_secs']:.4f} s  "
         f"window {int(summary['periods'])}  ({count} messages)"
     )
+    if "stamp_rate_hz" in summary:
+        line += (
+            f"  stamps {summary['stamp_rate_hz']:.2f} Hz"
+            f"  seq {int(summary['first_seq'])}-{int(summary['last_seq'])}"
+        )
+    return line
 
 
 def main(args: argparse.Namespace) -> int:

@@ -11,9 +11,13 @@ node -> launcher
     hello      {endpoint}                        bound its publisher; wants peers
     ready      {}                                set up, every subscriber connected
     heartbeat  {busy_secs, stats}                every ``HEARTBEAT_SECS``
-    counts     {published, received, held}       lockstep: after each handled batch
-                                                 (held: per port, waiting for release)
-    wait_idle  {}                                lockstep: reply when the graph is idle
+    counts     {published, received, held, pending}  lockstep: after each handled batch
+                                                 (held: per port, waiting for release;
+                                                 pending: per port, waiting for its other
+                                                 ordered inputs, ``runtime.ordering``)
+    wait_idle  {last}                            lockstep: reply when the graph is idle
+                                                 (last=1: the source has sent its last
+                                                 message, so nothing pending may wait)
     stop_request {reason, exit_code}             a node asks the graph to stop (exit_code:
                                                  its verdict on the run, 0 = success)
     final      {stats}                           on a clean exit
@@ -21,7 +25,8 @@ launcher -> node
     connect    {endpoints: {node: endpoint}}     where each input's publisher is
     start      {}                                every node is ready: go
     idle       {}                                answer to wait_idle
-    release    {}                                lockstep: handle the held messages
+    release    {pending}                         lockstep: handle the held messages
+                                                 (pending=1: and the pending ones)
     busy       {}                                answer to wait_idle: not idle, but the
                                                  graph moved (the wait starts over)
     stop       {}                                stop cleanly now
@@ -35,9 +40,10 @@ launcher <-> launcher (one per host, ``runtime.hostlink``; CURVE-encrypted tcp)
                                                  nodes are ready (or running)
     link_ping  {host, t1} / link_pong {host, t1, t2, t3}   clock offset (NTP-style)
     link_stop  {host, reason, exit_code}         the graph stops
-    link_counts {host, published, received, held}  lockstep: its nodes' newest counts,
-                                                 sent when one changes (received and
-                                                 held: "node/port")
+    link_counts {host, published, received, held, pending, last}  lockstep: its nodes'
+                                                 newest counts, sent when one changes
+                                                 (received, held and pending: "node/port";
+                                                 last=1: its replay sent its last message)
     link_final {host, published}                 stopping: its nodes (but for listeners fed
                                                  from other hosts) have stopped, and
                                                  published this much in all, per topic
@@ -83,10 +89,11 @@ class Counts(FromNode, tag="counts"):
     published: dict[str, Count]
     received: dict[str, Count]
     held: dict[str, Count]
+    pending: dict[str, Count] = msgspec.field(default_factory=dict)
 
 
 class WaitIdle(FromNode, tag="wait_idle"):
-    pass
+    last: Flag = 0
 
 
 class StopRequest(FromNode, tag="stop_request"):
@@ -111,7 +118,7 @@ class Idle(Control, tag="idle"):
 
 
 class Release(Control, tag="release"):
-    pass
+    pending: Flag = 0
 
 
 class Busy(Control, tag="busy"):
@@ -158,6 +165,8 @@ class LinkCounts(FromHost, tag="link_counts"):
     published: dict[str, Count]
     received: dict[str, Count]
     held: dict[str, Count]
+    pending: dict[str, Count] = msgspec.field(default_factory=dict)
+    last: Flag = 0
 
 
 class LinkFinal(FromHost, tag="link_final"):

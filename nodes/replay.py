@@ -232,8 +232,9 @@ class Replay(Node):
 
     def _finish(self) -> None:
         self.done = True
-        # Let the graph drain before asking it to stop, so the last outputs are not lost.
-        self.io.wait_idle(self.params.idle_timeout_secs)
+        # Let the graph drain before asking it to stop, so the last outputs are not lost;
+        # ``last``: what a node holds in stamp order waits for nothing more (lockstep).
+        self.io.wait_idle(self.params.idle_timeout_secs, last=True)
         lost = self.reader.lost_messages
         problems = [f"{lost} lost to corrupt chunks"] if lost else []
         if self.skipped:

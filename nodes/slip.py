@@ -9,7 +9,7 @@ Ports:
         began).
 
 The logic (the dots' shift against the pressure's limit, the edge's lag behind the
-core, the episode's hysteresis) is :class:`perception.force.slip.SlipDetector`; the
+core, the imprint running ahead of the dots, the episode's hysteresis) is :class:`perception.force.slip.SlipDetector`; the
 friction coefficient and the slip limits are the rig's, from the same ``calibration``
 file the ``wrench`` node reads.
 Times are the messages' stamps, so a replayed bag gives the same onsets.

@@ -220,7 +220,8 @@ class Graph:
         }
 
     def release_order(self) -> list[str]:
-        """The fan-ins, upstream first: the order lockstep lets them handle what they hold.
+        """The fan-ins and the stamp-ordered nodes, upstream first: the order lockstep lets
+        them handle what they hold.
 
         One at a time, and the first in this order that holds something: a fan-in
         released together with one upstream of it would handle what it holds before the
@@ -236,8 +237,17 @@ class Graph:
             take = ready[0] if ready else left[0]
             order.append(take)
             left.remove(take)
-        fan_ins = self.fan_ins()
-        return [n for n in order if n in fan_ins]
+        holders = self.fan_ins() | self.stamp_ordered()
+        return [n for n in order if n in holders]
+
+    def stamp_ordered(self) -> set[str]:
+        """Nodes with two or more of their ``ordered_inputs`` wired: they hand those
+        inputs' messages over in stamp order (``runtime.ordering``)."""
+        return {
+            name
+            for name, spec in self.nodes.items()
+            if len(set(spec.cls.ordered_inputs) & set(spec.inputs)) > 1
+        }
 
     def barrier_topics(self) -> set[str]:
         """Topics from which a message can reach a node that merges several publishers.

@@ -96,6 +96,8 @@ class _Peer:
     samples: list[tuple[float, float]] = field(default_factory=list)
     # Its nodes' newest counts (lockstep): published per topic, received per "node/port".
     counts: tuple[dict[str, int], dict[str, int], dict[str, int]] = ({}, {}, {})
+    pending: dict[str, int] = field(default_factory=dict)  # "node/port": in stamp order
+    last: bool = False  # its replay has sent its last message
     final: dict[str, int] | None = None  # what its nodes published in all, once stopped
 
 
@@ -198,11 +200,36 @@ class HostLink:
         self._queue(self._pack(LinkStop, reason=reason, exit_code=exit_code))
 
     def send_counts(
-        self, published: dict[str, int], received: dict[str, int], held: dict[str, int]
+        self,
+        published: dict[str, int],
+        received: dict[str, int],
+        held: dict[str, int],
+        *,
+        pending: dict[str, int] | None = None,
+        last: bool = False,
     ) -> None:
-        """This host's nodes' newest counts (lockstep): published per topic, received and
-        held per ``"node/port"``; each node's are one snapshot, taken after a handled batch."""
-        self._queue(self._pack(LinkCounts, published=published, received=received, held=held))
+        """This host's nodes' newest counts (lockstep): published per topic, received,
+        held and pending (``runtime.ordering``) per ``"node/port"``; each node's are one
+        snapshot, taken after a handled batch. ``last``: this host's replay has sent its
+        last message."""
+        self._queue(
+            self._pack(
+                LinkCounts,
+                published=published,
+                received=received,
+                held=held,
+                pending=pending or {},
+                last=int(last),
+            )
+        )
+
+    def remote_pending(self) -> tuple[dict[str, int], bool]:
+        """What the other hosts' nodes hold in stamp order (``"node/port"``), and whether
+        one of their replays has sent its last message."""
+        pending: dict[str, int] = {}
+        for peer in self.peers.values():
+            pending.update(peer.pending)
+        return pending, any(peer.last for peer in self.peers.values())
 
     def remote_counts(self) -> tuple[dict[str, int], dict[str, int], dict[str, int]]:
         """The other hosts' newest counts, merged (as :meth:`send_counts` takes them)."""
@@ -415,6 +442,7 @@ class HostLink:
                 peer.samples = []
                 peer.ping_t1 = None
                 peer.counts = ({}, {}, {})
+                peer.pending, peer.last = {}, False
                 peer.final = None
                 if first:
                     self._event(("joined", name))
@@ -433,6 +461,7 @@ class HostLink:
             peer.ready = bool(msg.ready)
         elif isinstance(msg, LinkCounts):
             peer.counts = (msg.published, msg.received, msg.held)
+            peer.pending, peer.last = msg.pending, bool(msg.last)
             _poke(self._note_w)
         elif isinstance(msg, LinkFinal):
             peer.final = msg.published

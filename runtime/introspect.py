@@ -15,7 +15,9 @@ message and unsubscribes until the next is wanted, so between samples the publis
 sends the tap nothing at all: ``topic echo`` samples at 10 Hz unless told ``--every``.
 
 :class:`Rate` is ``topic hz``'s arithmetic: the arrival rate over a sliding window of
-periods, with their min, max and standard deviation.
+periods, with their min, max and standard deviation; for messages with a header, also
+the rate their stamps say (the publisher's own clock: what the tap's arrival times add,
+on a loaded machine, is the delivery's jitter) and the first and last seq it measured.
 """
 
 from __future__ import annotations
@@ -121,25 +123,38 @@ class Rate:
 
     window: int = 1000
     arrivals: deque[float] = field(default_factory=deque)
+    # (stamp_nanos, seq) of each arrival in the window; None for a message without a header.
+    headers: deque[tuple[int, int] | None] = field(default_factory=deque)
     count: int = 0
 
-    def add(self, when_secs: float) -> None:
+    def add(self, when_secs: float, header: tuple[int, int] | None = None) -> None:
+        """One arrival at ``when_secs``; ``header``: its ``(stamp_nanos, seq)``."""
         self.arrivals.append(when_secs)
+        self.headers.append(header)
         self.count += 1
         while len(self.arrivals) > self.window + 1:
             self.arrivals.popleft()
+            self.headers.popleft()
 
     def summary(self) -> dict[str, float] | None:
         """``rate_hz``, ``min_secs``, ``max_secs``, ``std_secs`` and ``periods``; None
-        before two arrivals."""
+        before two arrivals. When the first and last message of the window have headers,
+        ``stamp_rate_hz`` (the periods over their stamps' span), ``first_seq`` and
+        ``last_seq``."""
         if len(self.arrivals) < 2:
             return None
         periods = np.diff(np.asarray(self.arrivals))
         span = float(self.arrivals[-1] - self.arrivals[0])
-        return {
+        out = {
             "rate_hz": len(periods) / span if span > 0 else float("inf"),
             "min_secs": float(periods.min()),
             "max_secs": float(periods.max()),
             "std_secs": float(periods.std()),
             "periods": float(len(periods)),
         }
+        first, last = self.headers[0], self.headers[-1]
+        if first is not None and last is not None:
+            stamps_secs = (last[0] - first[0]) / 1e9
+            out["stamp_rate_hz"] = len(periods) / stamps_secs if stamps_secs > 0 else float("inf")
+            out["first_seq"], out["last_seq"] = float(first[1]), float(last[1])
+        return out

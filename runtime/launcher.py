@@ -53,7 +53,17 @@ from runtime.counters import balanced, delivered
 from runtime.graph import Graph, ipc_path
 from runtime.hostlink import HostLink, judge, wait_for_finals
 from runtime.isolation import make_rundir
-from runtime.nodeprocs import Proc, counts, reap, signal_group, spawn, stop, table, totals
+from runtime.nodeprocs import (
+    Proc,
+    counts,
+    pending,
+    reap,
+    signal_group,
+    spawn,
+    stop,
+    table,
+    totals,
+)
 from runtime.protocol import ControlServer
 from runtime.registry import class_path
 from runtime.security import KeyPair
@@ -119,6 +129,7 @@ class Launcher:
         self.exit_code = 0
         self.verdict_code = 0  # a node's verdict on the run (stop_request's exit_code)
         self.idle_waiters: list[bytes] = []
+        self.last_sent = False  # a source waited for idle after its last message (lockstep)
         # What the graph had received when a waiter was last told it is busy (see _serve).
         self.received_total = 0
         self.received_told = -1
@@ -299,10 +310,13 @@ class Launcher:
             proc.counts_published = msg.published
             proc.counts_received = msg.received
             proc.counts_held = msg.held
+            proc.counts_pending = msg.pending
             proc.released = False
             self.counts_changed = True
         elif isinstance(msg, WaitIdle):
             self.idle_waiters.append(rid)
+            if msg.last and not self.last_sent:
+                self.last_sent = self.counts_changed = True  # the other hosts learn it too
         elif isinstance(msg, StopRequest):
             reason = msg.reason
             verdict = msg.exit_code
@@ -327,9 +341,12 @@ class Launcher:
         """Whether every edge received all published on it (other hosts' counts from the
         link: stale ones only make the graph look busy, see docs/hosts.md)."""
         published, received, held = counts(self.procs)
+        waiting, last = pending(self.procs), self.last_sent
         if self.link is not None:
             theirs, got, kept = self.link.remote_counts()
             published, received, held = theirs | published, got | received, kept | held
+            their_pending, their_last = self.link.remote_pending()
+            waiting, last = their_pending | waiting, last or their_last
         self.received_total = sum(received.values())
         arrived = delivered(self.edges, published, lambda n, port: received.get(f"{n}/{port}", 0))
         if arrived and held:
@@ -342,7 +359,18 @@ class Launcher:
             if proc is not None and not proc.released:
                 proc.released = True  # once, until its next counts
                 self.control.send(proc.rid, Release())
-        return arrived and not held
+        # Messages waiting in a node's stamp order (runtime.ordering) wait for later ones,
+        # which come until the source has sent its last message; then they go, the
+        # nodes upstream first, as the held ones do.
+        flush = last and bool(waiting)
+        if arrived and not held and flush:
+            holding = {key.rsplit("/", 1)[0] for key in waiting}
+            first = next((n for n in self.release_order if n in holding), "")
+            proc = self.procs.get(first)  # another host's: its own launcher releases it
+            if proc is not None and not proc.released:
+                proc.released = True
+                self.control.send(proc.rid, Release(pending=1))
+        return arrived and not held and not flush
 
     def _serve(self, timeout_ms: int) -> None:
         # Wakes for a node's message or for the link's (an event, or another host's counts).
@@ -364,7 +392,9 @@ class Launcher:
                     self._request_stop(act.stop, echo=act.echo)
         if self.counts_changed and self.link is not None:
             self.counts_changed = False
-            self.link.send_counts(*counts(self.procs))
+            self.link.send_counts(
+                *counts(self.procs), pending=pending(self.procs), last=self.last_sent
+            )
         idle = self.lockstep and self._graph_idle()  # also releases what fan-ins hold
         if self.idle_waiters and idle:
             for rid in self.idle_waiters:

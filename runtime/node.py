@@ -73,9 +73,11 @@ class IO(Protocol):
         ``decoded``: the message the frames carry, if the caller has it (the replay
         decodes each one): its finite fields are then checked as :meth:`publish` checks."""
 
-    def wait_idle(self, timeout_secs: float) -> bool:
+    def wait_idle(self, timeout_secs: float, *, last: bool = False) -> bool:
         """Block until every message published so far has been handled downstream
-        (lockstep replay); True when idle, False on timeout."""
+        (lockstep replay); True when idle, False on timeout. ``last``: the caller has
+        published its last message, so the messages a node holds in stamp order
+        (``ordered_inputs``) are handled too."""
 
     def lockstep_barrier(self, topic: str) -> bool:
         """Whether, in lockstep, a message on ``topic`` must wait for the graph to be idle:
@@ -105,6 +107,12 @@ class Node:
     # there instead (``runtime.runner``), so what they publish depends on the bag alone.
     # A node without inputs (a source, the replay, the recorder) keeps the clock anyway.
     clocked: ClassVar[bool] = False
+    # Inputs whose messages the node must see in stamp order across each other (a
+    # decision taken from several inputs whose paths differ in length): the runtime holds
+    # each until the others have advanced past its stamp, live at most
+    # ``order_window_secs``, without a bound in lockstep (``runtime.ordering``).
+    ordered_inputs: ClassVar[tuple[str, ...]] = ()
+    order_window_secs: ClassVar[float] = 0.5
 
     def __init__(self, name: str, params: Any, io: IO) -> None:
         if not isinstance(params, self.Params):
@@ -144,8 +152,9 @@ class Node:
         for port in cls.inputs:
             if not callable(getattr(cls, f"on_{port}", None)):
                 raise TypeError(f"{cls.__name__}: input {port!r} has no on_{port} handler")
-        unknown = cls.optional_inputs - set(cls.inputs)
-        if unknown:
-            raise TypeError(
-                f"{cls.__name__}: optional_inputs names unknown ports {sorted(unknown)}"
-            )
+        for what, ports in (("optional", cls.optional_inputs), ("ordered", cls.ordered_inputs)):
+            unknown = set(ports) - set(cls.inputs)
+            if unknown:
+                raise TypeError(
+                    f"{cls.__name__}: {what}_inputs names unknown ports {sorted(unknown)}"
+                )

@@ -49,6 +49,8 @@ class Proc:
     counts_received: dict[str, int] = field(default_factory=dict)
     signalled: set[int] = field(default_factory=set)  # what the launcher sent this incarnation
     counts_held: dict[str, int] = field(default_factory=dict)  # an ordered fan-in's, per port
+    # Waiting for its other ordered inputs (``runtime.ordering``), per port.
+    counts_pending: dict[str, int] = field(default_factory=dict)
     released: bool = False  # told to handle what it holds (lockstep), since its last counts
 
 
@@ -146,6 +148,11 @@ def counts(
     received = {f"{x}/{port}": n for x, p in items for port, n in p.counts_received.items()}
     held = {f"{x}/{port}": n for x, p in items for port, n in p.counts_held.items() if n}
     return published, received, held
+
+
+def pending(procs: Mapping[str, Proc]) -> dict[str, int]:
+    """What these nodes hold in stamp order (``runtime.ordering``), per node/port."""
+    return {f"{x}/{port}": n for x, p in procs.items() for port, n in p.counts_pending.items() if n}
 
 
 def totals(procs: Mapping[str, Proc]) -> dict[str, int]:

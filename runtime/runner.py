@@ -25,6 +25,13 @@ timers are bag-driven there: each runs once after every message the node handles
 by the clock (a pose node that solves the newest patch on a timer answers every patch),
 unless the node is a source or declares itself ``clocked`` (a simulated world, a driver).
 
+Stamp order. The inputs a node names in ``ordered_inputs`` (two or more of them wired)
+go through a :class:`runtime.ordering.StampOrder`: each message waits until the other
+ordered inputs have advanced past its stamp (live at most ``order_window_secs``), and is
+handled by stamp, so a decision taken from inputs with paths of different lengths is
+the same live and in a replay. In lockstep the wait has no bound; the launcher has the
+node hand over what it still holds once the replay has sent its last message.
+
 Drops. Every output stamps ``header.seq``; a receiver counts sequence gaps as
 ``dropped`` (lost at a high-water mark) and, on ``latest`` inputs, skipped messages
 as ``superseded``. Frames that fail to decode are counted as ``bad_frames`` (not also
@@ -79,6 +86,7 @@ from messages.control import (
 from messages.errors import FrameDecodeError, NodeError
 from runtime import protocol
 from runtime.node import Node
+from runtime.ordering import StampOrder
 from runtime.params import build_params
 from runtime.registry import resolve
 from runtime.security import connect_to, needs_curve
@@ -108,6 +116,11 @@ class Runner:
         # Lockstep, a node reading several publishers: hold, then handle in a fixed order.
         self.holds = self.io.lockstep and bool(spec.get("holds"))
         self.port_order = {inp["port"]: k for k, inp in enumerate(spec["inputs"])}
+        ordered = [port for port in cls.ordered_inputs if port in self.port_order]
+        window = None if self.io.lockstep else round(cls.order_window_secs * 1e9)
+        self.order = StampOrder(ordered, window) if len(ordered) > 1 else None
+        self.io.order = self.order
+        self.flush = False  # lockstep: told to hand over what the stamp order holds
         self.busy_since = 0.0
         self.set_up = False  # teardown runs only for a node whose setup ran
         self.sources: list[Source] = []
@@ -229,8 +242,11 @@ class Runner:
         by_socket = {source.socket: source for source in self.sources}
         while not io.stop_requested:
             timeout_ms = 200
-            if io.timers and not self.bag_driven:
-                due = min(t.due_nanos for t in io.timers)
+            dues = [t.due_nanos for t in io.timers] if not self.bag_driven else []
+            if self.order is not None and (held_until := self.order.due_nanos()) is not None:
+                dues.append(held_until)
+            if dues:
+                due = min(dues)
                 # Round up: rounding down would poll(0) through the last millisecond
                 # before every timer, a busy spin that steals the CPU from peers.
                 timeout_ms = max(0, min(timeout_ms, math.ceil((due - time.monotonic_ns()) / 1e6)))
@@ -242,6 +258,8 @@ class Runner:
             for sock, source in by_socket.items():
                 if sock in events and not io.stop_requested:
                     handled |= self._service(source)
+            if self.order is not None and not io.lockstep:
+                self._pass(self.order.ready(time.monotonic_ns()))  # held past the window
             self._run_timers()
             if handled and io.lockstep:
                 io.send_counts()
@@ -253,7 +271,9 @@ class Runner:
             msg = self.io.hear()
             if isinstance(msg, Stop):
                 self.io.stop_requested = True
-            released |= isinstance(msg, Release)
+            if isinstance(msg, Release):
+                released = True
+                self.flush = self.flush or bool(msg.pending)
         return released
 
     def _release(self) -> bool:
@@ -269,9 +289,26 @@ class Runner:
             return (stamp, self.port_order[inp.port], arrival)
 
         for _, (inp, msg) in sorted(enumerate(held), key=key):
-            if not self.io.stop_requested:
-                self._handle(inp, msg)
+            self._admit(inp.port, msg)
+        if self.flush and self.order is not None:
+            # The replay has sent its last message: nothing the pending ones wait for comes.
+            self.flush = False
+            self._pass(self.order.flush())
+            return True
         return bool(held)
+
+    def _admit(self, port: str, msg: Any) -> None:
+        """Handle ``msg`` now, or, on an ordered input, once the order allows it."""
+        if self.order is not None and port in self.order:
+            self.order.add(port, msg, time.monotonic_ns())
+            self._pass(self.order.ready())
+        else:
+            self._pass([(port, msg)])
+
+    def _pass(self, messages: list[tuple[str, Any]]) -> None:
+        for port, msg in messages:
+            if not self.io.stop_requested:
+                self._handle(port, msg)
 
     def _run_timers(self) -> None:
         if self.bag_driven:
@@ -337,10 +374,10 @@ class Runner:
         if self.holds:
             self.io.held.append((inp, msg))
         else:
-            self._handle(inp, msg)
+            self._admit(inp.port, msg)
 
-    def _handle(self, inp: Input, msg: Any) -> None:
-        self._call(self.node.handle, inp.port, msg)
+    def _handle(self, port: str, msg: Any) -> None:
+        self._call(self.node.handle, port, msg)
         if self.bag_driven:
             for timer in self.io.timers:
                 if not self.io.stop_requested and timer in self.io.timers:

@@ -72,7 +72,7 @@ class FakeIO:
         if msg.finite_fields and msg.nonfinite_fields():
             self.nonfinite[key] += 1
 
-    def wait_idle(self, timeout_secs: float) -> bool:
+    def wait_idle(self, timeout_secs: float, *, last: bool = False) -> bool:
         return True
 
     def lockstep_barrier(self, topic: str) -> bool:

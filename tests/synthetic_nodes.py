@@ -131,7 +131,13 @@ class SyntheticSink(Node):
             time.sleep(self.params.work_secs)
         latency = (time.time_ns() - msg.header.stamp_nanos) / 1e6
         self.rows.append(
-            {"port": port, "seq": msg.header.seq, "value": msg.value, "latency_ms": latency}
+            {
+                "port": port,
+                "seq": msg.header.seq,
+                "stamp_nanos": msg.header.stamp_nanos,
+                "value": msg.value,
+                "latency_ms": latency,
+            }
         )
 
     def on_tick(self, msg: Tick) -> None:

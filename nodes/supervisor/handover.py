@@ -102,6 +102,11 @@ class HandoverSupervisor(SingleGraspTask):
         "slip": SlipState,
     }
     optional_inputs = frozenset({"pose", "wrench", "slip"})
+    # A release (shear, wrench) and a squeeze (slip) answer frames that reach the task by
+    # paths of different lengths: taken in stamp order, live as in a replay. The pose is
+    # for information only and goes straight through. On a tie (one camera frame) the
+    # longer paths come first, so no message waits for the next frame of a slow path.
+    ordered_inputs = ("grasp", "slip", "wrench", "shear")
     task = "handover"
 
     def setup(self) -> None:

@@ -152,15 +152,26 @@ def rim_correction(indent_m: np.ndarray, threshold_m: float) -> float:
 
 
 def footprint_m2(
-    depth_m: np.ndarray, camera: PinholeCamera, normal_in_sensor: np.ndarray
+    depth_m: np.ndarray,
+    camera: PinholeCamera,
+    normal_in_sensor: np.ndarray,
+    mask: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Each pixel's footprint projected on a plane normal to ``normal_in_sensor``, and
-    its range (m); NaN where the depth is invalid."""
-    rays = camera.unit_rays()
+    its range (m); NaN where the depth is invalid. With ``mask``, of its pixels only
+    (1D, in ``depth_m[mask]``'s order)."""
+    rays, solid = camera.unit_rays(), camera.pixel_solid_angle_sr()
+    if mask is not None:
+        at = np.flatnonzero(mask)
+        depth_m, rays, solid = (
+            depth_m.reshape(-1)[at],
+            rays.reshape(-1, 3)[at],
+            solid.reshape(-1)[at],
+        )
     rng = depth_m / rays[..., 2]
     cos = np.abs(rays @ normal_in_sensor)
     with np.errstate(invalid="ignore", divide="ignore"):
-        area = rng * rng * camera.pixel_solid_angle_sr() / np.maximum(cos, 0.05)
+        area = rng * rng * solid / np.maximum(cos, 0.05)
     return area, rng
 
 
@@ -178,6 +189,7 @@ class BubbleFeatures:
         self._patcher = ContactPatcher(self.params.contact)
         self._tracker = ShearTracker(self.params.flow)
         self._free_pressure_pa = 0.0
+        self._free: np.ndarray | None = None  # the free reference's mean depth (cached)
 
     @property
     def has_reference(self) -> bool:
@@ -191,11 +203,13 @@ class BubbleFeatures:
     def clear(self) -> None:
         """Forget the free reference (a new one is being taken)."""
         self._patcher.clear_reference("bubble")
+        self._free = None
 
     def free_frame(self, depth_m: np.ndarray, pressure_pa: float) -> None:
         """Add a frame of the free bubble to its reference (depth averaged; the newest
         pressure is the free one)."""
         self._patcher.update_reference("bubble", depth_m)
+        self._free = None  # the mean changed
         self._free_pressure_pa = pressure_pa
 
     def tare(
@@ -222,7 +236,9 @@ class BubbleFeatures:
     ) -> ContactFeatures:
         """The features of one frame (finite always; see :class:`ContactFeatures`)."""
         normal = inward_normal_in_tool(tool_from_sensor)
-        free = self._patcher.reference("bubble")
+        if self._free is None:
+            self._free = self._patcher.reference("bubble")
+        free = self._free
         if free is None or free.shape != depth_m.shape:
             return ContactFeatures.empty(pressure_pa, normal)
         mask = contact_mask(depth_m, free, self.params.contact)
@@ -230,15 +246,14 @@ class BubbleFeatures:
             return ContactFeatures.empty(pressure_pa, normal)
         rot = tool_from_sensor[:3, :3]
         rise = pressure_pa - self._free_pressure_pa
-        area_px, rng = footprint_m2(depth_m, camera, rot.T @ normal)
-        free_rng = free / camera.unit_rays()[..., 2]
-        indent = (free_rng - rng)[mask]
-        area = float(np.nansum(area_px[mask])) * rim_correction(
-            indent, self.params.contact.threshold_m
-        )
-        volume = float(np.nansum(area_px[mask] * indent))
-        points = camera.depth_to_points(depth_m)[mask]
-        weights = area_px[mask]
+        # Per pixel of the patch only (the rest of the image does not enter).
+        at = np.flatnonzero(mask)
+        weights, rng = footprint_m2(depth_m, camera, rot.T @ normal, mask)
+        indent = free.reshape(-1)[at] / camera.unit_rays()[..., 2].reshape(-1)[at] - rng
+        area = float(np.nansum(weights)) * rim_correction(indent, self.params.contact.threshold_m)
+        volume = float(np.nansum(weights * indent))
+        depth = depth_m.reshape(-1)[at]
+        points = np.where(depth > 0, depth, np.nan)[:, None] * camera.rays().reshape(-1, 3)[at]
         good = np.isfinite(points).all(axis=1) & np.isfinite(weights)
         centroid_s = (points[good] * weights[good, None]).sum(0) / max(weights[good].sum(), 1e-12)
         centroid = rot @ centroid_s + tool_from_sensor[:3, 3]
@@ -259,22 +274,21 @@ class BubbleFeatures:
         self, ir: np.ndarray, depth_m: np.ndarray, mask: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, int] | None:
         """Mean, core and edge tangential shift of the patch's dots, their torsion."""
-        result = self._tracker.update(ir, depth_m, keep_fields=True)
         geometry = self._tracker.reference_geometry
-        if result.flow is None or result.mask is None or geometry is None:
+        if geometry is None:
+            return None
+        flow, membrane, work_depth = self._tracker.track(ir, depth_m)
+        if work_depth is None:
             return None
         scale = self.params.flow.scale
         work_patch = resize_for_flow(mask.astype(np.float32), scale) >= 0.5
-        work_patch &= result.mask
+        work_patch &= membrane
         if work_patch.sum() < self.params.min_patch_px:
             return None
         # The patch's edge: within edge_px of its border (distance inside the patch).
         dist = cv2.distanceTransform(work_patch.astype(np.uint8), cv2.DIST_L2, 3)
         indices = np.flatnonzero(work_patch)
-        work_depth = resize_for_flow(depth_m.astype(np.float32, copy=False), scale)
-        s1, s2, d1, d2, kept = geometry.tangential_displacement_full(
-            result.flow, indices, work_depth
-        )
+        s1, s2, d1, d2, kept = geometry.tangential_displacement_full(flow, indices, work_depth)
         if s1.size < self.params.min_patch_px:
             return None
         edge = dist.reshape(-1)[kept] <= self.params.edge_px

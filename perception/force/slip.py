@@ -13,6 +13,14 @@ Two observations, both from what the bubble measures (docs/force.md):
   enter. The rig's two limits (the core's shift per pascal at which the edge, then the
   whole patch, begins to slip) come from the calibration (``edge_m_per_pa``,
   ``patch_m_per_pa``); ``strain`` is the core's shift over the edge's limit.
+* **The imprint runs ahead of the dots** (the whole patch). While the patch sticks its
+  dots move with the object, and so does the object's imprint (the patch's centroid in
+  the depth image), along the directions in which its shape changes the depth; once the
+  whole patch slides the dots stop at their limit and the imprint runs on. Over the
+  last ``window`` frames: the imprint moved at least ``patch_lead_m`` and that much
+  further along its own motion than the core's dots (``imprint_lead_m``). The core's
+  shift past ``patch_strain`` of the whole patch's limit is a backstop for a slide the
+  imprint cannot see (a cylinder along its axis, a slide slower than the cue needs).
 * **The edge lags the core.** Once the edge slips its dots stop following while the
   core's go on: over the last ``window`` frames, the edge's displacement along the
   core's, divided by the core's (``edge_follow``), drops. A confirmation near the edge's
@@ -58,24 +66,38 @@ class SlipParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     edge begins to slip at this pressure (``edge_m_per_pa * p``, from the calibration);
     ``use`` the estimated tangential force over ``friction`` times the normal force.
 
-    The limits are medians over the calibration's onsets, which spread by about 10%
-    (0.63-0.78 um/Pa for the edge over ``world.sim``'s calibration grasps): both
-    thresholds sit at 0.9 of them, so a low one fires a frame early rather than late.
+    The limits are medians over the calibration's onsets, which spread by about 8%
+    (0.77-0.91 um/Pa for the edge over ``world.sim``'s calibration grasps): the edge's
+    threshold sits at 0.92 of its limit, confirmed from 0.85 by the edge's lag behind
+    the core; the whole patch's cue is its imprint running ahead of the dots, with the
+    limit as a backstop.
     """
 
     edge_strain: Annotated[
         float, Meta(description="``strain`` from which the patch's edge counts as slipping.")
-    ] = 0.9
+    ] = 0.92
+    patch_lead_m: Annotated[
+        float,
+        Meta(
+            gt=0,
+            description=(
+                "the whole patch slides when, over ``window`` frames, the object's imprint"
+                " (the patch's centroid) moved at least this much (m) and ran this much"
+                " further along its own motion than the core's dots."
+            ),
+        ),
+    ] = 0.0005
     patch_strain: Annotated[
         float,
         Meta(
             gt=0,
             description=(
                 "the core's shift over the whole patch's limit (``patch_m_per_pa * p``)"
-                " from which the whole patch counts as slipping."
+                " from which the whole patch counts as slipping, whatever the imprint"
+                " says (a backstop for a slide the imprint cannot see)."
             ),
         ),
-    ] = 0.9
+    ] = 1.1
     edge_follow: Annotated[
         float,
         Meta(
@@ -93,7 +115,7 @@ class SlipParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
                 "other reasons)."
             )
         ),
-    ] = 0.8
+    ] = 0.85
     min_core_shift_m: Annotated[
         float,
         Meta(
@@ -142,7 +164,9 @@ class SlipReport:
     ``onset`` is ``edge`` or ``patch`` on the frame that phase began (else ``""``);
     ``use`` the load's share of the friction cone; ``edge_follow`` how much of the
     core's recent motion the edge followed (1 when the core did not move enough to say);
-    ``speed_m_per_s`` the slip speed (0 unless the whole patch slides).
+    ``speed_m_per_s`` the slip speed (0 unless the whole patch slides);
+    ``imprint_lead_m`` how much further the imprint moved than the core's dots over
+    the window (the whole patch's cue).
     """
 
     phase: SlipPhase
@@ -150,6 +174,7 @@ class SlipReport:
     use: float
     edge_follow: float
     speed_m_per_s: float
+    imprint_lead_m: float = 0.0
 
 
 class SlipDetector:
@@ -222,8 +247,9 @@ class SlipDetector:
         follow = self._edge_follow()
         shift_per_pa = shift_per_pressure(features, p.min_pressure_pa)
         strain = shift_per_pa / self.edge_m_per_pa
+        lead = self._imprint_lead()
         phase: SlipPhase = "stick"
-        if shift_per_pa >= p.patch_strain * self.patch_m_per_pa:
+        if lead >= p.patch_lead_m or shift_per_pa >= p.patch_strain * self.patch_m_per_pa:
             phase = "patch"
         elif strain >= p.edge_strain or (follow < p.edge_follow and strain >= p.edge_min_strain):
             phase = "edge"
@@ -241,7 +267,7 @@ class SlipDetector:
             phase = self.phase  # within an episode the phase does not go back
         self.phase = phase
         speed = self._speed() if phase == "patch" else 0.0
-        return SlipReport(phase, onset, use, follow, speed)
+        return SlipReport(phase, onset, use, follow, speed, lead)
 
     def _edge_follow(self) -> float:
         if len(self._history) < 2:
@@ -253,6 +279,26 @@ class SlipDetector:
         if moved < self.params.min_core_shift_m:
             return 1.0
         return float(dedge @ dcore) / (moved * moved)
+
+    def _imprint_lead(self) -> float:
+        """How much further the imprint moved than the core's dots over the window,
+        along the imprint's own motion (0 while it moved less than ``patch_lead_m``).
+
+        While the patch sticks the dots move with the object; the imprint moves with
+        it too, but only along the directions its shape changes the depth (a cylinder's
+        imprint does not move along its axis): the dots' motion projected on the
+        imprint's equals the imprint's. Once the whole patch slides the dots stop at
+        their limit and the imprint runs on.
+        """
+        if len(self._history) < 2:
+            return 0.0
+        _, core0, _, c0, _ = self._history[0]
+        _, core1, _, c1, _ = self._history[-1]
+        moved = c1 - c0
+        norm = float(np.hypot(*moved))
+        if norm < self.params.patch_lead_m:
+            return 0.0
+        return norm - float((core1 - core0) @ moved) / norm
 
     def _speed(self) -> float:
         if len(self._history) < 2:

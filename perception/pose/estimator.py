@@ -171,8 +171,8 @@ class PoseEstimator:
         # The sensor's noise does not change between frames: measured on a search, kept
         # while tracking.
         kept = self.last_noise_m if tracking else 0.0
-        noise = prm.noise_m or kept or max(estimate_noise_m(pts), prm.min_noise_m)
         rays = camera_rays(pts, sides)
+        noise = prm.noise_m or kept or max(estimate_noise_m(pts, rays), prm.min_noise_m)
         if prior is not None:
             first = self._solve(pts, prior)
             if self._warm_stands(first, prior, tracking, noise):
@@ -310,10 +310,14 @@ class PoseEstimator:
                 f"residual {1e3 * result.residual_rms_m:.2f} mm above {1e3 * accept:.2f} mm "
                 f"({prm.accept_ratio} x noise {1e3 * noise:.2f} mm)"
             )
-        bias = result.residual_mean_m
+        # At the answer moved by the bias the rays predict: the mean residual the noise
+        # leaves is predicted at the truth, and the fit's minimum sits off it.
+        corrected = _moved(fld, result, se3.exp_se3(unc.correction) @ result.object_from_tool, pts)
+        bias = corrected.residual_mean_m - unc.noise_mean_m
         if abs(bias) > self._bias_limit_m(noise, len(pts)):
             reasons.append(
-                f"the residuals are biased (mean {1e3 * bias:+.3f} mm, noise "
+                f"the residuals are biased (mean {1e3 * corrected.residual_mean_m:+.3f} mm, "
+                f"{1e3 * unc.noise_mean_m:+.3f} mm of it from the noise along the rays, noise "
                 f"{1e3 * noise:.2f} mm): the object may differ from its model in size (fit_dims)"
             )
         seen = sum(unc.observable)
@@ -345,7 +349,7 @@ class PoseEstimator:
         else:
             status = "ok" if best.rank == 0 else "recovered"
         result = replace(
-            _moved(fld, result, se3.exp_se3(unc.correction) @ result.object_from_tool, pts),
+            corrected,
             observable=unc.observable,
             covariance=unc.covariance,
             region95_deg=unc.region95_deg,

@@ -67,15 +67,17 @@ class EstimatorParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
         Meta(
             ge=0,
             description=(
-                "a mean residual beyond ``(bias_ratio + 2 / sqrt(N)) * noise`` (either "
-                "sign; the second term is two standard errors of a mean of N points) is"
-                " ``suspect``: noise along the rays averages out at the right pose "
-                "(under 0.05 of the noise on synthetic and simulated clouds of 3000 "
-                "points or more), a model of the wrong size leaves the points on one "
-                "side (a radius 1 mm off: 0.1-3 times the noise)."
+                "a mean residual beyond the one the noise along the camera rays leaves"
+                " at the right pose (``judge.Uncertainty.noise_mean_m``: +0.2 mm at a "
+                "box's corner at 3 mm noise) by more than ``(bias_ratio + 2 / sqrt(N))"
+                " * noise`` (either sign; the second term is two standard errors of a "
+                "mean of N points) is ``suspect``: the prediction is within 0.05 of the"
+                " residual RMS on synthetic clouds of 3000 points at 1 and 3 mm, a "
+                "model of the wrong size leaves the points on one side (a radius 1 mm "
+                "off: 0.1-3 times the noise)."
             ),
         ),
-    ] = 0.07
+    ] = 0.03
     min_observable: Annotated[
         int, Meta(ge=0, le=6, description="fewer observable directions than this is ``suspect``.")
     ] = 3

@@ -184,9 +184,28 @@ class ShearTracker:
         Returns:
             A finite :class:`ShearResult`; ``has_reference=False`` without a reference.
         """
+        if self._ref is None:
+            return ShearResult.empty(has_reference=False)
+        flow, mask, work_depth = self.track(ir, depth_m)
+        return self._summarize(flow, mask, work_depth, keep_fields)
+
+    def track(
+        self, ir: np.ndarray, depth_m: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The dots' flow of this frame against the reference, without the summary
+        :meth:`update` makes of it (for a caller that reads the field itself).
+
+        Returns:
+            ``(flow, mask, work_depth)`` at the working resolution: the flow
+            ``(h, w, 2)`` in working pixels, the membrane's mask (this frame's and the
+            reference's), the depth resized (None without ``depth_m``).
+
+        Raises:
+            ValueError: without a reference, or for an image of another shape.
+        """
         ref = self._ref
         if ref is None:
-            return ShearResult.empty(has_reference=False)
+            raise ValueError("no reference: call set_reference first")
         if tuple(ir.shape) != ref.full_shape:
             raise ValueError(f"IR shape {ir.shape} differs from the reference's {ref.full_shape}")
         work_ir, work_depth, mask = self._prepare(ir, depth_m)
@@ -196,7 +215,7 @@ class ShearTracker:
         flow = self._flow(ref.u8, cur_u8, initial)
         if self.params.warm_start:
             self._last_flow = flow
-        return self._summarize(flow, mask, work_depth, keep_fields)
+        return flow, mask, work_depth
 
     def _summarize(
         self,

@@ -16,11 +16,15 @@ def test_pose_hard_quick(capsys: pytest.CaptureFixture[str]) -> None:
     out = json.loads(capsys.readouterr().out)
     assert out["rows"] and len(out["rows"]) == len(rows)
     kinds = {r["kind"] for r in rows}
-    assert kinds == {"hard", "size", "degenerate"}
+    assert kinds == {"hard", "size", "degenerate", "coverage"}
     assert all("silent_wrong" in r and "object" in r for r in rows)
     assert sum(r["silent_wrong"] for r in rows) == 0
     hard = [r for r in rows if r["kind"] == "hard"]
     assert all(0.0 <= r["coverage95"] <= 1.0 and "right_suspect_share" in r for r in hard)
+    # The coverage rows state how many estimates each cell holds and the binomial interval.
+    coverage = [r for r in rows if r["kind"] == "coverage"]
+    assert coverage and all(r["cases"] >= 3 for r in coverage)
+    assert all(r["coverage95_lo"] <= r["coverage95"] <= r["coverage95_hi"] for r in coverage)
     fitted = [r for r in rows if r["kind"] == "size" and r["fit_dims"] == "radius"]
     assert fitted and fitted[0]["radius_err_mm_median"] < 0.5
 

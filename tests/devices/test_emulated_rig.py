@@ -71,13 +71,19 @@ def test_the_hardware_graph_hands_over_on_emulated_devices_and_replays(tmp_path:
     # frames': the world's clock.
     truth = {m.header.stamp_nanos: m.tool_from_object for m in t["rig_world/ground_truth"]}
     stamps = np.array(sorted(truth))
-    holding = next(m.time_secs for m in t["rig_world/state"] if m.gripper_state == "holding")
+    # The hold starts at the grasp monitor's stable grasp, a decision stamped by the data.
+    # Not at the gripper's `holding`: the emulated WSG 50 reports it on the wall clock
+    # (1.5 to 1.9 s into the scene in three runs under load) while the membranes still
+    # settle around the mug, and the pose node rightly calls those frames' fits suspect.
+    stable = next(
+        (e.header.stamp_nanos - start) / 1e9 for e in t["supervisor/event"] if e.event == "stable"
+    )
 
     def held_poses(recording: dict[str, list]) -> list:
         return [
             p
             for p in recording["pose/pose"]
-            if p.status == "ok" and holding < (p.header.stamp_nanos - start) / 1e9 < PULL_SECS
+            if p.status == "ok" and stable < (p.header.stamp_nanos - start) / 1e9 < PULL_SECS
         ]
 
     def assert_right(poses: list) -> None:
@@ -103,7 +109,7 @@ def test_the_hardware_graph_hands_over_on_emulated_devices_and_replays(tmp_path:
     patches = [
         p
         for p in t["contact_patch/patch"]
-        if len(p.points_in_tool) and holding < (p.header.stamp_nanos - start) / 1e9 < PULL_SECS
+        if len(p.points_in_tool) and stable < (p.header.stamp_nanos - start) / 1e9 < PULL_SECS
     ]
     held = held_poses(r)
     assert len(patches) >= 10 and len(held) >= 0.9 * len(patches), (len(held), len(patches))

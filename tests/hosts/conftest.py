@@ -1,11 +1,17 @@
 """Hosts for the multi-host tests: key folders, graph files, and launchers run inside
-network namespaces (``bench.netns``; skipped with the reason where they cannot be made)."""
+network namespaces (``bench.netns``; skipped with the reason where they cannot be made),
+and port ranges of this machine's loopback that no other run of the suite takes."""
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import os
+import random
+import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -44,6 +50,49 @@ def host_table(keys: Path, names: list[str]) -> dict[str, Any]:
         }
         for i, name in enumerate(names)
     }
+
+
+# Below the kernel's ephemeral ports (32768 on): no `tcp://...:*` bind lands in a range.
+_PORTS_FROM, _PORTS_TO, _BLOCK = 20000, 32000, 40  # ranges start on a block's first port
+_held_ranges: list[int] = []  # lock files' descriptors, held until this process ends
+
+
+def free_port_range(size: int) -> tuple[int, int]:
+    """``[first, last]``: ``size`` ports of 127.0.0.1 free now, and this process's alone.
+
+    A graph's ``hosts:`` table fixes its ports (each host's launcher binds them later),
+    so they cannot be the kernel's pick on a bind to port 0. Instead each range is taken
+    under a lock file (``$TMPDIR/sbg-test-ports/FIRST.lock``) that this process holds
+    until it ends: two suites on one machine never pick the same range. Every port of it
+    is bound once here, so one another program holds is not picked either; such a program
+    could still take one between now and the launcher's bind, which nothing can prevent.
+    """
+    assert 0 < size <= _BLOCK, size
+    folder = Path(tempfile.gettempdir()) / "sbg-test-ports"
+    folder.mkdir(exist_ok=True)
+    firsts = list(range(_PORTS_FROM, _PORTS_TO, _BLOCK))
+    random.shuffle(firsts)
+    for first in firsts:
+        fd = os.open(folder / f"{first}.lock", os.O_CREAT | os.O_RDWR, 0o600)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            continue
+        if all(_bindable(port) for port in range(first, first + size)):
+            _held_ranges.append(fd)
+            return first, first + size - 1
+        os.close(fd)
+    raise AssertionError(f"no {size} free ports in a row on 127.0.0.1 in {_PORTS_FROM}..")
+
+
+def _bindable(port: int) -> bool:
+    with contextlib.closing(socket.socket()) as probe:
+        try:
+            probe.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
 
 
 def write_graph(doc: dict[str, Any], path: Path) -> Path:

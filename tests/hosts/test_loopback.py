@@ -14,39 +14,40 @@ import yaml
 
 from runtime.bag import BagReader
 from runtime.bag.diff import diff_bags
-from tests.hosts.conftest import SYNTHETIC, Launched, write_graph
+from tests.hosts.conftest import SYNTHETIC, Launched, free_port_range, write_graph
 from tests.runtime.conftest import topic_messages
 
-GRAPH = {
-    "hosts": {
-        "a": {"address": "127.0.0.1", "ports": [24300, 24319]},
-        "b": {"address": "127.0.0.1", "ports": [24320, 24339]},
+NODES = {
+    "source_b": {
+        "impl": f"{SYNTHETIC}Source",
+        "host": "a",
+        "params": {"rate_hz": 80, "count": 16, "stop_when_done": False},
     },
-    "nodes": {
-        "source_b": {
-            "impl": f"{SYNTHETIC}Source",
-            "host": "a",
-            "params": {"rate_hz": 80, "count": 16, "stop_when_done": False},
-        },
-        "sink": {"impl": f"{SYNTHETIC}Sink", "host": "a", "inputs": {"tick": "merge/tick"}},
-        "source_a": {
-            "impl": f"{SYNTHETIC}Source",
-            "host": "b",
-            "params": {"rate_hz": 200, "count": 40},
-        },
-        "relay": {
-            "impl": f"{SYNTHETIC}Relay",
-            "host": "b",
-            "params": {"add": 1000},
-            "inputs": {"tick": "source_a/tick"},
-        },
-        "merge": {
-            "impl": f"{SYNTHETIC}Merge",
-            "host": "b",
-            "inputs": {"a": "relay/tick", "b": "source_b/tick"},
-        },
+    "sink": {"impl": f"{SYNTHETIC}Sink", "host": "a", "inputs": {"tick": "merge/tick"}},
+    "source_a": {
+        "impl": f"{SYNTHETIC}Source",
+        "host": "b",
+        "params": {"rate_hz": 200, "count": 40},
+    },
+    "relay": {
+        "impl": f"{SYNTHETIC}Relay",
+        "host": "b",
+        "params": {"add": 1000},
+        "inputs": {"tick": "source_a/tick"},
+    },
+    "merge": {
+        "impl": f"{SYNTHETIC}Merge",
+        "host": "b",
+        "inputs": {"a": "relay/tick", "b": "source_b/tick"},
     },
 }
+
+
+@pytest.fixture(scope="module")
+def graph() -> dict:
+    """The graph on two port ranges of 127.0.0.1 that no other run of the suite uses."""
+    hosts = {h: {"address": "127.0.0.1", "ports": list(free_port_range(20))} for h in "ab"}
+    return {"hosts": hosts, "nodes": NODES}
 
 
 def run_on_hosts(
@@ -71,16 +72,16 @@ def values(path: Path, topic: str) -> list[float]:
 
 
 @pytest.fixture(scope="module")
-def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[Launched]]:
+def recorded(tmp_path_factory: pytest.TempPathFactory, graph: dict) -> tuple[Path, list[Launched]]:
     """The graph run on two hosts with --record: the bag (written on a) and the launchers."""
     tmp = tmp_path_factory.mktemp("hosts")
-    graph = write_graph(GRAPH, tmp / "g.yaml")
+    path = write_graph(graph, tmp / "g.yaml")
     bag = tmp / "live.mcap"
-    return bag, run_on_hosts([graph, "--record", bag, "--log-level", "WARNING"], tmp / "live")
+    return bag, run_on_hosts([path, "--record", bag, "--log-level", "WARNING"], tmp / "live")
 
 
 def test_record_across_hosts_records_every_message_published_on_the_other(
-    recorded: tuple[Path, list[Launched]],
+    recorded: tuple[Path, list[Launched]], graph: dict
 ) -> None:
     bag, (a, b) = recorded
     assert "[recorder]" not in b.text  # the recorder runs on the first host only
@@ -92,7 +93,7 @@ def test_record_across_hosts_records_every_message_published_on_the_other(
     for topic in ("source_a/tick", "relay/tick", "merge/tick"):
         assert counts[topic] == topic_messages(b.text, topic), topic
     assert counts == {"source_a/tick": 40, "relay/tick": 40, "source_b/tick": 16, "merge/tick": 56}
-    assert stored["hosts"] == GRAPH["hosts"]  # the bag replays across the same hosts
+    assert stored["hosts"] == graph["hosts"]  # the bag replays across the same hosts
     assert "--host" not in command and command.startswith("python launch.py")
 
 
@@ -117,10 +118,12 @@ def test_lockstep_replay_split_over_two_hosts_gives_the_one_host_output(
         assert "host 'a' stops: replay" in b.text  # the replay (on a) ended the run
 
 
-def test_a_host_started_without_lockstep_is_refused_naming_the_flag(tmp_path: Path) -> None:
-    graph, bag = write_graph(GRAPH, tmp_path / "g.yaml"), tmp_path / "o.mcap"
-    a = Launched([graph, "--host", "a", "--lockstep", "--record", bag], tmp_path / "a.log")
-    b = Launched([graph, "--host", "b"], tmp_path / "b.log")
+def test_a_host_started_without_lockstep_is_refused_naming_the_flag(
+    tmp_path: Path, graph: dict
+) -> None:
+    path, bag = write_graph(graph, tmp_path / "g.yaml"), tmp_path / "o.mcap"
+    a = Launched([path, "--host", "a", "--lockstep", "--record", bag], tmp_path / "a.log")
+    b = Launched([path, "--host", "b"], tmp_path / "b.log")
     try:
         assert a.finish() == 2 and b.finish() == 2
     finally:

@@ -188,7 +188,7 @@ def record_idle_waits(io: FakeIO) -> list[int]:
     """Make ``io.wait_idle`` record how many messages were published when it was called."""
     calls: list[int] = []
 
-    def wait_idle(timeout_secs: float) -> bool:
+    def wait_idle(timeout_secs: float, *, last: bool = False) -> bool:
         calls.append(sum(len(v) for v in io.published.values()))
         return True
 

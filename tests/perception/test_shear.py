@@ -226,6 +226,21 @@ def test_reference_drop_and_reset():
     assert angle_error_deg(back.direction, -truth_px) < 5.0
 
 
+def test_track_gives_the_field_that_update_summarises():
+    tracker = tracker_for("left", ShearParams(scale=0.5))
+    shifted = frame((1.0, 0.0), 0.0, 40)
+    flow, mask, work_depth = tracker.track(*shifted)
+    assert flow.shape == (*mask.shape, 2) and work_depth is not None
+    assert work_depth.shape == mask.shape and mask.any()
+    result = tracker.update(*shifted, keep_fields=True)
+    assert result.flow is not None and result.mask is not None
+    np.testing.assert_array_equal(result.mask, mask)
+    np.testing.assert_allclose(result.flow, flow)
+    tracker.drop_reference()
+    with pytest.raises(ValueError, match="no reference"):
+        tracker.track(*shifted)
+
+
 def test_warm_start_tracks_a_ramp_a_single_level_cannot_jump():
     params = {"levels": 1, "winsize": 9}
     cold = tracker_for("left", ShearParams(farneback=FarnebackParams(**params)))

@@ -195,7 +195,9 @@ def test_video_has_one_frame_per_camera_instant(run: tuple[Path, Path], tmp_path
     video.release()
     assert frames == len(stamps)
     with BagReader(bag) as reader:
-        events = sum(1 for _ in reader.messages(["supervisor/event"]))
+        said = [m.decode() for m in reader.messages(["supervisor/event"])]
+        grasps = [m.decode().event for m in reader.messages(["grasp_monitor/grasp"])]
+    events = len(said)
     pngs = sorted(stills.glob("*.png"))
     # first, last, one per task or grasp event, one each time the pose is tracked again
     assert 2 <= len(pngs) <= frames
@@ -205,8 +207,12 @@ def test_video_has_one_frame_per_camera_instant(run: tuple[Path, Path], tmp_path
     assert "first" in moments[0] and "last" in moments[-1]
     # moments on one frame share its still, all named, sorted (a grasp's stable and the
     # task's answer to it are stamped alike)
-    assert any("handover_release" in m for m in moments)
-    assert any("grasp_stable" in m for m in moments)
+    # A still for each moment the run had (on a loaded machine the scene may end before
+    # the task released the mug: then there is no release to show).
+    if any(e.event == "release" for e in said):
+        assert any("handover_release" in m for m in moments), moments
+    if "stable" in grasps:
+        assert any("grasp_stable" in m for m in moments), moments
     assert sum(m.count("handover_") for m in moments) <= events
     for png in pngs:
         assert cv2.imread(str(png)).shape == (BAR_PX + 3 * height, 2 * width + LEGEND_PX, 3)
