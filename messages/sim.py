@@ -42,7 +42,11 @@ class WorldState(Message):
     the membrane as a mesh (``world.mujoco``) sends each bubble's outer surface in
     ``membrane_*_m`` (its vertices in that finger's plate frame, metres; the topology is
     ``sim.mujoco.mesh.membrane_mesh`` at ``membrane_spacing_m``) and the cameras ray-cast
-    it; empty (0, 3) arrays, spacing 0, from a world without one.
+    it; empty (0, 3) arrays, spacing 0, from a world without one. ``object_dims_m`` and
+    ``object_variant`` are the object the world holds when it is not the scene file's
+    (the auto-labeller's variants, ``geometry.variants``; -1: no variant): the sensor
+    nodes build that object, not the file's; ``tension_n_per_m`` the membrane's tension
+    when the world drew one (``sim.rig.BubbleSpec``; 0: the file's).
     """
 
     header: Header
@@ -66,6 +70,9 @@ class WorldState(Message):
     membrane_spacing_m: float = 0.0
     membrane_left_m: _Points = msgspec.field(default_factory=_no_points)
     membrane_right_m: _Points = msgspec.field(default_factory=_no_points)
+    object_dims_m: dict[str, float] = msgspec.field(default_factory=dict)
+    object_variant: int = -1
+    tension_n_per_m: float = 0.0
 
 
 class PlacementTruth(Message):

@@ -385,14 +385,31 @@ DEFAULT_EFFECTS = ("membrane", "depth", "ir", "tof_noise", "pressure", "gripper"
 class AutolabelWorldParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """``scenes``: object name -> scene file (bubbles, cameras, noise; its object must be
     that one); ``effects`` and ``seed`` replace the scenes'; ``rate_scale`` > 1 runs
-    faster than real time."""
+    faster than real time; ``tension_n_per_m`` ``[low, high]``: each grasp's membrane
+    tension (``sim.rig.BubbleSpec``) drawn uniformly from it, from ``(seed, grasp id)``
+    (``[0, 0]``, the default: the scenes' slack membrane)."""
 
     scenes: dict[str, str] = msgspec.field(default_factory=lambda: dict(DEFAULT_SCENES))
     effects: tuple[str, ...] = DEFAULT_EFFECTS
     seed: int = 0
     rate_scale: Annotated[float, Meta(gt=0)] = 1.0
+    tension_n_per_m: Annotated[
+        tuple[float, float],
+        Meta(
+            description=(
+                "[low, high]: each grasp's membrane tension, N/m, drawn uniformly from "
+                "(seed, grasp id); [0, 0]: the scenes' slack membrane."
+            )
+        ),
+    ] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
+        low, high = self.tension_n_per_m
+        if not 0 <= low <= high < float("inf"):
+            raise ValueError(
+                f"`tension_n_per_m` must be [low, high] with 0 <= low <= high, got "
+                f"{list(self.tension_n_per_m)}"
+            )
         try:
             resolve(self.effects)
         except ValueError as err:
@@ -427,8 +444,14 @@ class AutolabelWorldParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unk
         gripper = dataclasses.replace(
             base.gripper, initial_width_m=float(request.open_width_m), commands=()
         )
+        bubble = base.bubble
+        low, high = self.tension_n_per_m
+        if high > 0:
+            draw = np.random.default_rng([self.seed, request.grasp_id, 7]).uniform(low, high)
+            bubble = dataclasses.replace(bubble, tension_n_per_m=float(draw))
         scene = dataclasses.replace(
             base,
+            bubble=bubble,
             effects=tuple(self.effects),
             seed=self.seed,
             trajectory=(keyframe,),

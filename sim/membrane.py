@@ -16,13 +16,18 @@ and ground-truth shear without rendering an image) take the penetration depth al
 field as the local indentation: displaced volume = sum(indentation * area), contact
 area = the projected area of the indented samples, normal force = gauge pressure times
 that area (a thin membrane under pressure transmits p * A).
+
+A tensioned membrane (``BubbleSpec.tension_n_per_m`` > 0, :class:`Tension`) adds a tent
+around the contact and the pull along it; without tension (the default) nothing changes.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
+import cv2
 import numpy as np
 
 from geometry.se3 import invert
@@ -59,6 +64,61 @@ class ContactState:
 
 
 NO_SHEAR = np.zeros(2)
+
+
+@dataclass(frozen=True)
+class Tension:
+    """A tensioned membrane around a contact (``sim.rig.BubbleSpec.tension_n_per_m``).
+
+    The geometric model keeps the free membrane at its rest shape, a slack membrane
+    pressed by its gauge pressure alone. A taut one (an elastic shell, as MuJoCo's) is
+    pulled in around the object: here the free membrane leaves the patch's edge as a
+    straight tent falling towards the rest shape at the slope ``slope = p0 a / T`` (the
+    rest gauge pressure ``p0`` over the cap's in-plane semi-axis ``a`` against the
+    tension ``T``: steep when slack, shallow when taut), and the tension pulls the object
+    along it with ``T sin(atan(slope))`` per metre of the patch's edge, whose length is
+    taken as a circle's of the same area (``2 sqrt(pi A)``). The tent's own volume does
+    not raise the pressure, and the ``wrench`` effect leaves the pull out. A model of the
+    effect, not of a measured membrane: its purpose is training data that does not
+    teach one membrane's look (docs/classifier.md).
+    """
+
+    tension_n_per_m: float
+    slope: float
+
+    @classmethod
+    def of(cls, bubble: Any) -> Tension | None:
+        """The tension of a ``BubbleSpec``; None for a slack membrane (0)."""
+        t = float(bubble.tension_n_per_m)
+        if t <= 0.0:
+            return None
+        return cls(t, bubble.inflation_pa * bubble.semi_axis_lateral_m / t)
+
+    def force_n(self, contact_area_m2: float) -> float:
+        """The tension's pull on the object across a patch of this (projected) area."""
+        edge_m = 2.0 * math.sqrt(math.pi * max(contact_area_m2, 0.0))
+        return self.tension_n_per_m * edge_m * self.slope / math.hypot(1.0, self.slope)
+
+    def spread(self, indent_m: np.ndarray, pitch_m: np.ndarray) -> np.ndarray:
+        """The indentation with the tent around the contact, on an image grid.
+
+        ``pitch_m`` is each pixel's size on the membrane (``inf`` off it): the tent
+        falls ``slope * pitch`` per pixel away from the patch (a dilation by a cone,
+        in steps to the 8 neighbours), and nowhere goes below the indentation given.
+        """
+        out = np.asarray(indent_m, np.float32)
+        fall = (self.slope * pitch_m).astype(np.float32)
+        top = float(out.max()) if out.size else 0.0
+        finite = fall[np.isfinite(fall)]
+        if top <= 0.0 or finite.size == 0:
+            return out
+        kernel = np.ones((3, 3), np.uint8)
+        for _ in range(min(int(math.ceil(top / max(float(finite.min()), 1e-6))), 200)):
+            grown = np.maximum(out, cv2.dilate(out, kernel) - fall)
+            if np.array_equal(grown, out):
+                break
+            out = grown
+        return out
 
 
 class CulledField:

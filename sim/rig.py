@@ -88,6 +88,13 @@ class BubbleSpec:
     and per square metre of contact at the patch's centre; ``edge_stiffening`` how
     much stiffer the patch's edge is (the stretched free membrane pulls on it), so the
     edge reaches its friction limit and slips first.
+
+    ``tension_n_per_m``: the latex's in-plane tension in a contact (0, the default: a
+    slack membrane pressed by its gauge pressure alone). With tension the free membrane
+    leaves the contact's edge as a tent down towards the plate instead of keeping its
+    rest shape (a broader, smoother dent around the patch), and pulls on the object
+    along that tent, so the jaws stop wider at the same force (``sim.membrane.Tension``).
+    The auto-labeller draws it per grasp (``world.autolabel``'s ``tension_n_per_m``).
     """
 
     semi_axis_normal_m: float = 0.04165
@@ -104,9 +111,11 @@ class BubbleSpec:
     friction: float = 0.8
     shear_stiffness_n_per_m3: float = 4.5e5
     edge_stiffening: float = 1.0
+    tension_n_per_m: float = 0.0
 
     def __post_init__(self) -> None:
         positive(self, "ambient_pa", "max_shear_m", "sample_spacing_m")
+        nonnegative(self, "tension_n_per_m")
         positive(self, "friction", "shear_stiffness_n_per_m3")
         nonnegative(self, "edge_stiffening")
         nonnegative(self, "inflation_pa", "dead_volume_m3", "compliance_m3_per_pa")

@@ -31,7 +31,7 @@ from messages.base import Header
 from messages.types import MaskImage, ToFImage
 from sim.effects import EFFECTS, camera_effects
 from sim.friction import slip_shift_m, stiffening
-from sim.membrane import CulledField, cull_to_bounds, march_to_surface
+from sim.membrane import CulledField, Tension, cull_to_bounds, march_to_surface
 from sim.scene import Scene
 from sim.world import WorldSnapshot
 
@@ -154,6 +154,9 @@ class BubbleRenderer:
         self._lr_plate = _plate_range(self._o_f, dirs_lr_f).ravel()[self._lr_valid]
         self._lr_rest_points = self._lr_rest[:, None] * self._lr_unit
         self._lr_cos_rest = _rest_cos(bubble, self._o_f, dirs_lr_f, rest_lr).ravel()
+        self.tension = Tension.of(scene.bubble)
+        # A low-resolution pixel's size on the rest membrane (the tent's steps).
+        self._lr_pitch = np.where(np.isfinite(rest_lr), rest_lr * k / self.camera.fx_px, np.inf)
 
         self._mesh_views: dict[float, Any] = {}
         self._membrane_cache: tuple[tuple[bytes, float], dict[str, np.ndarray]] | None = None
@@ -229,13 +232,19 @@ class BubbleRenderer:
                     cos = np.abs(np.einsum("ij,ij->i", grad, dirs)) / np.where(ok, norm, 1.0)
                     cos_lr[pix[ok]] = cos[ok]
         h, w = self.camera.shape
-        indent = indent_lr.reshape(hl, wl)
+        indent = touch = indent_lr.reshape(hl, wl)
+        if self.tension is not None:
+            indent = self.tension.spread(touch, self._lr_pitch)
         if (hl, wl) != (h, w):
             indent = cv2.resize(indent, (w, h), interpolation=cv2.INTER_LINEAR)
+            if self.tension is not None:
+                touch = cv2.resize(touch, (w, h), interpolation=cv2.INTER_LINEAR)
         indent = np.minimum(indent, self._max_indent32)
+        if self.tension is None:
+            touch = indent
         frame["indentation_m"] = indent
         frame["range_m"] = self._rest32 - indent
-        frame["contact"] = indent > 1e-4
+        frame["contact"] = touch > 1e-4  # the object's patch, not the tent around it
         if cos_lr is not None:
             cos_up = cos_lr.reshape(hl, wl).astype(np.float32)
             if (hl, wl) != (h, w):

@@ -18,7 +18,7 @@ from geometry.gripper import SIDES
 from messages.base import Header
 from messages.sim import WorldState
 from messages.types import GripperCommand
-from sim.scene import Scene, load_scene
+from sim.scene import ObjectSpec, Scene, load_scene
 from sim.world import World, WorldSnapshot
 
 
@@ -51,6 +51,9 @@ def to_message(snap: WorldSnapshot, scene: Scene, stamp_nanos: int) -> WorldStat
         shear_left_m=np.asarray(snap.shear_in_tool_m["left"], np.float64),
         shear_right_m=np.asarray(snap.shear_in_tool_m["right"], np.float64),
         **_membranes(snap),
+        object_dims_m=dict(scene.object.dims_m),
+        object_variant=-1 if scene.object.variant is None else int(scene.object.variant),
+        tension_n_per_m=float(scene.bubble.tension_n_per_m),
     )
 
 
@@ -95,13 +98,37 @@ def from_message(msg: WorldState) -> WorldSnapshot:
 
 
 def scene_of(msg: WorldState) -> Scene:
-    """The scene a ``WorldState`` was produced from (loaded once per path/effects/seed)."""
-    return _scene(msg.scene_path, tuple(msg.effects), msg.seed)
+    """The scene a ``WorldState`` was produced from, holding the message's object (a
+    variant the world placed in the file's scene) and membrane tension (loaded once per
+    path, effects, seed, object and tension)."""
+    scene = _scene(
+        msg.scene_path,
+        tuple(msg.effects),
+        msg.seed,
+        tuple(sorted(msg.object_dims_m.items())),
+        msg.object_variant,
+    )
+    if msg.tension_n_per_m > 0 and msg.tension_n_per_m != scene.bubble.tension_n_per_m:
+        bubble = dataclasses.replace(scene.bubble, tension_n_per_m=msg.tension_n_per_m)
+        scene = dataclasses.replace(scene, bubble=bubble)
+    return scene
 
 
 @functools.lru_cache(maxsize=8)
-def _scene(path: str, effects: tuple[str, ...], seed: int) -> Scene:
-    return dataclasses.replace(load_scene(path), effects=effects, seed=seed)
+def _scene(
+    path: str,
+    effects: tuple[str, ...],
+    seed: int,
+    dims_m: tuple[tuple[str, float], ...],
+    variant: int,
+) -> Scene:
+    scene = load_scene(path)
+    if not dims_m and variant < 0:
+        return dataclasses.replace(scene, effects=effects, seed=seed)  # the file's object
+    held = ObjectSpec(
+        name=scene.object.name, dims_m=dims_m, variant=None if variant < 0 else variant
+    )
+    return dataclasses.replace(scene, effects=effects, seed=seed, object=held)
 
 
 def apply_command(world: World, msg: GripperCommand) -> str | None:

@@ -27,7 +27,7 @@ import numpy as np
 from geometry.gripper import SIDES
 from sim.friction import BubbleWrench, SlipDynamics, bubble_wrench
 from sim.gripper import GripperDynamics
-from sim.membrane import ContactState, CulledField, contact_mechanics
+from sim.membrane import ContactState, CulledField, Tension, contact_mechanics
 from sim.pressure import gauge_pressure_pa
 from sim.scene import Scene
 from sim.support import Placement, Support
@@ -85,6 +85,7 @@ class World:
         self.bounds = self.field.bounds
         self.samples = self.geometry.bubble.surface_samples(scene.bubble.sample_spacing_m)
         self.rest_volume_m3 = self.geometry.bubble.volume_m3() + scene.bubble.dead_volume_m3
+        self.tension = Tension.of(scene.bubble)
         self.dynamics = GripperDynamics(scene.gripper, speed_limited="gripper" in effects)
         self.needs_contact = bool(effects & _CONTACT_EFFECTS)
         self.tracks_anchors = bool(effects & {"shear", "ground_truth", "wrench"})
@@ -162,6 +163,8 @@ class World:
         for state in states.values():
             if state.in_contact:
                 total += self.pressure_pa(state) * state.contact_area_m2
+                if self.tension is not None:
+                    total += self.tension.force_n(state.contact_area_m2)
         return total / 2.0
 
     def step(self) -> WorldSnapshot:

@@ -244,6 +244,53 @@ def test_world_builds_the_requested_variant() -> None:
     assert reference.object.model().dims_m == objects.make(request.object_name).dims_m
 
 
+def test_cameras_render_the_variant_and_membrane_the_world_holds() -> None:
+    """The sensor nodes rebuild the world's scene from its ``WorldState``: a variant the
+    auto-labeller placed, and the membrane tension it drew, must reach them, not the
+    scene file's reference shape and slack membrane."""
+    from nodes.bubble_camera import SimBubbleCamera
+    from sim.tof import BubbleRenderer
+    from sim.wire import from_message, scene_of
+
+    request = _request(seed=5, variants="held_out")
+    params = {"seed": 13, "tension_n_per_m": [20.0, 80.0]}
+    held = AutolabelWorldParams(seed=13, tension_n_per_m=(20.0, 80.0)).scene_for(request)
+    assert 20.0 <= held.bubble.tension_n_per_m <= 80.0
+    world, wio = make_node(AutolabelWorld, params, name="world")
+    feed(world, "place", request)
+    feed(world, "command", _close_on(request))
+    wio.advance(1.5)
+    state = wio.published["state"][-1]
+    assert all(state.in_contact)
+    assert scene_of(state).object == held.object
+    assert scene_of(state).bubble == held.bubble
+    camera, cio = make_node(SimBubbleCamera, {"sensor": "left"})
+    feed(camera, "world", state)
+    image = cio.published["image"][-1]
+    renderer = BubbleRenderer(held, "left")
+    expected = renderer.render(from_message(state)).tof_image(
+        renderer.camera, state.header.stamp_nanos
+    )
+    np.testing.assert_array_equal(image.depth_m, expected.depth_m)
+    # and the reference shape at the same pose and opening looks different
+    reference = AutolabelWorldParams(seed=13, tension_n_per_m=(20.0, 80.0)).scene_for(
+        msgspec.structs.replace(request, variant=-1)
+    )
+    other = BubbleRenderer(reference, "left").render(from_message(state))
+    depth = other.tof_image(renderer.camera, state.header.stamp_nanos).depth_m
+    assert not np.array_equal(depth, expected.depth_m, equal_nan=True)
+
+
+def test_world_draws_each_grasps_membrane_tension() -> None:
+    params = AutolabelWorldParams(seed=13, tension_n_per_m=(0.0, 100.0))
+    drawn = [params.scene_for(_request(k)).bubble.tension_n_per_m for k in range(4)]
+    assert all(0.0 <= t <= 100.0 for t in drawn) and len(set(drawn)) == 4
+    assert drawn == [params.scene_for(_request(k)).bubble.tension_n_per_m for k in range(4)]
+    assert AutolabelWorldParams().scene_for(_request(0)).bubble.tension_n_per_m == 0.0
+    with pytest.raises(ValueError, match="tension_n_per_m"):
+        AutolabelWorldParams(tension_n_per_m=(5.0, 1.0))
+
+
 def _close_on(request: GraspRequest) -> GripperCommand:
     """The command that closes the jaws on a requested grasp, as the supervisor sends it."""
     return GripperCommand(

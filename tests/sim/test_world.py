@@ -104,3 +104,43 @@ def test_run_to_and_frame_count() -> None:
     with pytest.raises(ValueError):
         world.run_to(0.0)
     assert world.run_to(10.0).frame_index == 15 and world.done
+
+
+def test_a_taut_membrane_stops_the_jaws_wider_with_a_broader_dent() -> None:
+    """``bubble.tension_n_per_m``: the tension pulls on the object along a tent around
+    the patch, so at the same force the jaws stop wider, the object sits shallower, and
+    the membrane around the patch is dented (the patch itself no larger)."""
+    scenes = [
+        make_scene(
+            effects=["membrane", "depth", "gripper", "pressure"],
+            duration_secs=1.6,
+            gripper={"initial_width_m": 0.11, "commands": GRASP},
+            bubble={"tension_n_per_m": tension},
+        )
+        for tension in (0.0, 60.0)
+    ]
+    finals = [_run(scene)[-1] for scene in scenes]
+    for final in finals:
+        assert final.gripper_state == "holding"
+        assert final.force_n == pytest.approx(12.0, rel=0.02)
+    slack, taut = finals
+    assert taut.width_m > slack.width_m + 0.003
+    assert max(taut.pressure_pa.values()) < max(slack.pressure_pa.values())
+    frames = [
+        sim.BubbleRenderer(scene, "left").render(final).arrays
+        for scene, final in zip(scenes, finals, strict=True)
+    ]
+    for arrays in frames:
+        assert np.all(np.isfinite(arrays["indentation_m"]))
+    # dented by more than 1 mm outside the object's patch: the tent
+    tent = [int(((a["indentation_m"] > 1e-3) & ~a["contact"]).sum()) for a in frames]
+    patch = [int(a["contact"].sum()) for a in frames]
+    assert tent[0] < 0.02 * patch[0]
+    assert tent[1] > 0.1 * patch[1]
+    assert patch[1] <= patch[0]
+    assert frames[1]["indentation_m"].max() < frames[0]["indentation_m"].max()
+
+
+def test_tension_is_checked() -> None:
+    with pytest.raises(Exception, match="tension_n_per_m"):
+        make_scene(bubble={"tension_n_per_m": -1.0})
