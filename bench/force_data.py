@@ -64,6 +64,7 @@ class GraspSpec:
     load: str
     grip_n: float
     scene: sim.Scene
+    doc: dict[str, object]  # the scene as a document (``sim.scene_from_dict``'s input)
 
 
 def draw(seed: int, *, duration_secs: float = 3.0, load: str | None = None) -> GraspSpec:
@@ -114,7 +115,7 @@ def draw(seed: int, *, duration_secs: float = 3.0, load: str | None = None) -> G
         ]
     data["load"] = load_spec
     scene = sim.scene_from_dict(data, path=f"<force grasp {seed}>")
-    return GraspSpec(seed, name, kind, grip, scene)
+    return GraspSpec(seed, name, kind, grip, scene, data)
 
 
 @dataclass
