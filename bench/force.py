@@ -456,6 +456,7 @@ class Sizes:
     still: int = 4  # still holds of 15 s for the false alarms (MuJoCo: 6 s)
     still_secs: float = 15.0
     mujoco_still_secs: float = 6.0
+    loaded_secs: float = 3.0  # MuJoCo's loaded grasps (the load from 1 s)
     reflex: int = 8
     mujoco_reflex: int = 4
     handover: int = 4
@@ -464,7 +465,7 @@ class Sizes:
 
 QUICK = Sizes(
     grasps=2, duration_secs=1.8, mujoco=1, mujoco_mesh_m=0.012, slides=1, still=1,
-    still_secs=3.0, mujoco_still_secs=1.5, reflex=1, mujoco_reflex=1, handover=1,
+    still_secs=3.0, mujoco_still_secs=1.5, loaded_secs=2.0, reflex=1, mujoco_reflex=1, handover=1,
     timing_repeats=1,
 )  # fmt: skip
 
@@ -496,7 +497,9 @@ def run(quick: bool, sizes: Sizes | None = None) -> list[Row]:
         workdir = Path(tmp) if quick else Path(os.environ.get("WORLDS_DIR", "out/worlds"))
         workdir.mkdir(parents=True, exist_ok=True)
         recs = force_mujoco.grasps(z.mujoco, z.mujoco_mesh_m, workdir)
-        slides = force_mujoco.loaded(z.slides, z.mujoco_mesh_m, workdir)
+        slides = force_mujoco.loaded(
+            z.slides, z.mujoco_mesh_m, workdir, duration_secs=z.loaded_secs
+        )
         mujoco_still = force_mujoco.loaded(
             z.still, z.mujoco_mesh_m, workdir, duration_secs=z.mujoco_still_secs, still=True
         )
