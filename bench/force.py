@@ -549,6 +549,9 @@ if __name__ == "__main__":
         "--mujoco-reflex", type=int, default=Sizes.mujoco_reflex, help="MuJoCo reflex grasps"
     )
     parser.add_argument("--handover", type=int, default=Sizes.handover, help="handovers")
+    parser.add_argument(
+        "--mujoco-mesh", type=float, default=Sizes.mujoco_mesh_m, help="MuJoCo mesh edge, m"
+    )
     extra, rest = parser.parse_known_args()
     counts = (
         *(extra.grasps, extra.mujoco, extra.slides, extra.still, extra.reflex),
@@ -566,5 +569,6 @@ if __name__ == "__main__":
         reflex=extra.reflex,
         mujoco_reflex=extra.mujoco_reflex,
         handover=extra.handover,
+        mujoco_mesh_m=extra.mujoco_mesh,
     )
     main("force", lambda quick: run(quick, chosen), columns=COLUMNS, argv=rest)
