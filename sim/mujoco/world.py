@@ -24,7 +24,9 @@ the hand carries the object until the jaws hold it with both bubbles, then lets 
 from then on only the bubbles hold it, against the engine's gravity on the object (its
 mass the load's, growing as it is filled) and the load's pull. It slips and falls out
 of the grip on MuJoCo's friction (the snapshot's ``slide_m``: its (y, z) offset from
-where it was let go, against the scene's trajectory; ``load_n``: the load).
+where it was let go, against the scene's trajectory; ``load_n``: the load). Once it
+touches neither bubble :data:`DROPPED_M` away, it has fallen out: it is parked there
+(``dropped``; this world has no floor).
 """
 
 from __future__ import annotations
@@ -45,6 +47,10 @@ from sim.mujoco.model import ShellSpec
 from sim.mujoco.physics import AirSpec, Contacts, GraspPhysics
 from sim.scene import Scene
 from sim.world import WorldSnapshot
+
+# An object let go that touches neither bubble this far from where it was let go has
+# fallen out of the grip: it is parked there (``GraspPhysics.park_object``).
+DROPPED_M = 0.03
 
 
 @dataclass(frozen=True)
@@ -102,6 +108,7 @@ class MujocoWorld:
         self._grip_force_n = 0.0
         # The object's (y, z) offset from the trajectory when the hand let it go.
         self._let_go_m: np.ndarray | None = None
+        self.dropped = False  # let go, then fell out of the grip: parked where it is
         self.frame_index = -1
         self.snapshot: WorldSnapshot | None = None
         self.truth: Truth | None = None
@@ -162,6 +169,19 @@ class MujocoWorld:
         ):
             ph.release_hand()
             self._let_go_m = pose[1:3, 3] - self.scene.tool_from_object(t)[1:3, 3]
+        slide = (
+            np.zeros(2)
+            if self._let_go_m is None
+            else pose[1:3, 3] - self.scene.tool_from_object(t)[1:3, 3] - self._let_go_m
+        )
+        if (
+            self._let_go_m is not None
+            and not self.dropped
+            and max(contacts.count) == 0
+            and np.linalg.norm(slide) > DROPPED_M
+        ):
+            self.dropped = True
+            ph.park_object()
         surfaces = {s: ph.surface_f(s) for s in SIDES}
         in_contact = {s: contacts.count[i] > 0 for i, s in enumerate(SIDES)}
         shear = {s: self._shear(s, in_contact[s], pose, surfaces[s]) for s in SIDES}
@@ -197,19 +217,18 @@ class MujocoWorld:
                 for i, s in enumerate(SIDES)
             },
             volume_m3={s: float(ph.volume_m3[i]) for i, s in enumerate(SIDES)},
-            slide_m=(
-                np.zeros(2)
-                if self._let_go_m is None
-                else pose[1:3, 3] - self.scene.tool_from_object(t)[1:3, 3] - self._let_go_m
-            ),
+            slide_m=slide,
             load_n=(np.zeros(3) if self._let_go_m is None else self.scene.load.force_at(t)),
         )
         return self.snapshot
 
     def _carry(self, t_secs: float) -> None:
-        """The hand follows the trajectory until it lets go; then the load acts."""
+        """The hand follows the trajectory until it lets go; then the load acts (until
+        the object has fallen out of the grip)."""
         if self._let_go_m is None:
             self.physics.set_hand(self.scene.tool_from_object(t_secs))
+            return
+        if self.dropped:
             return
         load = self.scene.load
         self.physics.set_load(
