@@ -13,8 +13,9 @@ on each, side by side:
 - the MuJoCo run of a grasp is recorded once to an MCAP bag
   (``<workdir>/grasp_<k>_<digest>.mcap``, the digest of the scene and the mesh:
   ``world/state``, with both membranes' surfaces, and
-  ``world/wrench`` per frame, the messages the ``world.mujoco`` node publishes) and the
-  evaluation replays the bag (the cameras render its states); a bag already there is
+  ``world/wrench`` per frame, the messages the ``world.mujoco`` node publishes; beside
+  it, ``<same>.json``: the recording's CPU cost and the per-frame truth the messages do
+  not carry, :func:`recorded_frames`) and the evaluation replays the bag (the cameras render its states); a bag already there is
   reused, so the physics runs once per grasp and mesh. ``world.sim`` is cheap and runs
   live.
 - scores, per world: ``contact_iou``: the contact filter's patch (``perception.contact``
