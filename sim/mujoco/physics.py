@@ -225,15 +225,18 @@ class GraspPhysics:
         self.data.xfrc_applied[ob, :3] = pull_n
 
     def park_object(self) -> None:
-        """Stop the object where it is, with no load on it (it fell out of the grip: the
-        world has no floor, and an object falling on for seconds reaches distances at
-        which the step loses precision and MuJoCo resets the state)."""
+        """Stop the object where it is, with no load and no contact (it fell out of the
+        grip: the world has no floor, and an object falling on for seconds reaches
+        distances at which the step loses precision and MuJoCo resets the state; the
+        membranes springing back would push it about)."""
         ob = self._object_body
         m = self.model
         dof = m.jnt_dofadr[m.body_jntadr[ob]]
         self.data.qvel[dof : dof + 6] = 0.0
         m.opt.gravity[:] = 0.0
         self.data.xfrc_applied[ob] = 0.0
+        m.geom_contype[self._object_list] = 0
+        m.geom_conaffinity[self._object_list] = 0
 
     def object_mass_kg(self) -> float:
         return float(self.model.body_mass[self._object_body])

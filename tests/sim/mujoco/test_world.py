@@ -46,13 +46,14 @@ def test_a_free_mug_being_filled_slips_out_of_a_light_grip() -> None:
     slips, then the whole patch, and the mug falls out."""
     scene = load_scene("scenes/mug_fill.yaml")
     load = dataclasses.replace(scene.load, fill_kg_per_s=1.0, fill_from_secs=0.9)
-    scene = dataclasses.replace(scene, duration_secs=2.2, load=load)
+    scene = dataclasses.replace(scene, duration_secs=2.4, load=load)
     world = MujocoWorld(scene, ShellSpec(mesh_spacing_m=0.012))
-    snaps, shares, masses = [], [], []
+    snaps, shares, masses, dropped = [], [], [], []
     while not world.done:
         snaps.append(world.step())
         shares.append(max(world.truth.contacts.slipping_fraction))
         masses.append(world.physics.object_mass_kg())
+        dropped.append(world.dropped)
     t = np.array([s.time_secs for s in snaps])
     slide = np.array([np.hypot(*s.slide_m) for s in snaps])
     held = [i for i, s in enumerate(snaps) if s.load_n.any()]
@@ -67,6 +68,8 @@ def test_a_free_mug_being_filled_slips_out_of_a_light_grip() -> None:
     after = np.array(shares[held[0] :])
     edge, patch = int(np.argmax(after >= 0.5)), int(np.argmax(after >= 0.9))
     assert 0 < edge <= patch and t[held[0] + edge] > 0.9
-    assert world.dropped and slide[-1] > DROPPED_M and np.all(np.isfinite(slide))
+    assert np.all(np.isfinite(slide))
     # Fallen out, it is parked: it stays where it left the grip (no floor here).
-    assert slide[-1] == pytest.approx(slide[-2], abs=1e-6)
+    gone = dropped.index(True)
+    assert slide[gone] > DROPPED_M and gone < len(snaps) - 1
+    assert np.ptp(slide[gone + 1 :]) < 1e-6
