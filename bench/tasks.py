@@ -40,7 +40,6 @@ task's; ``--quick`` runs one stacking scene; ``--tasks a,b`` picks tasks.
 from __future__ import annotations
 
 import argparse
-import json
 import subprocess
 import sys
 import tempfile
@@ -48,10 +47,12 @@ import time
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 import yaml
 
 from bench.common import Row, main, median, percentile, progress
+from messages.tasks import ObjectOutcome
 
 ROOT = Path(__file__).resolve().parents[1]
 TASKS = ("dish_loading", "antagonism", "handover", "handover_force", "stacking")
@@ -99,7 +100,8 @@ def events(topics: dict[str, list], name: str) -> list[tuple[int, Any]]:
 
 def summary(topics: dict[str, list]) -> dict[str, Any]:
     found = events(topics, "summary")
-    return json.loads(found[-1][1].detail) if found else {}
+    # The summary's record as plain values (its ``kind`` names which record it is).
+    return msgspec.to_builtins(found[-1][1].data) if found and found[-1][1].data else {}
 
 
 def latencies_ms(topics: dict[str, list], topic: str) -> list[float]:
@@ -129,15 +131,15 @@ def dish_loading(seed: int, tmp: Path) -> list[dict[str, Any]]:
     code, _, topics, wall = launch(
         "graphs/dish_loading.yaml", tmp / "dish.mcap", "--set", f"supervisor.seed={seed}"
     )
-    objects = [json.loads(e.detail) for _, e in events(topics, "object")]
+    objects = [e.data for _, e in events(topics, "object") if isinstance(e.data, ObjectOutcome)]
     s = summary(topics)
     return [
         {
             "success": code == 0 and bool(s) and s["wrong"] == 0,
             "objects": len(objects),
             "objects_per_minute": s.get("objects_per_minute", float("nan")),
-            "classified_right": sum(o["predicted"] == o["true_class"] for o in objects),
-            "routed_right": sum(bool(o["right"]) for o in objects),
+            "classified_right": sum(o.predicted == o.true_class for o in objects),
+            "routed_right": sum(bool(o.right) for o in objects),
             "manual": s.get("manual", 0),
             "regrasps": s.get("regrasps", 0),
             "classify_latency_ms": latencies_ms(topics, "classifier/probabilities"),

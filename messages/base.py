@@ -98,14 +98,14 @@ class Message(msgspec.Struct, kw_only=True):
     def nonfinite_fields(self) -> list[str]:
         """The names of ``finite_fields`` that hold NaN or infinity (see above)."""
         bad = []
-        for name in self.finite_fields:
+        # The publisher runs this on every message (runtime/zmqio.py): one pass and one
+        # temporary over each float array, none over an integer one.
+        for name, nan_ok in _finite_checks(type(self)):
             value = getattr(self, name)
             if isinstance(value, np.ndarray):
-                # One pass and one temporary each: this runs on every received message.
-                if name in self.nan_marks_invalid:
-                    ok = not np.isinf(value).any()
-                else:
-                    ok = bool(np.isfinite(value).all())
+                if value.dtype.kind in "iub":  # never NaN or infinite
+                    continue
+                ok = not np.isinf(value).any() if nan_ok else bool(np.isfinite(value).all())
             else:
                 ok = math.isfinite(value)
             if not ok:
@@ -116,6 +116,12 @@ class Message(msgspec.Struct, kw_only=True):
         """Check every array field against its declaration (raises ``ValueError``)."""
         for name, spec in self.schema().array_fields.items():
             spec.check(type(self).__name__, name, getattr(self, name))
+
+
+@functools.cache
+def _finite_checks(cls: type[Message]) -> tuple[tuple[str, bool], ...]:
+    """``cls``'s finite fields, each with whether a NaN is allowed there (computed once)."""
+    return tuple((name, name in cls.nan_marks_invalid) for name in cls.finite_fields)
 
 
 @functools.cache
@@ -152,12 +158,16 @@ def describe_type(hint: Any) -> Any:
         return {"array": {"dtype": np.dtype(spec.dtype).str, "shape": list(spec.shape)}}
     if isinstance(hint, type) and issubclass(hint, msgspec.Struct):
         hints = typing.get_type_hints(hint)
-        return {
+        out: dict[str, Any] = {
             "struct": hint.__name__,
             "fields": [
                 [f.name, describe_type(hints[f.name])] for f in msgspec.structs.fields(hint)
             ],
         }
+        config = hint.__struct_config__
+        if config.tag is not None:  # one of a tagged union: the wire names it so
+            out["tag"] = [config.tag_field, config.tag]
+        return out
     origin = typing.get_origin(hint)
     if origin is not None:
         return {

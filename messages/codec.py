@@ -60,6 +60,7 @@ class _WireArray:
     dtype: np.dtype[Any]
     dtype_str: str  # how the encoder spells it: the usual spelling on the wire
     fixed_axes: tuple[tuple[int, int], ...]
+    ndim: int
 
     def fits(self, shape: Sequence[int]) -> bool:
         """Whether ``shape`` has the declared number of axes and every fixed axis length."""
@@ -76,6 +77,7 @@ class _WireArray:
 class _Plan:
     """What encode and decode need of a message class, computed once per class."""
 
+    type_name: str
     fingerprint: str
     arrays: tuple[_WireArray, ...]
     arrays_by_name: dict[str, _WireArray]
@@ -91,8 +93,9 @@ def _plan(cls: type[Message]) -> _Plan:
         # identity test hits.
         dtype = np.dtype(np.dtype(spec.dtype).newbyteorder("<").str)
         fixed = tuple((axis, n) for axis, n in enumerate(spec.shape) if n is not None)
-        arrays.append(_WireArray(name, spec, dtype, dtype.str, fixed))
+        arrays.append(_WireArray(name, spec, dtype, dtype.str, fixed, len(spec.shape)))
     return _Plan(
+        type_name=cls.__name__,
         fingerprint=schema.fingerprint,
         arrays=tuple(arrays),
         arrays_by_name={a.name: a for a in arrays},
@@ -102,30 +105,16 @@ def _plan(cls: type[Message]) -> _Plan:
     )
 
 
-def _wire_array(msg: Message, field: _WireArray) -> np.ndarray:
-    """``msg``'s array ``field``, C-contiguous and little-endian (raises ``ValueError``)."""
-    value = getattr(msg, field.name)
-    # The usual case (an array made by numpy in this process) is checked without building
-    # a dtype; anything else goes through the declaration's full check.
-    if (
-        type(value) is np.ndarray
-        and value.dtype is field.dtype
-        and field.fits(value.shape)
-        and value.flags.c_contiguous
-    ):
-        return value
+def _wire_array(msg: Message, field: _WireArray, value: Any) -> np.ndarray:
+    """``value`` of ``msg``'s array ``field``, made C-contiguous and little-endian, after
+    the declaration's full check (raises ``ValueError``): what :func:`encode` does with an
+    array that is not already one it can send as it is."""
     field.spec.check(type(msg).__name__, field.name, value)
     array = np.asarray(value)
     if array.dtype != field.dtype:
         array = array.astype(field.dtype)  # the same values, byte-swapped
     # np.ascontiguousarray would turn a 0-d array into shape (1,).
     return array if array.flags.c_contiguous else np.ascontiguousarray(array)
-
-
-def _raw_bytes(array: np.ndarray) -> memoryview:
-    """A flat byte view of a C-contiguous ``array`` (no copy)."""
-    # memoryview.cast refuses shapes with a zero-length axis; such an array has no bytes.
-    return array.data.cast("B") if array.size else memoryview(b"")
 
 
 def _numpy_scalar(obj: Any) -> Any:
@@ -160,25 +149,32 @@ def encode(topic: str, msg: Message) -> list[Any]:
     """
     plan = _plan(type(msg))
     rows = []
-    buffers = []
+    frames: list[Any] = [topic.encode(), b""]
+    # One loop, no call per array in the usual case: this runs for every frame a node
+    # publishes (docs/transport.md, "The hot path").
     for field in plan.arrays:
-        array = _wire_array(msg, field)
+        array = getattr(msg, field.name)
+        if not (
+            type(array) is np.ndarray
+            and array.dtype is field.dtype
+            and len(array.shape) == field.ndim
+            and array.flags.c_contiguous
+            and (not field.fixed_axes or field.fits(array.shape))
+        ):
+            array = _wire_array(msg, field, array)
         # A tuple shape packs as the same MessagePack array as a list.
         rows.append((field.name, field.dtype_str, array.shape))
-        buffers.append(_raw_bytes(array))
+        # Its memory as it is (pyzmq sends any C-contiguous buffer); a zero-length axis
+        # has no bytes, and no buffer numpy exports for it.
+        frames.append(array.data if array.size else b"")
     fields = {name: getattr(msg, name) for name in plan.scalar_names}
     try:
-        header = _header_encoder.encode(
-            {
-                "type": type(msg).__name__,
-                "fp": plan.fingerprint,
-                "fields": fields,
-                "arrays": rows,
-            }
+        frames[1] = _header_encoder.encode(
+            {"type": plan.type_name, "fp": plan.fingerprint, "fields": fields, "arrays": rows}
         )
     except (TypeError, OverflowError, NotImplementedError) as err:
         raise ValueError(f"{type(msg).__name__}.{_unencodable(fields)}: {err}") from err
-    return [topic.encode(), header, *buffers]
+    return frames
 
 
 def decode_header(raw: bytes | memoryview) -> WireHeader:
@@ -223,7 +219,11 @@ def _received_arrays(
         if dtype_str != field.dtype_str:
             dtype = _wire_dtype(topic, wire.type, name, dtype_str, field)
         # The shape is checked before numpy sees it: no array is built for a frame refused.
-        if not field.fits(shape) or (shape and min(shape) < 0):
+        if (
+            len(shape) != field.ndim
+            or (field.fixed_axes and not field.fits(shape))
+            or (shape and min(shape) < 0)
+        ):
             raise FrameDecodeError(
                 f"{topic}: {wire.type}.{name}: shape {shape}, declared {list(field.spec.shape)}"
             )
@@ -231,11 +231,10 @@ def _received_arrays(
         # array: a receiver must never write through to it. numpy makes arrays on a
         # read-only view read-only (cheaper than clearing the flag afterwards).
         buf = memoryview(frame).toreadonly()  # a zmq.Frame's own buffer, as bytes' are
-        want = math.prod(shape) * dtype.itemsize  # Python ints: no int64 wrap-around
-        if buf.nbytes != want:
+        if buf.nbytes != math.prod(shape) * dtype.itemsize:  # Python ints: no wrap-around
             raise FrameDecodeError(
-                f"{topic}: {wire.type}.{name}: buffer of {buf.nbytes} bytes, "
-                f"shape {shape} of {dtype_str} needs {want}"
+                f"{topic}: {wire.type}.{name}: buffer of {buf.nbytes} bytes, shape {shape} "
+                f"of {dtype_str} needs {math.prod(shape) * dtype.itemsize}"
             )
         try:
             fields[name] = np.ndarray(shape, dtype, buffer=buf)

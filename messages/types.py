@@ -14,6 +14,7 @@ import msgspec
 import numpy as np
 
 from messages.base import Array, Header, Message
+from messages.tasks import TaskData, TaskEventName
 
 Side = Literal["left", "right"]
 """``sensor`` of a bubble's camera or pressure sensor: which bubble."""
@@ -221,12 +222,14 @@ class ClassProbabilities(Message):
 
 
 class TaskEvent(Message):
-    """Something a task supervisor decided or observed."""
+    """Something a task supervisor decided or observed: ``detail`` says it for people,
+    ``data`` holds its figures typed (``messages.tasks``), ``None`` where it has none."""
 
     header: Header
     task: str
-    event: str
+    event: TaskEventName
     detail: str = ""
+    data: TaskData | None = None
 
 
 class GroundTruth(Message):

@@ -11,9 +11,11 @@ Ports:
         dataset writer, counted for the progress line.
     outputs: ``place`` (messages.classify.GraspRequest) to the world, ``command``
         (GripperCommand) to the gripper, ``event`` (TaskEvent, task ``autolabel``):
-        ``run_start`` (detail: JSON of the seeds and scene parameters), ``grasp_start``
-        (detail: JSON of the grasp's parameters), ``grasp_end``, ``grasp_failed`` (no
-        stable grasp in ``stable_timeout_secs``), ``run_end``.
+        ``run_start`` (data: a ``RunStart``, the seeds and scene parameters),
+        ``grasp_start`` (a ``GraspStart``, the grasp's parameters), ``grasp_end``,
+        ``grasp_failed`` (a ``GraspRef``; failed: no stable grasp in
+        ``stable_timeout_secs``), ``run_end`` (a ``RunEnd``); records of
+        ``messages.tasks``.
 
 Grasp ``i`` is ``perception.classify.autolabel.GraspGenerator(seed).sample(i)``, so a
 run is deterministic per seed; with ``resume`` the grasps the dataset's manifest already
@@ -36,10 +38,9 @@ A hardware graph drops ``world.autolabel`` and routes ``place`` to the arm.
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import msgspec
 import numpy as np
@@ -48,6 +49,16 @@ from msgspec import Meta
 from messages.base import Header
 from messages.classify import GraspRequest
 from messages.sim import WorldState
+from messages.tasks import (
+    GraspRef,
+    GraspSkipped,
+    GraspStart,
+    GraspWritten,
+    RunEnd,
+    RunStart,
+    TaskData,
+    TaskEventName,
+)
 from messages.types import GraspState, GripperAction, GripperCommand, GroundTruth, TaskEvent
 from perception.classify.autolabel import (
     DEFAULT_OBJECTS,
@@ -208,15 +219,10 @@ class AutolabelSupervisor(Node):
 
     # -- the run ----------------------------------------------------------------------
 
-    def _event(self, event: str, detail: dict[str, Any] | None = None, stamp: int = 0) -> None:
+    def _event(self, event: TaskEventName, data: TaskData, stamp: int = 0) -> None:
         self.io.publish(
             "event",
-            TaskEvent(
-                header=Header(stamp_nanos=stamp),
-                task=TASK,
-                event=event,
-                detail=json.dumps(detail or {}, sort_keys=True),
-            ),
+            TaskEvent(header=Header(stamp_nanos=stamp), task=TASK, event=event, data=data),
         )
 
     def _tick(self) -> None:
@@ -225,9 +231,9 @@ class AutolabelSupervisor(Node):
             gen = self.generator.params
             self._event(
                 "run_start",
-                {
-                    "seeds": {"autolabel": self.params.seed},
-                    "scene": {
+                RunStart(
+                    seeds={"autolabel": self.params.seed},
+                    scene={
                         "generator": {
                             k: (list(v) if isinstance(v, tuple) else v)
                             for k, v in msgspec.structs.asdict(gen).items()
@@ -236,7 +242,7 @@ class AutolabelSupervisor(Node):
                         "close_speed_m_per_s": self.params.close_speed_m_per_s,
                         "hold_secs": self.params.hold_secs,
                     },
-                },
+                ),
             )
             self.io.log.info(
                 "%s: %d grasps to make (%d already in %s)",
@@ -268,14 +274,14 @@ class AutolabelSupervisor(Node):
 
     def _next_grasp(self, stamp: int) -> None:
         if not self.todo:
-            self._event("run_end", {"finished": self.finished, "failed": self.failed}, stamp)
+            self._event("run_end", RunEnd(finished=self.finished, failed=self.failed), stamp)
             self.phase = "done"
             self.end_wait_start = time.monotonic()
             return
         grasp_id = self.todo.pop(0)
         sample = self.generator.sample(grasp_id)
         self.current = sample
-        self._event("grasp_start", sample.to_params(), stamp)
+        self._event("grasp_start", GraspStart(grasp_id=grasp_id, params=sample.to_params()), stamp)
         self.io.publish(
             "place",
             GraspRequest(
@@ -310,11 +316,11 @@ class AutolabelSupervisor(Node):
                 self._enter("holding", now)
             elif elapsed > p.stable_timeout_secs:
                 self.failed += 1
-                self._event("grasp_failed", {"grasp_id": self.current.grasp_id}, now)
+                self._event("grasp_failed", GraspRef(grasp_id=self.current.grasp_id), now)
                 self._release(now)
         elif self.phase == "holding" and (elapsed >= p.hold_secs or not msg.stable):
             self.ended.add(self.current.grasp_id)
-            self._event("grasp_end", {"grasp_id": self.current.grasp_id}, now)
+            self._event("grasp_end", GraspRef(grasp_id=self.current.grasp_id), now)
             self.finished += 1
             self._progress()
             self._release(now)
@@ -322,13 +328,12 @@ class AutolabelSupervisor(Node):
             self._next_grasp(now)  # the object drops; the next grasp finds it elsewhere
 
     def on_progress(self, msg: TaskEvent) -> None:
-        if msg.event == "grasp_written":
-            detail = json.loads(msg.detail or "{}")
-            self.writer_acked.add(int(detail.get("grasp_id", -1)))
-            self.frames_written += int(detail.get("frames", 0))
-        elif msg.event == "grasp_skipped":
-            detail = json.loads(msg.detail or "{}")
-            self.writer_acked.add(int(detail.get("grasp_id", -1)))
+        data = msg.data
+        if isinstance(data, GraspWritten):
+            self.writer_acked.add(data.grasp_id)
+            self.frames_written += data.frames
+        elif isinstance(data, GraspSkipped):
+            self.writer_acked.add(data.grasp_id)
             self.writer_skipped += 1
 
     def _enter(self, phase: str, now: int) -> None:

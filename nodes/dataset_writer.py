@@ -9,9 +9,9 @@ Ports:
         ``event`` (TaskEvent from ``supervisor.autolabel``):
         ``run_start`` opens (or resumes) the dataset with its seeds and scene
         parameters, ``grasp_start`` / ``grasp_end`` bracket a grasp.
-    outputs: ``progress`` (TaskEvent, task ``autolabel``): ``grasp_written`` (detail:
-        JSON ``grasp_id``, ``frames``, ``object_class``) or ``grasp_skipped`` (no
-        stable frame).
+    outputs: ``progress`` (TaskEvent, task ``autolabel``): ``grasp_written`` (data: a
+        ``GraspWritten``: ``grasp_id``, ``frames``, ``object_class``) or ``grasp_skipped``
+        (a ``GraspSkipped``: no stable frame, or labels that disagree).
 
 Everything is decided by stamps, not by arrival order: under load the cameras' frames
 trail the grasp monitor and the supervisor's events by a good fraction of a second, so a
@@ -31,7 +31,6 @@ the same grasps with the same noise again.
 from __future__ import annotations
 
 import bisect
-import json
 from collections import Counter, OrderedDict, deque
 from dataclasses import dataclass, field
 from typing import Annotated, Any
@@ -41,6 +40,15 @@ from msgspec import Meta
 
 from messages.base import Header
 from messages.errors import NodeError
+from messages.tasks import (
+    GraspRef,
+    GraspSkipped,
+    GraspStart,
+    GraspWritten,
+    RunStart,
+    TaskData,
+    TaskEventName,
+)
 from messages.types import GraspState, GroundTruth, TaskEvent, ToFImage
 from perception.classify.autolabel import DEFAULT_OBJECTS
 from perception.classify.dataset import DatasetError, DatasetWriter, GraspBuffer
@@ -140,15 +148,15 @@ class DatasetWriterNode(Node):
     def on_event(self, msg: TaskEvent) -> None:
         if msg.task != TASK:
             return
-        detail = json.loads(msg.detail) if msg.detail else {}
+        data = msg.data
         stamp = msg.header.stamp_nanos
-        if msg.event == "run_start":
+        if isinstance(data, RunStart):
             try:
                 self.writer = DatasetWriter(
                     self.params.dataset,
                     classes=self.params.classes,
-                    seeds=detail.get("seeds", {}),
-                    scene=detail.get("scene", {}),
+                    seeds=data.seeds,
+                    scene=data.scene,
                     resume=self.params.resume,
                 )
             except DatasetError as err:
@@ -159,14 +167,14 @@ class DatasetWriterNode(Node):
                 self.params.dataset,
                 len(self.writer.done_grasp_ids()),
             )
-        elif msg.event == "grasp_start":
+        elif isinstance(data, GraspStart):
             for grasp in self.grasps:  # a grasp left open (a lost event) ends where this starts
                 if grasp.end_nanos is None:
                     grasp.end_nanos = stamp
-            self.grasps.append(_Grasp(int(detail["grasp_id"]), detail, stamp))
-        elif msg.event in ("grasp_end", "grasp_failed"):
+            self.grasps.append(_Grasp(data.grasp_id, data.params, stamp))
+        elif isinstance(data, GraspRef):  # grasp_end, grasp_failed
             for grasp in self.grasps:
-                if grasp.grasp_id == int(detail.get("grasp_id", -1)):
+                if grasp.grasp_id == data.grasp_id:
                     grasp.end_nanos = stamp
             self._decide()
 
@@ -189,7 +197,7 @@ class DatasetWriterNode(Node):
                 grasp.grasp_id,
                 self.unpaired,
             )
-            self._progress("grasp_skipped", {"grasp_id": grasp.grasp_id}, stamp)
+            self._progress("grasp_skipped", GraspSkipped(grasp_id=grasp.grasp_id), stamp)
             return
         label = grasp.labels.most_common(1)[0][0]
         expected = grasp.params.get("class_label")
@@ -202,8 +210,8 @@ class DatasetWriterNode(Node):
                 dict(grasp.labels),
                 expected,
             )
-            detail = {"grasp_id": grasp.grasp_id, "labels": dict(grasp.labels)}
-            self._progress("grasp_skipped", detail, stamp)
+            skipped = GraspSkipped(grasp_id=grasp.grasp_id, labels=dict(grasp.labels))
+            self._progress("grasp_skipped", skipped, stamp)
             return
         params = dict(grasp.params)
         if grasp.noise_seeds:  # one seed, unless the world was restarted with another
@@ -213,21 +221,15 @@ class DatasetWriterNode(Node):
             self.writer.write_grasp(grasp.grasp_id, label, grasp.buffer, params)
         except DatasetError as err:
             raise NodeError(f"{self.name}: grasp {grasp.grasp_id}: {err}") from err
-        self._progress(
-            "grasp_written",
-            {"grasp_id": grasp.grasp_id, "frames": len(grasp.buffer), "object_class": label},
-            stamp,
+        written = GraspWritten(
+            grasp_id=grasp.grasp_id, frames=len(grasp.buffer), object_class=label
         )
+        self._progress("grasp_written", written, stamp)
 
-    def _progress(self, event: str, detail: dict[str, Any], stamp: int) -> None:
+    def _progress(self, event: TaskEventName, data: TaskData, stamp: int) -> None:
         self.io.publish(
             "progress",
-            TaskEvent(
-                header=Header(stamp_nanos=stamp),
-                task=TASK,
-                event=event,
-                detail=json.dumps(detail, sort_keys=True),
-            ),
+            TaskEvent(header=Header(stamp_nanos=stamp), task=TASK, event=event, data=data),
         )
 
     # -- the grasp state, labels and frames, by stamp -------------------------------------

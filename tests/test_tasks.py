@@ -7,9 +7,11 @@ import re
 import subprocess
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 
+from messages.tasks import LoadingSummary, PlacementSummary
 from messages.types import TaskEvent
 from nodes.supervisor.handover import HandoverParams
 from nodes.supervisor.sort import DEFAULT_BINS
@@ -189,8 +191,8 @@ def test_stacking_releases_within_a_few_millimetres_of_contact(tmp_path: Path) -
     (placement,) = topics["world/placement"]
     assert placement.placed and placement.gap_m == 0.0, placement
     assert placement.push_m < 0.005, placement  # the arm went at most 5 mm past contact
-    (summary,) = [json.loads(e.detail) for e in topics["supervisor/event"] if e.event == "summary"]
-    assert summary["outcome"] == "placed"
+    (summary,) = [e.data for e in topics["supervisor/event"] if e.event == "summary"]
+    assert isinstance(summary, PlacementSummary) and summary.outcome == "placed"
 
 
 POSE_NOTE = re.compile(r" \| pose xyz_mm=\([^)]*\)")
@@ -243,10 +245,12 @@ def test_a_task_records_and_replays_deterministically_in_lockstep(
         for m in BagReader(bag).messages(["supervisor/event"]):
             e = m.decode()
             detail = e.detail
-            if e.event == "summary" and "task_secs" in (parsed := json.loads(detail)):
-                task_secs = parsed.pop("task_secs")
-                parsed.pop("objects_per_minute", None)
-                detail = json.dumps(parsed, sort_keys=True)
+            if isinstance(e.data, LoadingSummary):
+                task_secs = e.data.task_secs
+                rest = msgspec.structs.replace(e.data, task_secs=0.0, objects_per_minute=0.0)
+                detail += msgspec.json.encode(rest).decode()
+            elif e.data is not None:
+                detail += msgspec.json.encode(e.data).decode()
             if e.event != "start":
                 events.append((e.event, detail))
         return events, task_secs

@@ -139,6 +139,14 @@ def _json_type(desc: Any, type_name: str, name: str) -> dict[str, Any]:
         out = {"type": "array", "items": {"type": JSON_TYPES.get(str(inner), "string")}}
     elif isinstance(desc, dict) and desc.get("generic") == "Literal":
         out = {"type": "string", "enum": [str(a).strip("'") for a in desc.get("args", [])]}
+    elif isinstance(desc, dict) and desc.get("generic") in ("Union", "UnionType"):
+        out = {"anyOf": [_json_type(a, type_name, name) for a in desc.get("args", [])]}
+    elif isinstance(desc, dict) and desc.get("generic") == "dict":
+        out = {"type": "object"}
+    elif desc == "NoneType":
+        out = {"type": "null"}
+    elif desc == "Any":
+        out = {}
     else:
         out = {"type": JSON_TYPES.get(str(desc), "string")}
     if notes:

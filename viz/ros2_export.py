@@ -217,7 +217,7 @@ class Ros2Converter:
             if isinstance(item, Header):
                 fields["header"] = self.header(item.stamp_nanos, item.frame_id)
                 fields["seq"] = int(item.seq)
-            elif isinstance(item, msgspec.Struct):
+            elif isinstance(item, msgspec.Struct) and isinstance(desc, dict) and "struct" in desc:
                 fields[field.name] = self._struct(
                     hints[field.name], item, ros_type(type(item).__name__)
                 )

@@ -30,7 +30,6 @@ Ports:
 
 from __future__ import annotations
 
-import json
 from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Annotated
@@ -39,6 +38,7 @@ import numpy as np
 from msgspec import Meta
 
 from messages import GraspState, GroundTruth, PoseEstimate
+from messages.tasks import JoltRecord, Spread, TrackingSummary
 from nodes.supervisor.base import SingleGraspTask, TaskParams
 from perception.pose.symmetry import axis_error_deg, offaxis_error_m
 from runtime.registry import register
@@ -67,16 +67,16 @@ class Jolt:
     reacquired_secs: float | None = None
 
 
-def percentiles(values: list[float]) -> dict[str, float]:
+def percentiles(values: list[float]) -> Spread:
     """Median, p95 and max (0 for no values), rounded for the summary."""
     if not values:
-        return {"median": 0.0, "p95": 0.0, "max": 0.0}
+        return Spread(median=0.0, p95=0.0, max=0.0)
     arr = np.asarray(values)
-    return {
-        "median": round(float(np.median(arr)), 4),
-        "p95": round(float(np.percentile(arr, 95)), 4),
-        "max": round(float(arr.max()), 4),
-    }
+    return Spread(
+        median=round(float(np.median(arr)), 4),
+        p95=round(float(np.percentile(arr, 95)), 4),
+        max=round(float(arr.max()), 4),
+    )
 
 
 @register("supervisor.antagonism")
@@ -179,34 +179,34 @@ class AntagonismSupervisor(SingleGraspTask):
         lost = [j for j in self.jolts if j.reacquired_secs is None]
         ok = (
             bool(self.axis_deg)
-            and axis["p95"] <= p.max_p95_deg
-            and off["p95"] <= p.max_p95_mm
+            and axis.p95 <= p.max_p95_deg
+            and off.p95 <= p.max_p95_mm
             and not lost
         )
-        summary = {
-            "estimates": len(self.axis_deg),
-            "unmatched": len(self.waiting),
-            "axis_deg": axis,
-            "offaxis_mm": off,
-            "statuses": dict(sorted(self.statuses.items())),
-            "jolts": [
-                {
-                    "t_secs": round((j.stamp_nanos - self.stable_nanos) / 1e9, 3),
-                    "moved_mm": round(j.moved_mm, 2),
-                    "turned_deg": round(j.turned_deg, 2),
-                    "reacquire_secs": None
+        summary = TrackingSummary(
+            estimates=len(self.axis_deg),
+            unmatched=len(self.waiting),
+            axis_deg=axis,
+            offaxis_mm=off,
+            statuses=dict(sorted(self.statuses.items())),
+            jolts=[
+                JoltRecord(
+                    t_secs=round((j.stamp_nanos - self.stable_nanos) / 1e9, 3),
+                    moved_mm=round(j.moved_mm, 2),
+                    turned_deg=round(j.turned_deg, 2),
+                    reacquire_secs=None
                     if j.reacquired_secs is None
                     else round(j.reacquired_secs, 3),
-                }
+                )
                 for j in self.jolts
             ],
-            "success": ok,
-        }
-        self.event("summary", json.dumps(summary, sort_keys=True), with_pose=False)
+            success=ok,
+        )
+        self.event("summary", data=summary, with_pose=False)
         self.release("tracking done")
         self.finish(
-            f"{self.task}: {len(self.axis_deg)} estimates, axis p95 {axis['p95']:.2f} deg,"
-            f" off-axis p95 {off['p95']:.2f} mm, {len(self.jolts)} jolt(s),"
+            f"{self.task}: {len(self.axis_deg)} estimates, axis p95 {axis.p95:.2f} deg,"
+            f" off-axis p95 {off.p95:.2f} mm, {len(self.jolts)} jolt(s),"
             f" {len(lost)} not re-acquired: {'tracked' if ok else 'LOST'}",
             exit_code=0 if ok else 1,
         )

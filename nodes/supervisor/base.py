@@ -13,7 +13,6 @@ that failed (an object in a wrong bin, an object dropped) passes a non-zero
 
 from __future__ import annotations
 
-import json
 from typing import Annotated
 
 import msgspec
@@ -21,6 +20,7 @@ from msgspec import Meta
 
 from messages import GraspState, GripperCommand, Header, PoseEstimate, TaskEvent
 from messages.base import Message
+from messages.tasks import GraspSummary, SortChoice, TaskData, TaskEventName
 from messages.types import GripperAction
 from runtime.node import Node
 
@@ -128,12 +128,21 @@ class Task(Node):
             ),
         )
 
-    def event(self, event: str, detail: str = "", *, with_pose: bool = True) -> None:
-        """Publish and log a TaskEvent; ``with_pose`` appends the last pose estimate."""
+    def event(
+        self,
+        event: TaskEventName,
+        detail: str = "",
+        *,
+        data: TaskData | None = None,
+        with_pose: bool = True,
+    ) -> None:
+        """Publish and log a TaskEvent; ``with_pose`` appends the last pose estimate to the
+        detail. The log line shows ``data`` as JSON, then the detail."""
         if with_pose and self.pose is not None and self.pose.status in ("ok", "recovered"):
             xyz_mm = self.pose.tool_from_object[:3, 3] * 1000
             detail += f" | pose xyz_mm=({xyz_mm[0]:.1f}, {xyz_mm[1]:.1f}, {xyz_mm[2]:.1f})"
-        self.io.log.info("%s: %s %s", self.task, event, detail)
+        said = detail if data is None else f"{msgspec.json.encode(data).decode()}{detail}"
+        self.io.log.info("%s: %s %s", self.task, event, said)
         self.io.publish(
             "event",
             TaskEvent(
@@ -141,6 +150,7 @@ class Task(Node):
                 task=self.task,
                 event=event,
                 detail=detail,
+                data=data,
             ),
         )
 
@@ -152,8 +162,9 @@ class Task(Node):
 class SingleGraspTask(Task):
     """Grasp on start, stop at release or timeout; subclasses decide when to release.
 
-    At the end (the grasp released) it publishes a ``summary`` event (JSON: seconds held,
-    the pose estimates by status, why it released, and what :meth:`outcome` adds) and
+    At the end (the grasp released) it publishes a ``summary`` event (a
+    :class:`messages.tasks.GraspSummary`: seconds held, the pose estimates by status, why
+    it released, and where :meth:`outcome` says the object went) and
     stops the graph with the same in one line.
     """
 
@@ -200,22 +211,22 @@ class SingleGraspTask(Task):
             held = round((self.release_sent_nanos - self.grasp_stable_nanos) / 1e9, 3)
         ok = sum(self.pose_statuses.get(s, 0) for s in ("ok", "recovered"))
         estimates = sum(self.pose_statuses.values())
-        summary: dict[str, object] = {
-            "held_secs": held,
-            "pose_statuses": dict(sorted(self.pose_statuses.items())),
-            "release": self.release_detail,
-            **self.outcome(),
-        }
-        self.event("summary", json.dumps(summary, sort_keys=True), with_pose=False)
+        summary = GraspSummary(
+            held_secs=held,
+            pose_statuses=dict(sorted(self.pose_statuses.items())),
+            release=self.release_detail,
+            sorted=self.outcome(),
+        )
+        self.event("summary", data=summary, with_pose=False)
         parts = [f"held {held:.2f} s" if held is not None else "never held"]
         if estimates:
             parts.append(f"pose ok in {ok} of {estimates} estimates")
         parts.append(f"released: {self.release_detail or '-'}")
         self.finish(f"{self.task}: done: {', '.join(parts)}")
 
-    def outcome(self) -> dict[str, object]:
-        """What a task adds to its summary (JSON values)."""
-        return {}
+    def outcome(self) -> SortChoice | None:
+        """Where the task put the object, for its summary (none here)."""
+        return None
 
     def on_stable(self) -> None:
         """Called once when the grasp becomes stable."""

@@ -35,8 +35,6 @@ Ports:
 
 from __future__ import annotations
 
-import json
-from dataclasses import asdict, dataclass
 from typing import Annotated
 
 import msgspec
@@ -44,6 +42,7 @@ from msgspec import Meta
 
 from messages import ClassProbabilities, GraspState, GroundTruth, Header
 from messages.classify import GraspRequest
+from messages.tasks import LoadingSummary, ObjectOutcome
 from nodes.supervisor.base import Task, TaskParams
 from nodes.supervisor.sort import DEFAULT_BINS, Vote
 from perception.classify.autolabel import (
@@ -91,20 +90,6 @@ class DishLoadingParams(TaskParams, frozen=True, kw_only=True, forbid_unknown_fi
         return params
 
 
-@dataclass
-class ObjectResult:
-    """What happened to one object of the sink."""
-
-    index: int
-    object: str  # what the task asked the world for (the scene's order)
-    true_class: str = "?"  # from GroundTruth while held ("?" without it)
-    predicted: str = ""
-    probability: float = 0.0
-    regrasps: int = 0
-    destination: str = ""
-    right: bool | None = None  # None: unknown (no truth) or not judged (manual bin)
-
-
 @register("supervisor.dish_loading")
 class DishLoadingSupervisor(Task):
     """Clears a sink of objects into the rack, the recycling bin or the manual bin."""
@@ -118,7 +103,7 @@ class DishLoadingSupervisor(Task):
     def setup(self) -> None:
         super().setup()
         self.generator = GraspGenerator(self.params.generator_params())
-        self.results: list[ObjectResult] = []
+        self.results: list[ObjectOutcome] = []
         self.sample: GraspSample | None = None
         self.phase_start: int | None = None
         self.stable_at = 0
@@ -153,10 +138,10 @@ class DishLoadingSupervisor(Task):
             self._summary()
             return
         sample = self.generator.sample(index)
-        self.results.append(ObjectResult(index=index, object=sample.object_name))
+        self.results.append(ObjectOutcome(index=index, object=sample.object_name))
         self._place(sample)
 
-    def _regrasp_sample(self, result: ObjectResult) -> GraspSample:
+    def _regrasp_sample(self, result: ObjectOutcome) -> GraspSample:
         """Another grasp of the same object, its grasp point away from the last one."""
         assert self.sample is not None
         gen = GraspGenerator(self.params.generator_params((result.object,)))
@@ -259,7 +244,7 @@ class DishLoadingSupervisor(Task):
         self._place(sample)
 
     def _object_done(self) -> None:
-        self.event("object", json.dumps(asdict(self.results[-1]), sort_keys=True))
+        self.event("object", data=msgspec.structs.replace(self.results[-1]))
 
     # -- the end ------------------------------------------------------------------------
 
@@ -277,16 +262,16 @@ class DishLoadingSupervisor(Task):
         for line in lines:
             self.io.log.info("%s: %s", self.task, line)
         minutes = max(self.elapsed_secs, 1e-9) / 60
-        summary = {
-            "objects": len(self.results),
-            "right": right,
-            "wrong": len(wrong),
-            "manual": manual,
-            "regrasps": sum(r.regrasps for r in self.results),
-            "task_secs": round(self.elapsed_secs, 3),
-            "objects_per_minute": round(len(self.results) / minutes, 3),
-        }
-        self.event("summary", json.dumps(summary, sort_keys=True))
+        summary = LoadingSummary(
+            objects=len(self.results),
+            right=right,
+            wrong=len(wrong),
+            manual=manual,
+            regrasps=sum(r.regrasps for r in self.results),
+            task_secs=round(self.elapsed_secs, 3),
+            objects_per_minute=round(len(self.results) / minutes, 3),
+        )
+        self.event("summary", data=summary)
         self.finish(
             f"{self.task}: {len(self.results)} objects, {right} right, {len(wrong)} wrong,"
             f" {manual} to the manual bin",

@@ -22,6 +22,7 @@ import numpy as np
 from msgspec import Meta
 
 from messages import ClassProbabilities, GraspState, PoseEstimate
+from messages.tasks import SortChoice
 from nodes.supervisor.base import SingleGraspTask, TaskParams
 from runtime.registry import register
 
@@ -83,7 +84,7 @@ class SortSupervisor(SingleGraspTask):
     def setup(self) -> None:
         super().setup()
         self.vote = Vote()
-        self.sorted: dict[str, object] = {}
+        self.sorted: SortChoice | None = None
 
     def on_classes(self, msg: ClassProbabilities) -> None:
         if self.state != "holding":
@@ -99,8 +100,8 @@ class SortSupervisor(SingleGraspTask):
             else:
                 bin_name = dict(self.params.bins).get(best, "unknown")
                 self.event("classified", f"{best} ({confidence:.3f}) -> {bin_name}")
-            self.sorted = {"class": best, "confidence": round(confidence, 4), "bin": bin_name}
+            self.sorted = SortChoice(class_name=best, confidence=round(confidence, 4), bin=bin_name)
             self.release(f"{best} ({confidence:.3f}) placed in {bin_name}")
 
-    def outcome(self) -> dict[str, object]:
-        return dict(self.sorted)
+    def outcome(self) -> SortChoice | None:
+        return self.sorted

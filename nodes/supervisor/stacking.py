@@ -21,13 +21,13 @@ Ports:
 
 from __future__ import annotations
 
-import json
-from typing import Annotated
+from typing import Annotated, Literal
 
 from msgspec import Meta
 
 from messages import GraspState, ShearEstimate
 from messages.sim import PlacementTruth
+from messages.tasks import PlacementSummary
 from nodes.supervisor.base import SingleGraspTask, TaskParams
 from nodes.supervisor.handover import ShearWatch, describe_shear
 from runtime.registry import register
@@ -80,28 +80,26 @@ class StackingSupervisor(SingleGraspTask):
             self._summary()
 
     def _summary(self) -> None:
-        summary: dict[str, object] = {
-            "release_secs": round(
-                ((self.release_sent_nanos or 0) - (self.first_nanos or 0)) / 1e9, 4
-            )
-        }
+        release_secs = round(((self.release_sent_nanos or 0) - (self.first_nanos or 0)) / 1e9, 4)
         if self.placement is None:
+            summary = PlacementSummary(release_secs=release_secs, outcome="unknown")
             outcome, failed = "unknown (no placement truth)", False
         else:
             truth = self.placement
-            event = "placed" if truth.placed else "dropped"
-            summary.update(
+            event: Literal["placed", "dropped"] = "placed" if truth.placed else "dropped"
+            summary = PlacementSummary(
+                release_secs=release_secs,
+                outcome=event,
                 t_secs=round(truth.t_secs, 4),
                 touch_secs=None if truth.touch_secs is None else round(truth.touch_secs, 4),
                 gap_mm=round(truth.gap_m * 1000, 3),
                 push_mm=round(truth.push_m * 1000, 3),
                 tilt_deg=round(truth.tilt_deg, 3),
-                outcome=event,
             )
             failed = not truth.placed
             outcome = (
                 f"{event}: gap {truth.gap_m * 1000:.1f} mm, tilt {truth.tilt_deg:.1f} deg, "
                 f"{truth.push_m * 1000:.1f} mm pressed past contact"
             )
-        self.event("summary", json.dumps(summary, sort_keys=True))
+        self.event("summary", data=summary)
         self.finish(f"{self.task}: {outcome}", exit_code=1 if failed else 0)

@@ -45,6 +45,7 @@ from messages import (
     describe,
     encode,
 )
+from messages.tasks import GraspSummary, SortChoice
 from messages.types import PoseStatus
 
 WIDTH_PX, HEIGHT_PX = 224, 172
@@ -177,7 +178,15 @@ REALISTIC: dict[type[Message], Callable[[], Message]] = {
     ),
     ClassProbabilities: _probabilities,
     TaskEvent: lambda: TaskEvent(
-        header=_header(), task="pose_tracking", event="grasped", detail="mug, 2 bubbles"
+        header=_header(),
+        task="sort",
+        event="summary",
+        data=GraspSummary(
+            held_secs=1.5,
+            pose_statuses={"ok": 12},
+            release="mug (0.970) placed in dishwasher",
+            sorted=SortChoice(class_name="mug", confidence=0.97, bin="dishwasher"),
+        ),
     ),
     GroundTruth: lambda: GroundTruth(
         header=_header(frame_id="world"),

@@ -131,11 +131,18 @@ def test_bad_params_are_refused() -> None:
 
 # -- auto-labelling: supervisor, world and dataset writer --------------------------------
 
-import json  # noqa: E402
 
 import msgspec  # noqa: E402
 
 from messages.classify import GraspRequest  # noqa: E402
+from messages.tasks import (  # noqa: E402
+    GraspRef,
+    GraspStart,
+    GraspWritten,
+    RunStart,
+    TaskData,
+    TaskEventName,
+)
 from messages.types import GripperCommand, GroundTruth, TaskEvent  # noqa: E402
 from nodes.autolabel import AutolabelSupervisor, AutolabelWorld, AutolabelWorldParams  # noqa: E402
 from nodes.dataset_writer import DatasetWriterNode  # noqa: E402
@@ -172,9 +179,9 @@ def test_supervisor_runs_grasps_in_order(tmp_path: Path) -> None:
     io.advance(1.0)  # the start timer: run_start, first placement
     events = [e.event for e in _states(io, "event")]
     assert events == ["run_start", "grasp_start"]
-    run = json.loads(_states(io, "event")[0].detail)
-    assert run["seeds"] == {"autolabel": 2}
-    assert run["scene"]["generator"]["seed"] == 2
+    run = _states(io, "event")[0].data
+    assert isinstance(run, RunStart) and run.seeds == {"autolabel": 2}
+    assert run.scene["generator"]["seed"] == 2
     _drive_supervisor(node, io, stable_after_close=True)
     events = [e.event for e in _states(io, "event")]
     assert events.count("grasp_start") == 3 and events.count("grasp_end") == 3
@@ -188,11 +195,11 @@ def test_supervisor_runs_grasps_in_order(tmp_path: Path) -> None:
     assert np.array_equal(io2.published["place"][0].tool_from_object, places[0].tool_from_object)
     # The run ends once the writer acknowledged every grasp (or after a grace period).
     for i in range(3):
-        detail = json.dumps({"grasp_id": i, "frames": 4})
+        written = GraspWritten(grasp_id=i, frames=4, object_class="mug")
         feed(
             node,
             "progress",
-            TaskEvent(header=Header(), task="autolabel", event="grasp_written", detail=detail),
+            TaskEvent(header=Header(), task="autolabel", event="grasp_written", data=written),
         )
     io.advance(1.0)
     assert io.stop_reason and "3 grasps held" in io.stop_reason and "12 frames" in io.stop_reason
@@ -282,12 +289,17 @@ def test_world_places_the_requested_object_and_closes_on_it() -> None:
     )
 
 
-def _event(event: str, detail: dict, stamp_ms: int = 0) -> TaskEvent:
+def _event(event: TaskEventName, detail: dict, stamp_ms: int = 0) -> TaskEvent:
+    """The supervisor's event, its record made from ``detail``'s fields."""
+    data: TaskData
+    if event == "run_start":
+        data = RunStart(**detail)
+    elif event == "grasp_start":
+        data = GraspStart(grasp_id=detail["grasp_id"], params=detail)
+    else:
+        data = GraspRef(**detail)
     return TaskEvent(
-        header=Header(stamp_nanos=stamp_ms * MS),
-        task="autolabel",
-        event=event,
-        detail=json.dumps(detail),
+        header=Header(stamp_nanos=stamp_ms * MS), task="autolabel", event=event, data=data
     )
 
 
@@ -339,7 +351,7 @@ def test_writer_keeps_stable_frames_labels_and_resumes(tmp_path: Path) -> None:
     # The simulator's noise seed, from the ground truth, is kept with each grasp.
     assert [g["params"]["sensor_noise_seed"] for g in manifest["grasps"]] == [21, 21]
     assert manifest["counts_per_class"]["mug"] == {"grasps": 1, "frames": 3}
-    progress = [json.loads(e.detail) for e in io.published["progress"]]
+    progress = [msgspec.structs.asdict(e.data) for e in io.published["progress"]]
     assert progress[0] == {"frames": 3, "grasp_id": 0, "object_class": "mug"}
     # A new writer on the same directory resumes; the supervisor would skip grasps 0, 1.
     node2, io2 = make_node(DatasetWriterNode, params, name="writer")
@@ -395,7 +407,7 @@ def test_writer_waits_for_frames_that_trail_the_grasp_state(tmp_path: Path) -> N
     for t in range(10, 400, 33):  # the frames, late: even after the next grasp started
         feed(node2, "right", _image("right", t))
         feed(node2, "left", _image("left", t))
-    progress = [json.loads(e.detail) for e in io2.published["progress"]]
+    progress = [msgspec.structs.asdict(e.data) for e in io2.published["progress"]]
     assert len(node2.grasps) == 1  # grasp 1 is still open
     stable_frames = len([t for t in range(10, 400, 33) if 100 <= t < 300])
     assert progress == [{"frames": stable_frames, "grasp_id": 0, "object_class": "mug"}]
@@ -467,7 +479,7 @@ def test_writer_pairs_frames_when_one_camera_trails_the_other(tmp_path: Path) ->
         feed(node, "left", _image("left", t))
     feed(node, "right", _image("right", stamps[-1] + 33))
     feed(node, "left", _image("left", stamps[-1] + 33))
-    progress = [json.loads(e.detail) for e in io.published["progress"]]
+    progress = [msgspec.structs.asdict(e.data) for e in io.published["progress"]]
     assert [e.event for e in io.published["progress"]] == ["grasp_written"] * 4
     assert [p["frames"] for p in progress] == [50] * 4
 
@@ -489,7 +501,7 @@ def test_writer_keeps_the_grasp_state_of_frames_that_trail_far_behind(tmp_path: 
         feed(node, "truth", _truth("mug", t))
         feed(node, "left", _image("left", t))
         feed(node, "right", _image("right", t))
-    progress = [json.loads(e.detail) for e in io.published["progress"]]
+    progress = [msgspec.structs.asdict(e.data) for e in io.published["progress"]]
     assert progress == [{"frames": 5, "grasp_id": 0, "object_class": "mug"}]
 
 

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import itertools
-import json
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -72,7 +72,8 @@ class Sink:
             self.frame()
 
     def events(self, name: str) -> list[dict]:
-        return [json.loads(e.detail) for e in self.io.published["event"] if e.event == name]
+        """The records of the task's ``name`` events, as plain values."""
+        return [msgspec.to_builtins(e.data) for e in self.io.published["event"] if e.event == name]
 
 
 def one_hot(name: str, p: float = 0.97) -> list[float]:

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 
 from messages import ClassProbabilities, GraspState, Header, ShearEstimate
+from messages.tasks import GraspSummary
 from nodes.supervisor.handover import HandoverSupervisor
 from nodes.supervisor.sort import SortSupervisor
 from runtime.params import build_params
@@ -63,8 +62,9 @@ def test_handover_grasps_waits_for_stable_and_releases_on_a_sustained_pull() -> 
     feed(node, "grasp", grasp(0.9, "released"))
     assert events(io)[-2:] == ["done", "summary"]
     assert io.stop_reason.startswith("handover: done: held 0.")
-    summary = json.loads(io.published["event"][-1].detail)
-    assert summary["release"].startswith("pull on the right bubble")
+    summary = io.published["event"][-1].data
+    assert isinstance(summary, GraspSummary) and summary.sorted is None
+    assert summary.release.startswith("pull on the right bubble")
 
 
 def test_handover_times_out_without_a_grasp() -> None:
@@ -98,9 +98,10 @@ def test_sort_votes_then_routes_to_the_bin() -> None:
     assert io.published["command"][-1].command == "release"
     feed(node, "grasp", grasp(0.9, "released"))
     assert events(io)[-2:] == ["done", "summary"]
-    summary = json.loads(io.published["event"][-1].detail)
-    assert summary["class"] == "pet_bottle" and summary["bin"] == "recycling"
-    assert summary["held_secs"] == 0.0  # the outputs carry no stamp: the clock stood still
+    summary = io.published["event"][-1].data
+    assert isinstance(summary, GraspSummary) and summary.sorted is not None
+    assert summary.sorted.class_name == "pet_bottle" and summary.sorted.bin == "recycling"
+    assert summary.held_secs == 0.0  # the outputs carry no stamp: the clock stood still
     assert io.stop_reason.startswith("sort: done: held 0.00 s, released: pet_bottle (")
     assert io.stop_reason.endswith("placed in recycling")
 
@@ -158,5 +159,6 @@ def test_the_time_held_is_the_data_of_the_grasp_and_the_pull_whatever_came_first
     feed(node, "shear", stamped_shear(2.1, 2.0))
     assert events(io)[-1] == "release"
     feed(node, "grasp", grasp(2.6, "released"))
-    summary = json.loads(io.published["event"][-1].detail)
-    assert summary["held_secs"] == pytest.approx(1.6)  # 0.5 s to 2.1 s
+    summary = io.published["event"][-1].data
+    assert isinstance(summary, GraspSummary)
+    assert summary.held_secs == pytest.approx(1.6)  # 0.5 s to 2.1 s

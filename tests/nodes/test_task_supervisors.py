@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 
 from messages import GraspState, GroundTruth, Header, PoseEstimate, ShearEstimate
 from messages.sim import PlacementTruth
+from messages.tasks import PlacementSummary, TrackingSummary
 from nodes.supervisor.antagonism import AntagonismSupervisor
 from nodes.supervisor.stacking import StackingSupervisor
 from runtime.testing import feed, make_node
@@ -78,31 +77,33 @@ def run_antagonism(lag_frames: int, pose_first: bool = False) -> tuple[dict, obj
             feed(node, port, msg)
         if io.stop_reason:
             break
-    (summary,) = [json.loads(e.detail) for e in io.published["event"] if e.event == "summary"]
+    (summary,) = [e.data for e in io.published["event"] if e.event == "summary"]
+    assert isinstance(summary, TrackingSummary)
     return summary, io
 
 
 def test_antagonism_reports_errors_and_the_time_to_reacquire_a_jolt() -> None:
     summary, io = run_antagonism(lag_frames=6)
-    assert summary["axis_deg"]["median"] < 1e-6 and summary["axis_deg"]["max"] > 7.9
-    (jolt,) = summary["jolts"]
-    assert jolt["turned_deg"] > 7.9 and jolt["moved_mm"] > 2.9
-    assert abs(jolt["reacquire_secs"] - 0.2) < 1e-6  # six frames behind
-    assert summary["success"] and io.stop_exit_code == 0
+    assert summary.axis_deg.median < 1e-6 and summary.axis_deg.max > 7.9
+    (jolt,) = summary.jolts
+    assert jolt.turned_deg > 7.9 and jolt.moved_mm > 2.9
+    assert jolt.reacquire_secs is not None
+    assert abs(jolt.reacquire_secs - 0.2) < 1e-6  # six frames behind
+    assert summary.success and io.stop_exit_code == 0
     assert io.published["command"][-1].command == "release"
 
 
 def test_antagonism_judges_the_same_whichever_of_estimate_and_truth_comes_first() -> None:
     truth_first, _ = run_antagonism(lag_frames=6)
     pose_first, _ = run_antagonism(lag_frames=6, pose_first=True)
-    assert pose_first == truth_first and pose_first["unmatched"] == 0
-    assert pose_first["estimates"] == 4 * 30
+    assert pose_first == truth_first and pose_first.unmatched == 0
+    assert pose_first.estimates == 4 * 30
 
 
 def test_antagonism_fails_when_an_estimate_never_comes_back() -> None:
     summary, io = run_antagonism(lag_frames=1000)
-    assert summary["jolts"][0]["reacquire_secs"] is None
-    assert not summary["success"] and io.stop_exit_code == 1
+    assert summary.jolts[0].reacquire_secs is None
+    assert not summary.success and io.stop_exit_code == 1
 
 
 def shear(sensor: str, magnitude_px: float) -> ShearEstimate:
@@ -144,10 +145,11 @@ def test_stacking_releases_on_a_sustained_touch_and_reports_the_truth() -> None:
         feed(node, "placement", placement(outcome, 0.0 if outcome == "placed" else 4.0))
         assert io.stop_reason is None  # still held until the grasp monitor says released
         feed(node, "grasp", grasp(1.2, "released"))
-        (summary,) = [json.loads(e.detail) for e in io.published["event"] if e.event == "summary"]
-        assert summary["outcome"] == outcome and io.stop_exit_code == code
-        assert summary["gap_mm"] == (0.0 if outcome == "placed" else 4.0)
-        assert summary["push_mm"] == 1.0 and summary["touch_secs"] == 1.9
+        (summary,) = [e.data for e in io.published["event"] if e.event == "summary"]
+        assert isinstance(summary, PlacementSummary)
+        assert summary.outcome == outcome and io.stop_exit_code == code
+        assert summary.gap_mm == (0.0 if outcome == "placed" else 4.0)
+        assert summary.push_mm == 1.0 and summary.touch_secs == 1.9
         assert io.stop_reason.startswith(f"stacking: {outcome}: gap")
 
 

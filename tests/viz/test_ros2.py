@@ -3,10 +3,12 @@ with ``mcap-ros2-support``, message by message, against the source bag."""
 
 from __future__ import annotations
 
+import json
 from collections import Counter, defaultdict
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 import pytest
 from mcap.reader import make_reader
@@ -17,7 +19,7 @@ import launch
 from geometry.gripper import DEFAULT_GRIPPER, SIDES, tool_from_sensor
 from geometry.se3 import make_pose, matrix_from_quat, rotation_about
 from messages.base import Header
-from messages.types import PoseEstimate
+from messages.types import PoseEstimate, TaskEvent
 from runtime.bag import BagReader, BagWriter
 from viz.ros2_export import msg_definitions
 
@@ -71,6 +73,7 @@ def test_every_message_decodes_with_rosbags_and_matches_the_source(
         images = [m.decode() for m in reader.messages(["left_camera/image"])]
         poses = [m.decode() for m in reader.messages(["pose/pose"])]
         pressures = [m.decode() for m in reader.messages(["left_pressure/pressure"])]
+        task_events = [m.decode() for m in reader.messages(["supervisor/event"])]
     tracked = [p for p in poses if p.status in ("ok", "recovered")]
     expected = {t: k for t, k in STANDARD.items() if tracked or t != "/pose/pose"}
     got = read_all(exported, expected)
@@ -99,6 +102,11 @@ def test_every_message_decodes_with_rosbags_and_matches_the_source(
     assert [r.pressure_pa for _, r in got["/left_pressure/pressure"]] == [
         p.pressure_pa for p in pressures
     ]
+    # A task event's typed record (the summary's) travels as its JSON.
+    assert any(e.data is not None for e in task_events)
+    for (_, ros), ours in zip(got["/supervisor/event"], task_events, strict=True):
+        assert isinstance(ours, TaskEvent) and ros.event == ours.event
+        assert json.loads(ros.data) == msgspec.to_builtins(ours.data)
     patch = got["/contact_patch/patch"][-1][1]
     assert [f.name for f in patch.fields] == ["x", "y", "z", "bubble"]
 
