@@ -129,6 +129,9 @@ class Frame:
     slipping: dict[str, float]  # true share of the patch's area slipping
     slide_m: np.ndarray
     feature_secs: float
+    # How far the object may slide in the hand and still count as held (``held``): the
+    # world's. MuJoCo's shell gives centimetres under a load before the object slips out.
+    drop_m: float = 0.010
 
 
 def free_and_still(snap: sim.WorldSnapshot, scene: sim.Scene) -> bool:
@@ -251,12 +254,12 @@ def features_of(
     return rec
 
 
-DROP_M = 0.010  # an object that slid this far in the hand is lost: its frames do not count
+DROP_M = Frame.drop_m  # an object that slid this far in the hand is lost: its frames do not count
 
 
 def held(frame: Frame) -> bool:
-    """The object is still in the hand (slid less than ``DROP_M``)."""
-    return float(np.hypot(*frame.slide_m)) < DROP_M
+    """The object is still in the hand (slid less than its world's ``Frame.drop_m``)."""
+    return float(np.hypot(*frame.slide_m)) < frame.drop_m
 
 
 def shift_errors_m(frames: list[Frame], features: list[dict[str, ContactFeatures]]) -> list[float]:

@@ -127,6 +127,7 @@ def loaded(
     still holds instead (the default setting's only)."""
     from bench import worlds
     from runtime.bag import BagReader
+    from sim.mujoco.world import DROPPED_M
 
     out = []
     for k in progress(range(count), "bench.force mujoco loaded"):
@@ -147,6 +148,7 @@ def loaded(
                     for i, s in enumerate(SIDES)
                 },
                 slide_m=np.asarray(t["slide_m"]),
+                drop_m=DROPPED_M,
             )
             for f, t in zip(rec.frames, truth, strict=True)
         ]
