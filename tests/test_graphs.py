@@ -78,13 +78,12 @@ def test_default_graph_runs_the_handover_on_the_mujoco_world() -> None:
 
 def test_the_wrench_node_on_the_mujoco_world_agrees_with_the_engine(tmp_path: Path) -> None:
     # graphs/mujoco_fill.yaml: a free mug being filled on MuJoCo, the wrench and slip
-    # nodes with the MuJoCo rig's calibration. A coarse membrane (16 mm) keeps it short.
+    # nodes with the MuJoCo rig's calibration (fitted on the graph's 12 mm membrane).
     # The force rule decides alone (no shear stand-in while the wrench node lags: how far
     # it lags is the machine's doing), so what the supervisor does follows the data.
     bag = tmp_path / "run.mcap"
     proc = launch(
         "graphs/mujoco_fill.yaml",
-        *("--set", "world.mesh_spacing_m=0.016"),
         *("--set", "supervisor.force_max_lag_secs=100"),
         *("--record", str(bag)),
         *("--record-topics", "^(world/wrench|wrench/wrench|slip/slip|supervisor/event)$"),
@@ -96,8 +95,12 @@ def test_the_wrench_node_on_the_mujoco_world_agrees_with_the_engine(tmp_path: Pa
         topics.setdefault(m.topic, []).append(m.decode())
     truth = {t.header.stamp_nanos: t for t in topics["world/wrench"]}
     assert {t.source for t in truth.values()} == {"mujoco"}
+    events = {e.event: e.header.stamp_nanos for e in topics["supervisor/event"]}
+    assert "stable" in events and "release" not in events  # filling is no pull
     errors, loads = [], []
     for est in topics["wrench/wrench"]:
+        if est.header.stamp_nanos < events["stable"]:
+            continue  # scored while held, as bench.force scores
         true = truth[est.header.stamp_nanos]  # every estimate is of a world frame
         for i in range(2):
             load = float(np.linalg.norm(true.bubble_force_n[i]))
@@ -105,8 +108,6 @@ def test_the_wrench_node_on_the_mujoco_world_agrees_with_the_engine(tmp_path: Pa
                 errors.append(float(np.linalg.norm(est.bubble_force_n[i] - true.bubble_force_n[i])))
                 loads.append(load)
     assert len(errors) >= 20
-    # The goal is 10% (docs/force.md, measured on an 8 mm mesh); this mesh is coarser.
+    # The goal is 10% or 0.3 N (docs/force.md); a graph drops frames (``latest``).
     assert np.median(errors) < 0.2 * np.median(loads)
     assert topics["slip/slip"]
-    events = [e.event for e in topics["supervisor/event"]]
-    assert "stable" in events and "release" not in events  # filling is no pull
