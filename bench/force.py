@@ -11,9 +11,8 @@ every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` e
   contact forces): ``bench.worlds``' grasps (the four objects in turn, a 12 N grasp,
   a 4 mm slide along the fingers; recorded once per scene and mesh in ``out/worlds``
   or ``WORLDS_DIR``, shared with ``bench.worlds``), the first half against the second,
-  an 8 mm membrane mesh (12 mm with ``--quick``). The reflex and handover sweeps are
-  ``world.sim``'s only (MuJoCo's object is held by a hand, without gravity: it cannot
-  slip out of the grip).
+  an 8 mm membrane mesh (12 mm with ``--quick``). The handover sweep is
+  ``world.sim``'s only.
   Errors per bubble and frame in contact while the object is held (slid less than
   ``DROP_M``): force (N), torque (N m), force in percent of
   the bubble's true load; median and p90; plus the share of frames within the goal
@@ -31,14 +30,20 @@ every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` e
   is not scored (``cut_at_end``); false alarms per minute of still holding (any onset
   while the truth is stuck and stays so for ``MAX_EARLY_FRAMES``). On both worlds: ``world.sim``'s held-out grasps and
   long still holds (the detector's limits from its calibration grasps); MuJoCo's
-  grasps slid past the stick limit (``bench.force_mujoco``: its truth of slip, and the
-  limits fitted on the first half of them with the calibration grasps, the second half
-  scored).
+  loaded grasps (``bench.force_mujoco``: a free object under the engine's gravity,
+  filled or pulled past the stick limit; its truth of slip; the limits fitted on the
+  first half of them with the calibration grasps, the second half scored) and still
+  holds. The wrench sweep scores MuJoCo's held-out loaded grasps too (``mujoco_loaded``:
+  calibrated on the calibration grasps and the first half of the loaded ones, whose
+  loads along tool y and z determine the tangential stiffness along both).
 * ``reflex``: grasps whose load outgrows the grip (fillings, and weights held too
   lightly), run closed loop twice, without and with the reflex (slip onset: raise the
   grip, bounded per object, ``perception.force.reflex``); kept (slid less than
   ``DROP_M``) or dropped, and dropped with the grip at the object's bound (a filling
-  heavier than the bound can hold: the bound's doing, not the reflex's).
+  heavier than the bound can hold: the bound's doing, not the reflex's). On both
+  worlds: MuJoCo's run live (a free object being filled, the MuJoCo calibration); there
+  the shell gives centimetres under a load, so kept is: still touching both bubbles at
+  the end and moving slower than ``force_mujoco.DROP_SPEED_M_PER_S``.
 * ``handover``: the handover's pull (``scenes/handover_task.yaml`` with the pull's start
   drawn as ``bench.tasks`` draws it): frames from the pull's start to the release
   decision by the shear rule (the paper's: 1.5 px for 3 frames) and by the force rule
@@ -46,11 +51,13 @@ every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` e
   false releases. Decisions only: the graph's latency adds the pipeline's
   (``bench.tasks``).
 
-By default: 8 ``world.sim`` grasps per set, 8 MuJoCo grasps, 4 MuJoCo slides, 4 still
-holds of 15 s, 8 reflex grasps, 4 handovers; ``--grasps``, ``--mujoco``, ``--slides``,
-``--still``, ``--reflex`` and ``--handover`` set them. ``--quick`` runs two grasps per
-set of ``world.sim``, one MuJoCo grasp and one slide at a 12 mm mesh (scored on
-themselves: a smoke test, not held out), one reflex grasp and one handover.
+By default: 8 ``world.sim`` grasps per set, 8 MuJoCo grasps, 8 MuJoCo loaded grasps,
+4 still holds of 15 s on ``world.sim`` (and as many of 6 s on MuJoCo), 8 reflex grasps
+(4 on MuJoCo), 4 handovers; ``--grasps``, ``--mujoco``, ``--slides`` (MuJoCo's loaded
+grasps), ``--still``, ``--reflex``, ``--mujoco-reflex`` and ``--handover`` set them.
+``--quick`` runs two grasps per set of ``world.sim``, one MuJoCo grasp, one loaded
+grasp and one still hold of 1.5 s at a 12 mm mesh (scored on themselves: a smoke test,
+not held out), one reflex grasp on each world and one handover.
 """
 
 from __future__ import annotations
@@ -293,15 +300,21 @@ def stepped(simulator: sim.Simulator) -> Iterator[tuple[Any, Any, dict]]:
         yield inst, status, bubbles.frame(inst, simulator.scene)
 
 
-def closed_loop(seed: int, duration_secs: float, cal: Calibration, *, reflex: bool) -> dict:
-    """One grasp whose load outgrows its grip, with or without the reflex."""
+def closed_loop(
+    seed: int, duration_secs: float, cal: Calibration, *, reflex: bool, mujoco_mesh_m: float = 0.0
+) -> dict:
+    """One grasp whose load outgrows its grip, with or without the reflex; on MuJoCo
+    (live, a free object) with a ``mujoco_mesh_m`` membrane mesh, else on ``world.sim``."""
     spec = draw(seed, duration_secs=duration_secs, load="fill")
     scene = spec.scene
-    simulator = sim.Simulator(scene)
+    simulator = (
+        force_mujoco.simulator(scene, mujoco_mesh_m) if mujoco_mesh_m else sim.Simulator(scene)
+    )
     detectors = {s: SlipDetector.for_rig(cal) for s in SIDES}
     limit = OBJECTS[spec.object][3]
     grip = GripReflex(ReflexParams(max_force_n=limit), spec.grip_n, cal.friction)
     stable = False
+    slides: list[np.ndarray] = []
     for inst, status, feats in stepped(simulator):
         snap = inst.snapshot
         if status.stable and not stable:
@@ -316,10 +329,19 @@ def closed_loop(seed: int, duration_secs: float, cal: Calibration, *, reflex: bo
                 force = grip.on_slip(snap.time_secs, load)
                 if force is not None:
                     simulator.world.command("grasp", width_m=0.0, speed_m_per_s=0.08, force_n=force)
-    slide = float(np.linalg.norm(simulator.world.snapshot.slide_m))
+        slides.append(snap.slide_m.copy())
+    slide = float(np.linalg.norm(slides[-1]))
+    if mujoco_mesh_m:
+        # MuJoCo's shell gives under a tangential load (about 0.5 mm per newton): a held
+        # object moves centimetres on it. Kept: still touching both bubbles and not
+        # sliding out (a slipping patch lets the object accelerate away).
+        speed = np.linalg.norm(slides[-1] - slides[-4]) / (3 * scene.frame_period_secs)
+        kept = all(snap.in_contact.values()) and speed < force_mujoco.DROP_SPEED_M_PER_S
+    else:
+        kept = slide < DROP_M
     return {
         "object": spec.object,
-        "kept": slide < DROP_M,
+        "kept": bool(kept),
         "slide_mm": slide * 1000.0,
         "raises": grip.raises,
         "final_grip_n": grip.force_n,
@@ -327,14 +349,19 @@ def closed_loop(seed: int, duration_secs: float, cal: Calibration, *, reflex: bo
     }
 
 
-def reflex_rows(seeds: list[int], duration_secs: float, cal: Calibration) -> list[Row]:
+def reflex_rows(
+    seeds: list[int], duration_secs: float, cal: Calibration, mujoco_mesh_m: float = 0.0
+) -> list[Row]:
     rows: list[Row] = []
     for reflex in (False, True):
-        runs = [closed_loop(s, duration_secs, cal, reflex=reflex) for s in seeds]
+        runs = [
+            closed_loop(s, duration_secs, cal, reflex=reflex, mujoco_mesh_m=mujoco_mesh_m)
+            for s in seeds
+        ]
         rows.append(
             {
                 "sweep": "reflex",
-                "world": "sim",
+                "world": "mujoco" if mujoco_mesh_m else "sim",
                 "setting": "on" if reflex else "off",
                 "method": "physics",
                 "samples": len(runs),
@@ -438,17 +465,21 @@ class Sizes:
     duration_secs: float = 3.0
     mujoco: int = 8  # MuJoCo grasps (half calibration, half held out)
     mujoco_mesh_m: float = 0.008
-    slides: int = 4  # MuJoCo grasps slid past the stick limit (half calibration)
-    still: int = 4  # still holds of 15 s for the false alarms
+    slides: int = 8  # MuJoCo loaded grasps, a free object (half calibration)
+    still: int = 4  # still holds of 15 s for the false alarms (MuJoCo: 6 s)
     still_secs: float = 15.0
+    mujoco_still_secs: float = 6.0
+    loaded_secs: float = 3.0  # MuJoCo's loaded grasps (the load from 1 s)
     reflex: int = 8
+    mujoco_reflex: int = 4
     handover: int = 4
     timing_repeats: int = TIMING_REPEATS
 
 
 QUICK = Sizes(
     grasps=2, duration_secs=1.8, mujoco=1, mujoco_mesh_m=0.012, slides=1, still=1,
-    still_secs=3.0, reflex=1, handover=1, timing_repeats=1,
+    still_secs=3.0, mujoco_still_secs=1.5, loaded_secs=2.0, reflex=1, mujoco_reflex=1, handover=1,
+    timing_repeats=1,
 )  # fmt: skip
 
 
@@ -472,27 +503,41 @@ def run(quick: bool, sizes: Sizes | None = None) -> list[Row]:
     cal = cals[DEFAULT_SETTING]
     # The second world: the engine's contact forces, calibrated on its own grasps.
     # (--quick: one grasp, scored on itself: a smoke test, not held out.)
+    # Its slips: loaded grasps of a free object (filled, pulled past the stick limit),
+    # half to calibrate the slip limits (with the calibration grasps), half scored; and
+    # still holds. (--quick: one loaded grasp, scored on itself.)
     with tempfile.TemporaryDirectory() as tmp:
         workdir = Path(tmp) if quick else Path(os.environ.get("WORLDS_DIR", "out/worlds"))
         workdir.mkdir(parents=True, exist_ok=True)
         recs = force_mujoco.grasps(z.mujoco, z.mujoco_mesh_m, workdir)
+        slides = force_mujoco.loaded(
+            z.slides, z.mujoco_mesh_m, workdir, duration_secs=z.loaded_secs
+        )
+        mujoco_still = force_mujoco.loaded(
+            z.still, z.mujoco_mesh_m, workdir, duration_secs=z.mujoco_still_secs, still=True
+        )
     half = max(1, z.mujoco // 2)
     rows += wrench_rows("mujoco", recs[:half], recs[half:] or recs, secs)[0]
     period = draw(0).scene.frame_period_secs
-    # Its slips: grasps slid past the stick limit, half to calibrate the slip limits
-    # (with the calibration grasps), half scored. (--quick: one, scored on itself.)
-    slides = force_mujoco.slides(z.slides, z.mujoco_mesh_m)
     cut = max(1, z.slides // 2)
     mujoco_cal = force_mujoco.calibrate_mujoco(recs[:half], slides[:cut], "bench.force")
+    # The force on the loaded grasps held out (loads along tool y and z).
+    rows += wrench_rows("mujoco_loaded", recs[:half] + slides[:cut], slides[cut:] or slides, secs)[
+        0
+    ]
     # Long still holds for the false alarms (the default setting only).
     still = [
         record_all(100 + i, z.still_secs, load="still", settings=(DEFAULT_SETTING,))
         for i in progress(range(z.still), "bench.force still holds")
     ]
     rows += slip_rows("sim", test_recs + still, cal, period)
-    rows += slip_rows("mujoco", slides[cut:] or slides, mujoco_cal, period)
+    rows += slip_rows("mujoco", (slides[cut:] or slides) + mujoco_still, mujoco_cal, period)
     reflex_seeds = [n * 2 + i for i in range(z.reflex)]
     rows += reflex_rows(reflex_seeds, 2.5 if quick else 4.0, cal)
+    rows += reflex_rows(
+        force_mujoco.reflex_seeds(z.mujoco_reflex), 2.5 if quick else 4.0, mujoco_cal,
+        z.mujoco_mesh_m,
+    )  # fmt: skip
     rows += handover_rows(list(range(z.handover)), cal, period)
     return rows
 
@@ -513,9 +558,18 @@ if __name__ == "__main__":
     parser.add_argument("--slides", type=int, default=Sizes.slides, help="MuJoCo slides")
     parser.add_argument("--still", type=int, default=Sizes.still, help="15 s still holds")
     parser.add_argument("--reflex", type=int, default=Sizes.reflex, help="reflex grasps")
+    parser.add_argument(
+        "--mujoco-reflex", type=int, default=Sizes.mujoco_reflex, help="MuJoCo reflex grasps"
+    )
     parser.add_argument("--handover", type=int, default=Sizes.handover, help="handovers")
+    parser.add_argument(
+        "--mujoco-mesh", type=float, default=Sizes.mujoco_mesh_m, help="MuJoCo mesh edge, m"
+    )
     extra, rest = parser.parse_known_args()
-    counts = (extra.grasps, extra.mujoco, extra.slides, extra.still, extra.reflex, extra.handover)
+    counts = (
+        *(extra.grasps, extra.mujoco, extra.slides, extra.still, extra.reflex),
+        *(extra.mujoco_reflex, extra.handover),
+    )
     if min(extra.grasps, extra.mujoco, extra.slides) < 2 or min(counts) < 1:
         sys.exit(
             f"bench.force: --grasps, --mujoco and --slides must be >= 2, the rest >= 1, got {extra}"
@@ -526,6 +580,8 @@ if __name__ == "__main__":
         slides=extra.slides,
         still=extra.still,
         reflex=extra.reflex,
+        mujoco_reflex=extra.mujoco_reflex,
         handover=extra.handover,
+        mujoco_mesh_m=extra.mujoco_mesh,
     )
     main("force", lambda quick: run(quick, chosen), columns=COLUMNS, argv=rest)

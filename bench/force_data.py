@@ -64,6 +64,7 @@ class GraspSpec:
     load: str
     grip_n: float
     scene: sim.Scene
+    doc: dict[str, object]  # the scene as a document (``sim.scene_from_dict``'s input)
 
 
 def draw(seed: int, *, duration_secs: float = 3.0, load: str | None = None) -> GraspSpec:
@@ -114,7 +115,7 @@ def draw(seed: int, *, duration_secs: float = 3.0, load: str | None = None) -> G
         ]
     data["load"] = load_spec
     scene = sim.scene_from_dict(data, path=f"<force grasp {seed}>")
-    return GraspSpec(seed, name, kind, grip, scene)
+    return GraspSpec(seed, name, kind, grip, scene, data)
 
 
 @dataclass
@@ -128,6 +129,9 @@ class Frame:
     slipping: dict[str, float]  # true share of the patch's area slipping
     slide_m: np.ndarray
     feature_secs: float
+    # How far the object may slide in the hand and still count as held (``held``): the
+    # world's. MuJoCo's shell gives centimetres under a load before the object slips out.
+    drop_m: float = 0.010
 
 
 def free_and_still(snap: sim.WorldSnapshot, scene: sim.Scene) -> bool:
@@ -250,12 +254,12 @@ def features_of(
     return rec
 
 
-DROP_M = 0.010  # an object that slid this far in the hand is lost: its frames do not count
+DROP_M = Frame.drop_m  # an object that slid this far in the hand is lost: its frames do not count
 
 
 def held(frame: Frame) -> bool:
-    """The object is still in the hand (slid less than ``DROP_M``)."""
-    return float(np.hypot(*frame.slide_m)) < DROP_M
+    """The object is still in the hand (slid less than its world's ``Frame.drop_m``)."""
+    return float(np.hypot(*frame.slide_m)) < frame.drop_m
 
 
 def shift_errors_m(frames: list[Frame], features: list[dict[str, ContactFeatures]]) -> list[float]:

@@ -7,10 +7,14 @@ module turns its runs into the force estimators' data, as ``bench.force_data`` d
 * **grasps** (:func:`grasps`): ``bench.worlds``' grasps (the four objects in turn, a
   12 N grasp, a 4 mm slide along the fingers), recorded once per scene and mesh in a
   work folder shared with ``bench.worlds``, the engine's wrench as the truth.
-* **slides** (:func:`slides`): the same grasps with the hand sliding the object
-  :data:`SLIDE_M` along tool z from :data:`HOLD_SECS` to :data:`END_SECS`: past the
-  stick limit, so the patch slips (the engine's friction cone). Run live: the
-  recording keeps no share of slipping contacts.
+* **loaded grasps** (:func:`loaded`): ``bench.force_data``'s draws (an object held at
+  5-12 N, then filled or pulled in the tool's (y, z) plane, many past the stick limit)
+  with the ``slip`` effect, which on MuJoCo makes the object free once the jaws hold
+  it: the engine's gravity on its mass (growing as it is filled) and the pull against
+  MuJoCo's friction, so it slips and falls out on physics no one here wrote. Recorded
+  once per scene and mesh as the grasps are, with the per-frame truth the messages do
+  not carry beside each bag (``bench.worlds.recorded_frames``). Their loads point
+  along tool y and z, so they also determine the tangential stiffness along y.
 * **the truth of slip**: the engine's share of a bubble's contacts at their friction
   cone's limit. In MuJoCo's soft contact the rim's contacts, pressed by almost nothing,
   sit at their cone from the first shear (0.1-0.25 of them while the load is a tenth of
@@ -20,9 +24,9 @@ module turns its runs into the force estimators' data, as ``bench.force_data`` d
   (:func:`slipping_share`); ``world.sim`` reports its patch's slipping area directly.
 
 The calibration file of the MuJoCo world (both estimators, the friction and the slip
-limits, fitted on its grasps and slides)::
+limits, fitted on its grasps and loaded grasps)::
 
-    python -m bench.force_mujoco --grasps 4 --slides 2 --out models/force/mujoco.json
+    python -m bench.force_mujoco --grasps 4 --slides 4 --out models/force/mujoco.json
 
 ``bench.force`` calibrates on some of these and scores on others.
 """
@@ -40,13 +44,25 @@ import numpy as np
 
 import sim
 from bench.common import progress
-from bench.force_data import DEFAULT_SETTING, ROOT, Recorded, features_of, samples
+from bench.force_data import (
+    DEFAULT_SETTING,
+    ROOT,
+    GraspSpec,
+    Recorded,
+    draw,
+    features_of,
+    samples,
+)
 from geometry.gripper import SIDES
 from perception.force.estimators import Calibration, calibrate
 
-HOLD_SECS = 1.2
-SLIDE_M = 0.015
-END_SECS = 2.4
+LOADED_SEED = 300  # other draws than world.sim's calibration and held-out grasps
+STILL_SEED = 408
+REFLEX_SEED = 600
+LOADED_SECS = 3.0
+# A held object's speed in the hand over which it is taken as sliding out (the reflex
+# sweep's drops on MuJoCo: the shell's give under a growing load moves it under 10 mm/s).
+DROP_SPEED_M_PER_S = 0.03
 EDGE_SHARE = 0.5
 PATCH_SHARE = 0.9
 MESH_M = 0.008
@@ -78,56 +94,82 @@ def grasps(count: int, spacing_m: float, workdir: Path) -> list[Recorded]:
     return out
 
 
-def slide_scene(k: int, rng: np.random.Generator) -> sim.Scene:
-    """The ``k``-th grasp of ``bench.worlds`` (drawn from ``rng`` in turn), slid past the
-    stick limit."""
+def loaded_spec(k: int, duration_secs: float = LOADED_SECS, *, still: bool = False) -> GraspSpec:
+    """The ``k``-th loaded grasp: ``bench.force_data``'s draw of seed ``LOADED_SEED +
+    3 k`` (the four objects in turn), a filling or a pull (alternating, so that each half
+    of a set has both); with ``still``, the ``k``-th still hold (its weight only, seeds
+    from ``STILL_SEED``)."""
+    if still:
+        return draw(STILL_SEED + 3 * k, duration_secs=duration_secs, load="still")
+    kind = ("fill", "pull")[(k + k // 4) % 2]
+    return draw(LOADED_SEED + 3 * k, duration_secs=duration_secs, load=kind)
+
+
+def reflex_seeds(count: int) -> list[int]:
+    """The seeds of the reflex sweep's fillings on MuJoCo (the four objects in turn)."""
+    return [REFLEX_SEED + 3 * k for k in range(count)]
+
+
+def loaded(
+    count: int,
+    spacing_m: float,
+    workdir: Path,
+    *,
+    duration_secs: float = LOADED_SECS,
+    still: bool = False,
+) -> list[Recorded]:
+    """Loaded grasps ``0 .. count - 1`` (:func:`loaded_spec`) on MuJoCo: a free object
+    under the engine's gravity, filled or pulled past the stick limit, so it slips on
+    MuJoCo's friction. Recorded once per scene and mesh in ``workdir`` (as
+    ``bench.worlds``' grasps), the default feature setting; truth: the engine's wrench,
+    its slipping share (:func:`slipping_share`, from the hand letting go on) and the
+    object's slide in the hand. Every feature setting's features; with ``still``, the
+    still holds instead (the default setting's only)."""
     from bench import worlds
+    from runtime.bag import BagReader
+    from sim.mujoco.world import DROPPED_M
 
-    doc = worlds.grasp_scene(k, rng)
-    start = doc["trajectory"][0]
-    end = [start["xyz_m"][0], start["xyz_m"][1], start["xyz_m"][2] + SLIDE_M]
-    doc["name"] = f"force_slide_{k}"
-    doc["duration_secs"] = END_SECS
-    doc["trajectory"] = [
-        start,
-        {**start, "t_secs": HOLD_SECS},
-        {**start, "t_secs": END_SECS, "xyz_m": end},
-    ]
-    return sim.scene_from_dict(doc, path=f"<force slide {k}>")
+    out = []
+    for k in progress(range(count), "bench.force mujoco loaded"):
+        spec = loaded_spec(k, duration_secs, still=still)
+        scene_path, bag, _ = worlds.recorded_scene(
+            f"force_{spec.load}_{k}", spec.doc, spacing_m, workdir, frames=True
+        )
+        instants = worlds.replay_mujoco(scene_path, bag)
+        with BagReader(bag) as reader:
+            truths = [m.decode() for m in reader.messages(["world/wrench"])]
+        rec = features_of(instants, spec.scene, truths, (DEFAULT_SETTING,) if still else ())
+        truth = worlds.recorded_frames(bag)
+        rec.frames = [
+            dataclasses.replace(
+                f,
+                slipping={
+                    s: slipping_share(t["slipping"][i]) if any(t["load_n"]) else 0.0
+                    for i, s in enumerate(SIDES)
+                },
+                slide_m=np.asarray(t["slide_m"]),
+                drop_m=DROPPED_M,
+            )
+            for f, t in zip(rec.frames, truth, strict=True)
+        ]
+        out.append(rec)
+    return out
 
 
-def slides(count: int, spacing_m: float, *, first: int = 0) -> list[Recorded]:
-    """Slides ``first .. first + count - 1`` run live on MuJoCo, the default feature
-    setting, the engine's wrench and slipping share (:func:`slipping_share`) as truth."""
-    from bench import worlds
+def simulator(scene: sim.Scene, spacing_m: float) -> sim.Simulator:
+    """A simulator of ``scene`` whose world is MuJoCo's (run live: for closed loops)."""
     from sim.mujoco.model import ShellSpec
     from sim.mujoco.world import MujocoWorld
 
-    rng = np.random.default_rng(worlds.SEED)
-    scenes = [slide_scene(k, rng) for k in range(first + count)][first:]
-    out = []
-    for k in progress(range(len(scenes)), "bench.force mujoco slides"):
-        scene = scenes[k]
-        world = MujocoWorld(scene, ShellSpec(mesh_spacing_m=spacing_m))
-        simulator = sim.Simulator(scene)
-        instants, truths = [], []
-        while not world.done:
-            snap = world.step()
-            instants.append(simulator.render_snapshot(snap))
-            truths.append(world.wrench_truth(sim.stamp_of(snap)))
-        rec = features_of(instants, scene, truths, (DEFAULT_SETTING,))
-        rec.frames = [
-            dataclasses.replace(f, slipping={s: slipping_share(f.slipping[s]) for s in SIDES})
-            for f in rec.frames
-        ]
-        out.append(rec)
+    out = sim.Simulator(scene)
+    out.world = MujocoWorld(scene, ShellSpec(mesh_spacing_m=spacing_m))  # type: ignore[assignment]
     return out
 
 
 def calibrate_mujoco(
     grasp_recs: list[Recorded], slide_recs: list[Recorded], source: str
 ) -> Calibration:
-    """Every estimator and the slip limits fitted on MuJoCo's grasps and slides."""
+    """Every estimator and the slip limits fitted on MuJoCo's grasps and loaded grasps."""
     data = []
     for rec in grasp_recs + slide_recs:
         frames = [
@@ -141,7 +183,7 @@ def calibrate_mujoco(
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m bench.force_mujoco")
     parser.add_argument("--grasps", type=int, default=4, help="bench.worlds' grasps")
-    parser.add_argument("--slides", type=int, default=2, help="grasps slid past the stick")
+    parser.add_argument("--slides", type=int, default=4, help="loaded grasps (filled, pulled)")
     parser.add_argument("--mesh", type=float, default=MESH_M, help="membrane mesh edge, m")
     parser.add_argument("--out", type=Path, default=CALIBRATION)
     args = parser.parse_args(argv)
@@ -151,10 +193,10 @@ def main(argv: list[str] | None = None) -> None:
         workdir = Path(os.environ.get("WORLDS_DIR", tmp))
         workdir.mkdir(parents=True, exist_ok=True)
         grasp_recs = grasps(args.grasps, args.mesh, workdir)
-    slide_recs = slides(args.slides, args.mesh)
+        slide_recs = loaded(args.slides, args.mesh, workdir)
     source = (
-        f"bench.force_mujoco: {args.grasps} grasps and {args.slides} slides of"
-        f" bench.worlds' seed, {args.mesh * 1000:g} mm mesh"
+        f"bench.force_mujoco: {args.grasps} grasps of bench.worlds' seed and {args.slides}"
+        f" loaded grasps (filled, pulled; a free object), {args.mesh * 1000:g} mm mesh"
     )
     cal = calibrate_mujoco(grasp_recs, slide_recs, source)
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -13,8 +13,9 @@ on each, side by side:
 - the MuJoCo run of a grasp is recorded once to an MCAP bag
   (``<workdir>/grasp_<k>_<digest>.mcap``, the digest of the scene and the mesh:
   ``world/state``, with both membranes' surfaces, and
-  ``world/wrench`` per frame, the messages the ``world.mujoco`` node publishes) and the
-  evaluation replays the bag (the cameras render its states); a bag already there is
+  ``world/wrench`` per frame, the messages the ``world.mujoco`` node publishes; beside
+  it, ``<same>.json``: the recording's CPU cost and the per-frame truth the messages do
+  not carry, :func:`recorded_frames`) and the evaluation replays the bag (the cameras render its states); a bag already there is
   reused, so the physics runs once per grasp and mesh. ``world.sim`` is cheap and runs
   live.
 - scores, per world: ``contact_iou``: the contact filter's patch (``perception.contact``
@@ -202,6 +203,9 @@ def record_mujoco(scene_path: Path, bag: Path, mesh_spacing_m: float) -> float:
     scene = load_scene(scene_path)
     start = time.process_time()
     world = MujocoWorld(scene, ShellSpec(mesh_spacing_m=mesh_spacing_m))
+    # What the messages do not carry: the engine's share of each bubble's contacts at
+    # their friction cone's limit, and the object's slide in the hand (``slip``).
+    frames: list[dict[str, list[float]]] = []
     part = bag.with_suffix(".part")
     with BagWriter(part) as writer:
         writer.add_run_info(
@@ -212,9 +216,17 @@ def record_mujoco(scene_path: Path, bag: Path, mesh_spacing_m: float) -> float:
             stamp = stamp_of(snap)
             writer.write_message("world/state", to_message(snap, scene, stamp), stamp)
             writer.write_message("world/wrench", world.wrench_truth(stamp), stamp)
+            assert world.truth is not None
+            frames.append(
+                {
+                    "slipping": list(world.truth.contacts.slipping_fraction),
+                    "slide_m": [float(v) for v in snap.slide_m],
+                    "load_n": [float(v) for v in snap.load_n],
+                }
+            )
     cpu = (time.process_time() - start) / scene.duration_secs
     part.replace(bag)
-    bag.with_suffix(".json").write_text(json.dumps({"cpu_s_per_sim_s": cpu}))
+    bag.with_suffix(".json").write_text(json.dumps({"cpu_s_per_sim_s": cpu, "frames": frames}))
     return cpu
 
 
@@ -231,19 +243,31 @@ def recorded_grasp(
 
 
 def recorded_scene(
-    stem: str, doc: dict[str, Any], spacing_m: float, workdir: Path
+    stem: str, doc: dict[str, Any], spacing_m: float, workdir: Path, *, frames: bool = False
 ) -> tuple[Path, Path, float]:
-    """A scene document's file and its MuJoCo bag (see :func:`recorded_grasp`)."""
+    """A scene document's file and its MuJoCo bag (see :func:`recorded_grasp`); with
+    ``frames``, one whose per-frame truth beside it (:func:`recorded_frames`) is there
+    (recordings made before it was kept are made again)."""
     text = yaml.safe_dump(doc, sort_keys=False)
     key = hashlib.sha256(f"{text}{spacing_m}".encode()).hexdigest()[:10]
     scene_path = workdir / f"{stem}_{key}.yaml"
     scene_path.write_text(text)
     bag = scene_path.with_suffix(".mcap")
-    if bag.exists() and bag.with_suffix(".json").exists():
-        cpu = json.loads(bag.with_suffix(".json").read_text())["cpu_s_per_sim_s"]
+    info = bag.with_suffix(".json")
+    kept = json.loads(info.read_text()) if bag.exists() and info.exists() else {}
+    if "cpu_s_per_sim_s" in kept and (not frames or "frames" in kept):
+        cpu = kept["cpu_s_per_sim_s"]
     else:
         cpu = record_mujoco(scene_path, bag, spacing_m)
     return scene_path, bag, float(cpu)
+
+
+def recorded_frames(bag: Path) -> list[dict[str, list[float]]]:
+    """The per-frame truth the messages do not carry, kept beside a bag: ``slipping``
+    (each bubble's share of contacts at their friction cone's limit), ``slide_m`` (the
+    object's slide in the hand, tool (y, z)) and ``load_n`` (the load on it, tool frame;
+    zero until the hand lets go), the last two with the ``slip`` effect."""
+    return list(json.loads(bag.with_suffix(".json").read_text())["frames"])
 
 
 def replay_mujoco(scene_path: Path, bag: Path) -> list[Instant]:

@@ -79,6 +79,7 @@ class GraspPhysics:
         hand: weld the object to a mocap hand that follows :meth:`set_hand`; False
             leaves it free (only the bubbles hold it).
         gravity_m_per_s2: gravity in the tool frame.
+        object_mass_kg: the object's mass (default: :data:`OBJECT_MASS_KG`'s).
     """
 
     def __init__(
@@ -92,6 +93,7 @@ class GraspPhysics:
         air: AirSpec | None = None,
         hand: bool = True,
         gravity_m_per_s2: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        object_mass_kg: float | None = None,
     ) -> None:
         self.shell = shell or ShellSpec()
         self.air = air or AirSpec()
@@ -142,9 +144,9 @@ class GraspPhysics:
         ]
         self._width_m = float(width_m)
         self._target_width_m = float(width_m)
-        # Object mass: the table's, with the geometry's inertia scaled to it.
+        # Object mass: the given one, else the table's, the geometry's inertia scaled to it.
         name = getattr(object_model, "name", "")
-        mass = OBJECT_MASS_KG.get(name, 0.3)
+        mass = object_mass_kg or OBJECT_MASS_KG.get(name, 0.3)
         ob = self._object_body
         scale = mass / m.body_mass[ob]
         m.body_mass[ob] *= scale
@@ -203,6 +205,41 @@ class GraspPhysics:
 
         self.data.mocap_pos[self._hand_mocap] = tool_from_object[:3, 3]
         self.data.mocap_quat[self._hand_mocap] = quat_from_matrix(tool_from_object[:3, :3])
+
+    def release_hand(self) -> None:
+        """Switch the hand's weld off: from now on only the bubbles (and the load) hold
+        the object. No effect without ``hand``."""
+        if self.hand:
+            self.data.eq_active[:] = 0
+
+    def set_load(self, mass_kg: float, gravity_m_per_s2: np.ndarray, pull_n: np.ndarray) -> None:
+        """The object's mass (its inertia scaled with it: a filling), gravity (tool frame;
+        the engine's, on the object alone: the membrane's vertices are compensated) and
+        an external pull on its centre of mass (tool frame, newtons)."""
+        ob = self._object_body
+        m = self.model
+        if mass_kg != m.body_mass[ob]:
+            m.body_inertia[ob] *= mass_kg / m.body_mass[ob]
+            m.body_mass[ob] = mass_kg
+        m.opt.gravity[:] = gravity_m_per_s2
+        self.data.xfrc_applied[ob, :3] = pull_n
+
+    def park_object(self) -> None:
+        """Stop the object where it is, with no load and no contact (it fell out of the
+        grip: the world has no floor, and an object falling on for seconds reaches
+        distances at which the step loses precision and MuJoCo resets the state; the
+        membranes springing back would push it about)."""
+        ob = self._object_body
+        m = self.model
+        dof = m.jnt_dofadr[m.body_jntadr[ob]]
+        self.data.qvel[dof : dof + 6] = 0.0
+        m.opt.gravity[:] = 0.0
+        self.data.xfrc_applied[ob] = 0.0
+        m.geom_contype[self._object_list] = 0
+        m.geom_conaffinity[self._object_list] = 0
+
+    def object_mass_kg(self) -> float:
+        return float(self.model.body_mass[self._object_body])
 
     def inflate(self, secs: float = 0.4) -> None:
         """Inflate both bubbles at the inflation pressure for ``secs``, then seal them."""

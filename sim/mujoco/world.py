@@ -18,6 +18,15 @@ the gas law on the shell's enclosed volume; shear truth is the mean tool (y, z)
 displacement, since contact began, of the membrane points now in contact. There is no
 gravity (the hand carries the object's weight, as in ``world.sim``). Scenes with a
 ``support`` are refused (no table in this world).
+
+With the ``slip`` effect the scene's ``load`` acts as on ``world.sim`` (``sim.friction``):
+the hand carries the object until the jaws hold it with both bubbles, then lets go, and
+from then on only the bubbles hold it, against the engine's gravity on the object (its
+mass the load's, growing as it is filled) and the load's pull. It slips and falls out
+of the grip on MuJoCo's friction (the snapshot's ``slide_m``: its (y, z) offset from
+where it was let go, against the scene's trajectory; ``load_n``: the load). Once it
+touches neither bubble :data:`DROPPED_M` away, it has fallen out: it is parked there
+(``dropped``; this world has no floor).
 """
 
 from __future__ import annotations
@@ -31,13 +40,17 @@ from geometry.gripper import SIDES
 from geometry.se3 import invert
 from messages.base import Header
 from messages.force import WrenchTruth
-from sim.friction import BubbleWrench
+from sim.friction import GRAVITY_M_PER_S2, BubbleWrench
 from sim.gripper import GripperDynamics
 from sim.mujoco.mesh import contact_tolerance_m, vertex_area_vectors
 from sim.mujoco.model import ShellSpec
 from sim.mujoco.physics import AirSpec, Contacts, GraspPhysics
 from sim.scene import Scene
 from sim.world import WorldSnapshot
+
+# An object let go that touches neither bubble this far from where it was let go has
+# fallen out of the grip: it is parked there (``GraspPhysics.park_object``).
+DROPPED_M = 0.03
 
 
 @dataclass(frozen=True)
@@ -69,6 +82,8 @@ class MujocoWorld:
 
         self.shell = dataclasses.replace(shell, timestep_secs=period / self.substeps)
         b = scene.bubble
+        # With ``slip`` the scene's load (its mass, fill and pull) acts once the jaws hold.
+        self.loaded = "slip" in self.effects
         self.physics = GraspPhysics(
             gripper=self.geometry,
             object_model=self.model,
@@ -80,6 +95,7 @@ class MujocoWorld:
                 ambient_pa=b.ambient_pa,
                 dead_volume_m3=b.dead_volume_m3,
             ),
+            object_mass_kg=scene.load.mass_kg if self.loaded else None,
         )
         self.physics.inflate()
         self.dynamics = GripperDynamics(scene.gripper, speed_limited="gripper" in self.effects)
@@ -90,6 +106,9 @@ class MujocoWorld:
         self._anchor_pose: dict[str, np.ndarray | None] = {s: None for s in SIDES}
         self._anchor_points: dict[str, np.ndarray | None] = {s: None for s in SIDES}
         self._grip_force_n = 0.0
+        # The object's (y, z) offset from the trajectory when the hand let it go.
+        self._let_go_m: np.ndarray | None = None
+        self.dropped = False  # let go, then fell out of the grip: parked where it is
         self.frame_index = -1
         self.snapshot: WorldSnapshot | None = None
         self.truth: Truth | None = None
@@ -135,13 +154,34 @@ class MujocoWorld:
             for k in range(1, self.substeps + 1):
                 finger = self.dynamics.step(dt, force_at)
                 ph.set_width(finger.width_m)
-                ph.set_hand(self.scene.tool_from_object(t0 + k * dt))
+                self._carry(t0 + k * dt)
                 ph.step()
                 self._grip_force_n = _grip_force_n(ph.contacts())
         contacts = ph.contacts()
         self._grip_force_n = _grip_force_n(contacts)
         finger.force_n = self._grip_force_n if force_at is not None else 0.0
         pose = ph.tool_from_object()
+        if (
+            self.loaded
+            and self._let_go_m is None
+            and finger.state == "holding"
+            and min(contacts.count) > 0
+        ):
+            ph.release_hand()
+            self._let_go_m = pose[1:3, 3] - self.scene.tool_from_object(t)[1:3, 3]
+        slide = (
+            np.zeros(2)
+            if self._let_go_m is None
+            else pose[1:3, 3] - self.scene.tool_from_object(t)[1:3, 3] - self._let_go_m
+        )
+        if (
+            self._let_go_m is not None
+            and not self.dropped
+            and max(contacts.count) == 0
+            and np.linalg.norm(slide) > DROPPED_M
+        ):
+            self.dropped = True
+            ph.park_object()
         surfaces = {s: ph.surface_f(s) for s in SIDES}
         in_contact = {s: contacts.count[i] > 0 for i, s in enumerate(SIDES)}
         shear = {s: self._shear(s, in_contact[s], pose, surfaces[s]) for s in SIDES}
@@ -177,8 +217,25 @@ class MujocoWorld:
                 for i, s in enumerate(SIDES)
             },
             volume_m3={s: float(ph.volume_m3[i]) for i, s in enumerate(SIDES)},
+            slide_m=slide,
+            load_n=(np.zeros(3) if self._let_go_m is None else self.scene.load.force_at(t)),
         )
         return self.snapshot
+
+    def _carry(self, t_secs: float) -> None:
+        """The hand follows the trajectory until it lets go; then the load acts (until
+        the object has fallen out of the grip)."""
+        if self._let_go_m is None:
+            self.physics.set_hand(self.scene.tool_from_object(t_secs))
+            return
+        if self.dropped:
+            return
+        load = self.scene.load
+        self.physics.set_load(
+            load.mass_at(t_secs),
+            GRAVITY_M_PER_S2 * np.asarray(load.gravity_in_tool),
+            load.pull_at(t_secs),
+        )
 
     def wrench_truth(self, stamp_nanos: int) -> WrenchTruth:
         """The last frame's engine truth as the ``wrench`` message (``source`` mujoco)."""

@@ -19,7 +19,7 @@ def test_quick_json_has_every_sweep() -> None:
     wrench = [r for r in rows if r["sweep"] == "wrench"]
     assert {(r["world"], r["setting"], r["method"]) for r in wrench} == {
         (w, s, m)
-        for w in ("sim", "mujoco")
+        for w in ("sim", "mujoco", "mujoco_loaded")
         for s in ("fb_half", "fb_quarter", "dis_half")
         for m in ("physics", "ridge")
     }
@@ -31,8 +31,8 @@ def test_quick_json_has_every_sweep() -> None:
         # The dots against the object's slide: world.sim has that truth, MuJoCo not.
         shift_err = r["shift_err_mm_median"]
         assert (math.isfinite(shift_err) and shift_err >= 0) == (r["world"] == "sim"), r
-    reflex = {r["setting"]: r for r in rows if r["sweep"] == "reflex"}
-    assert set(reflex) == {"off", "on"}
+    reflex = {(r["world"], r["setting"]): r for r in rows if r["sweep"] == "reflex"}
+    assert set(reflex) == {(w, s) for w in ("sim", "mujoco") for s in ("off", "on")}
     assert all(r["kept"] + r["dropped"] == r["samples"] for r in reflex.values())
     assert all(0 <= r["dropped_at_bound"] <= r["dropped"] for r in reflex.values())
     handover = {r["method"]: r for r in rows if r["sweep"] == "handover"}

@@ -91,6 +91,7 @@ SETS: dict[str, Callable[[Path], list[str]]] = {
         f"writer.dataset={tmp / 'data'}",
     ],
     "dish_loading": lambda tmp: ["supervisor.objects=1"],
+    "mujoco_fill": lambda tmp: ["world.mesh_spacing_m=0.016"],
 }
 # A graph with a hosts table replays graph.yaml's recording (the same nodes) on this
 # machine (--no-hosts); tests/hosts replays across hosts in lockstep.
