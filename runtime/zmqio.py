@@ -31,6 +31,8 @@ from runtime.security import Guard, KeyPair, needs_curve, serve
 # microsecond per part of a message.
 _SNDMORE = int(zmq.SNDMORE)
 _POLLIN = int(zmq.POLLIN)
+# How often a node waiting at a lockstep barrier looks at stop_requested.
+STOP_POLL_SECS = 0.1
 
 
 # pyzmq's compiled send, under the Python layer of ``zmq.Socket.send`` (which adds only
@@ -239,8 +241,12 @@ class ZmqIO:
         try:
             deadline = time.monotonic() + timeout_secs
             while (left := deadline - time.monotonic()) > 0:
-                if not self.control.poll(int(left * 1000) + 1):
-                    break
+                # In slices: a signal (SIGTERM, the launcher's death) only sets
+                # stop_requested, and a poll of the whole timeout would sleep through it.
+                if self.stop_requested:
+                    return False
+                if not self.control.poll(int(min(left, STOP_POLL_SECS) * 1000) + 1):
+                    continue
                 msg = self.hear()
                 if msg is None:
                     continue
