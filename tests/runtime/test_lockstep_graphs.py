@@ -91,14 +91,17 @@ SETS: dict[str, Callable[[Path], list[str]]] = {
         f"writer.dataset={tmp / 'data'}",
     ],
     "dish_loading": lambda tmp: ["supervisor.objects=1"],
-    "mujoco_fill": lambda tmp: ["world.mesh_spacing_m=0.016"],
 }
 # A graph with a hosts table replays graph.yaml's recording (the same nodes) on this
 # machine (--no-hosts); tests/hosts replays across hosts in lockstep.
 RECORDED_AS = {"handover_hosts": "graph"}
 # The hardware graph is recorded on the emulated devices (their drivers are clocked: the
-# replay stands in for them).
-RECORD_FLAGS = {"hardware": ["--emulate"]}
+# replay stands in for them). MuJoCo's world records on a coarse mesh: a replay has no
+# world to set it on.
+RECORD_FLAGS = {
+    "hardware": ["--emulate"],
+    "mujoco_fill": ["--set", "world.mesh_spacing_m=0.016"],
+}
 
 
 def graph_files() -> dict[str, Path]:
