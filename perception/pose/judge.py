@@ -95,6 +95,13 @@ IDENTITY = np.eye(4)
 NODES = 7
 #: The rays' bias is summed over at most this many points, scaled to all (``ray_bias``).
 BIAS_POINTS = 2000
+#: Newton steps toward the pose where the fit's gradient equals the rays' bias, and the
+#: step (in standard deviations of the fit) under which they stop (``unbiased``).
+UNBIAS_STEPS = 4
+UNBIAS_TOL = 0.1
+#: The share by which the rays' bias from each face's points may be mispredicted, each
+#: face on its own (module docstring).
+FACE_ERROR = 0.2
 #: Newton steps along the ray back onto the surface (``ray_bias``).
 SURFACE_STEPS = 3
 #: The unpredicted coherent residual, as a share of the residual RMS, of each point that
@@ -208,11 +215,13 @@ def ray_bias(
     rays_in_tool: np.ndarray,
     r: np.ndarray,
     jac: np.ndarray,
-) -> tuple[np.ndarray, float]:
+) -> tuple[np.ndarray, float, np.ndarray]:
     """The expected gradient of the half cost, ``E[sum_i r_i J_i]`` (6,), that noise along
-    the camera rays leaves at the true pose (module docstring), and the mean residual it
+    the camera rays leaves at the true pose (module docstring), the mean residual it
     leaves there (at a box's corner at 3 mm noise about +0.2 mm: a point pushed inside
-    near an edge is nearer the other face). Each point is moved back
+    near an edge is nearer the other face), and the gradient's parts (6, 6) from the
+    points on each face (their surface's normal nearest each of the object's axes, -x,
+    +x, -y, ...; they sum to it). Each point is moved back
     along its ray onto the surface (Newton steps ``r / (g . d)``), and the product of
     its residual and Jacobian row is averaged over Gaussian noise along the ray there
     (Gauss-Hermite, ``NODES`` nodes), less that product without noise: no expansion in
@@ -243,14 +252,53 @@ def ray_bias(
     # Only what the noise adds: where the model misses the points (an object of another
     # size) the point cannot be moved onto the surface, and its own residual is no bias.
     value, rows = residuals_and_jacobian(fld, IDENTITY, surface)
-    total = -(value @ rows)
+    each = -(value[:, None] * rows)
     mean = -float(np.mean(value))
     for e, w in zip(sigma * nodes, weights, strict=True):
         value, rows = residuals_and_jacobian(fld, IDENTITY, surface + e * d)
-        total += w * (value @ rows)
+        each += w * (value[:, None] * rows)
         mean += w * float(np.mean(value))
-    bias: np.ndarray = total * (len(points_in_tool) / len(q))
-    return bias, mean
+    axis = np.argmax(np.abs(grad), axis=1)
+    face = 2 * axis + (grad[np.arange(len(axis)), axis] > 0)
+    parts = np.stack([each[face == f].sum(axis=0) for f in range(6)])
+    parts *= len(points_in_tool) / len(q)
+    bias: np.ndarray = parts.sum(axis=0)
+    return bias, mean, parts
+
+
+def unbiased(
+    fld: Field,
+    object_from_tool: np.ndarray,
+    points_in_tool: np.ndarray,
+    rays_in_tool: np.ndarray,
+    twist: np.ndarray,
+    h_inv: np.ndarray,
+    cov: np.ndarray,
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """The shift from the fit's minimum ``object_from_tool`` to the pose where the fit's
+    gradient equals the bias the rays predict (:func:`ray_bias`): at the truth the
+    gradient is that bias on average, so this is the estimate with the bias undone.
+    Returns the shift and each face's share of it (``(k,)`` and ``(6, k)``, in the
+    coordinates of ``twist``, (6, k): coordinates to left twist), and the mean residual
+    the noise leaves at the truth. Newton steps with ``h_inv`` (the inverse measured
+    curvature along those coordinates) and the data's gradient at the pose reached, at
+    most ``UNBIAS_STEPS`` and until a step is under ``UNBIAS_TOL`` standard deviations
+    (``cov``): the one step from the minimum of the round before was off where the
+    offset spans several standard deviations and the cost is not quadratic across it (a
+    box's corner at 3 mm noise: 0.4 mm, five of them)."""
+    r, jac = residuals_and_jacobian(fld, object_from_tool, points_in_tool)
+    bias, noise_mean, parts = ray_bias(fld, object_from_tool, points_in_tool, rays_in_tool, r, jac)
+    pose = object_from_tool
+    for _ in range(UNBIAS_STEPS):
+        step = h_inv @ (twist.T @ (bias - jac.T @ r))
+        pose = se3.exp_se3(twist @ step) @ pose
+        if float(step @ np.linalg.solve(cov, step)) < UNBIAS_TOL**2:
+            break
+        r, jac = residuals_and_jacobian(fld, pose, points_in_tool)
+    shift: np.ndarray = np.linalg.lstsq(
+        twist, se3.log_se3(pose @ se3.invert(object_from_tool)), rcond=None
+    )[0]
+    return shift, noise_mean, (h_inv @ (twist.T @ parts.T)).T
 
 
 def curvature(
@@ -359,9 +407,8 @@ def uncertainty(
     if n <= joint.shape[1]:
         return _nothing(length)
     a = js @ joint
-    h_inv = np.linalg.inv(
-        curvature(fld, object_from_tool, points_in_tool, joint * scale[:, None], a.T @ a, r)
-    )
+    h_joint = curvature(fld, object_from_tool, points_in_tool, joint * scale[:, None], a.T @ a, r)
+    h_inv = np.linalg.inv(h_joint)
     meat = (a * (r * r)[:, None]).T @ a
     cov = inflation**2 * (h_inv @ meat @ h_inv) * n / (n - joint.shape[1])
     # Past an edge or a corner the noise leaves a residual whose mean the rays' bias does
@@ -376,16 +423,23 @@ def uncertainty(
     cov = onto @ cov @ onto.T
     a = js @ basis
     h_inv = np.linalg.inv(a.T @ a)
+    twist = basis * scale[:, None]  # basis coordinates -> twist
     if rays_in_tool is not None:
-        # The fit's minimum sits off the truth by -H^-1 (bias of the gradient), undone by
-        # the correction along the observed directions with the others held (so their
-        # H alone); what the prediction misses is taken as a share of it.
-        bias, noise_mean = ray_bias(fld, object_from_tool, points_in_tool, rays_in_tool, r, jac)
-        shift = h_inv @ (basis.T @ (scale * bias))
-        cov = cov + bias_error**2 * np.outer(shift, shift)
+        # The fit's minimum sits off the truth where the gradient equals its bias; the
+        # pose where it does is solved for along the observed directions, the others
+        # held (``unbiased``); what the prediction misses is taken as a share of it.
+        shift, noise_mean, parts = unbiased(
+            fld,
+            object_from_tool,
+            points_in_tool,
+            rays_in_tool,
+            twist,
+            np.linalg.inv(onto @ h_joint @ onto.T),
+            cov,
+        )
+        cov = cov + bias_error**2 * np.outer(shift, shift) + FACE_ERROR**2 * (parts.T @ parts)
     else:
         shift, noise_mean = np.zeros(k), 0.0
-    twist = basis * scale[:, None]  # basis coordinates -> twist
     cov = 0.5 * (cov + cov.T)
     inverse = np.linalg.inv(cov)
     q95 = CHI2_95[k]
