@@ -291,11 +291,12 @@ class PoseEstimator:
         fld = self.solver.field.resized(**result.dims_m)
         result, unc = self._at_minimum(fld, result, pts, rays)
         reasons = []
-        if unc.region95_deg > prm.tolerance_deg or unc.region95_m > prm.tolerance_m:
+        inside = judge.within_tolerance(unc, prm.tolerance_deg, prm.tolerance_m)
+        if inside < judge.CONFIDENCE:
             reasons.append(
                 f"not determined to {prm.tolerance_deg:g} deg / {1e3 * prm.tolerance_m:g} mm: "
-                f"the 95% region spans {unc.region95_deg:.2f} deg / "
-                f"{1e3 * unc.region95_m:.2f} mm"
+                f"within them with probability {inside:.3f} (the 95% region spans "
+                f"{unc.region95_deg:.2f} deg / {1e3 * unc.region95_m:.2f} mm)"
             )
         if unc.step_sigma > prm.step_limit:
             stopped = f" (the solver did not converge: {result.message})"

@@ -114,9 +114,9 @@ class EstimatorParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
         Meta(
             gt=0,
             description=(
-                "``ok`` needs the 95% region within this rotation and this displacement"
-                " of the object's origin (the benches call an answer right within 2 "
-                "degrees and 2 mm)."
+                "``ok`` needs the answer within this rotation and this displacement of"
+                " the object's origin with 95% probability under its uncertainty (the "
+                "benches call an answer right within 2 degrees and 2 mm)."
             ),
         ),
     ] = 2.0
@@ -125,9 +125,9 @@ class EstimatorParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
         Meta(
             gt=0,
             description=(
-                "``ok`` needs the 95% region within this rotation and this displacement"
-                " of the object's origin (the benches call an answer right within 2 "
-                "degrees and 2 mm)."
+                "``ok`` needs the answer within this rotation and this displacement of"
+                " the object's origin with 95% probability under its uncertainty (the "
+                "benches call an answer right within 2 degrees and 2 mm)."
             ),
         ),
     ] = 0.002
