@@ -26,8 +26,9 @@ asks for around it:
   residuals at the answer and the bias that noise along the camera rays leaves,
   calibrated so its 95% region holds the truth 95% of the time) decides, and the
   answer is moved by the bias it predicts (``judge.Uncertainty.correction``):
-  ``suspect``, with the reasons in ``message``, when the 95% region is wider than
-  ``tolerance_deg`` or ``tolerance_m`` along the observable directions, when the
+  ``suspect``, with the reasons in ``message``, when the answer is not within
+  ``tolerance_deg`` and ``tolerance_m`` along the observable directions with 95%
+  probability under that uncertainty (``judge.within_tolerance``), when the
   answer is still not at the minimum of the fit after that step, when the fit is
   worse than ``accept_ratio`` times the noise or biased, when another minimum that
   fits about as well (``ambiguity_ratio``) differs from it along an observable

@@ -470,9 +470,9 @@ def within_tolerance(unc: Uncertainty, tolerance_deg: float, tolerance_m: float)
     origin from the estimate along the observed directions (1 with none observed): what
     ``ok`` asks, at least ``CONFIDENCE``. Over the fixed draws ``DRAWS`` (deterministic;
     about +-0.3% at 95%). The 95% region's extent (``region95_deg``, ``region95_m``)
-    bounds the same from above but over all six directions at once: a box's corner at
-    2 mm noise spans 2.3 degrees along its weak rotation, within 2 degrees 99.8% of the
-    time."""
+    bounds the same from above, over all the observed directions at once: at a box's
+    corner at 2 mm noise regions of 1.9-3.2 degrees (along the weak rotation about the
+    body diagonal) put the truth within 2 degrees with probability 0.975-1."""
     vals, vecs = np.linalg.eigh(0.5 * (unc.covariance + unc.covariance.T))
     twist = (DRAWS * np.sqrt(np.maximum(vals, 0.0))) @ vecs.T
     rotation = np.degrees(np.linalg.norm(twist[:, 3:], axis=1))
