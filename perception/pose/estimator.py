@@ -27,7 +27,7 @@ asks for around it:
   calibrated so its 95% region holds the truth 95% of the time) decides, and the
   answer is moved by the bias it predicts (``judge.Uncertainty.correction``):
   ``suspect``, with the reasons in ``message``, when the answer is not within
-  ``tolerance_deg`` and ``tolerance_m`` along the observable directions with 95%
+  ``tolerance_deg`` and ``tolerance_m`` along the observable directions with 99.5%
   probability under that uncertainty (``judge.within_tolerance``), when the
   answer is still not at the minimum of the fit after that step, when the fit is
   worse than ``accept_ratio`` times the noise or biased, when another minimum that

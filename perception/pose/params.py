@@ -115,7 +115,7 @@ class EstimatorParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
             gt=0,
             description=(
                 "``ok`` needs the answer within this rotation and this displacement of"
-                " the object's origin with 95% probability under its uncertainty (the "
+                " the object's origin with 99.5% probability under its uncertainty (the "
                 "benches call an answer right within 2 degrees and 2 mm)."
             ),
         ),
@@ -126,7 +126,7 @@ class EstimatorParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
             gt=0,
             description=(
                 "``ok`` needs the answer within this rotation and this displacement of"
-                " the object's origin with 95% probability under its uncertainty (the "
+                " the object's origin with 99.5% probability under its uncertainty (the "
                 "benches call an answer right within 2 degrees and 2 mm)."
             ),
         ),
