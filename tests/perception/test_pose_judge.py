@@ -252,7 +252,7 @@ def test_within_tolerance_is_the_probability_of_the_gaussian() -> None:
 
 
 def test_a_box_corner_at_2_mm_is_ok_when_within_the_tolerance() -> None:
-    """A box squeezed over its corners at 2 mm noise: its 95% region spans 1.9-3.2
+    """A box squeezed over its corners at 2 mm noise: its 95% region spans 1.9-3.4
     degrees over six directions (along the weak rotation about the body diagonal), and
     the truth lies within 2 degrees with probability 0.975-1; the answers are right, and
     ``ok`` exactly when that probability is at least ``judge.CONFIDENCE``, a region wider
