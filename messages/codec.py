@@ -189,18 +189,18 @@ def encode(topic: str, msg: Message) -> list[Any]:
     # publishes (docs/transport.md, "The hot path").
     for field in plan.arrays:
         array = take(field.name)
-        # The buffer's own shape and layout: no flags object, and the memoryview is what
-        # pyzmq sends (any C-contiguous buffer) without copying.
+        # The buffer's own layout (no flags object), and the memoryview is what pyzmq
+        # sends (any C-contiguous buffer) without copying.
         view = array.data if type(array) is np.ndarray and array.dtype is field.dtype else None
         if view is None or not (
             view.c_contiguous
-            and len(view.shape) == field.ndim
-            and (not field.fixed_axes or field.fits(view.shape))
+            and len(array.shape) == field.ndim
+            and (not field.fixed_axes or field.fits(array.shape))
         ):
             array = _wire_array(msg, field, array)
             view = array.data
         # A tuple shape packs as the same MessagePack array as a list.
-        rows.append((field.name, field.dtype_str, view.shape))
+        rows.append((field.name, field.dtype_str, array.shape))
         # A zero-length axis has no bytes: pyzmq is given an empty bytes for it.
         frames.append(view if view.nbytes else b"")
     try:
