@@ -9,7 +9,7 @@ mutated frames at :func:`decode` and allow nothing else to escape.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Annotated, Any
 
 import msgpack
@@ -626,11 +626,12 @@ def test_bad_frame_cases_start_from_a_good_frame() -> None:
 
 
 @pytest.fixture
-def layouts(monkeypatch: pytest.MonkeyPatch) -> dict[Any, Any]:
-    """decode's remembered array layouts, empty for this test."""
-    remembered: dict[Any, Any] = {}
-    monkeypatch.setattr(codec, "_layouts", remembered)
-    return remembered
+def layouts() -> Iterator[dict[Any, Any]]:
+    """decode's remembered array layouts of ToFImage, empty for this test."""
+    remembered = codec._plan(ToFImage).layouts
+    remembered.clear()
+    yield remembered
+    remembered.clear()
 
 
 @pytest.mark.parametrize("remembered", [False, True], ids=["first frame", "layout remembered"])
@@ -654,9 +655,9 @@ def test_a_remembered_layout_is_used_and_still_refuses_what_differs(
     checked: list[str] = []
     full = codec._layout
 
-    def spy(topic: str, wire: Any, plan: Any) -> Any:
-        checked.append(wire.type)
-        return full(topic, wire, plan)
+    def spy(topic: str, wire_type: str, arrays: Any, plan: Any) -> Any:
+        checked.append(wire_type)
+        return full(topic, wire_type, arrays, plan)
 
     monkeypatch.setattr(codec, "_layout", spy)
     good = _tof_frames()
