@@ -76,7 +76,7 @@ from typing import Any
 import numpy as np
 
 import sim
-from bench import force_mujoco
+from bench import force_mujoco, tasks
 from bench.common import Row, main, median, one_core, percentile, progress
 from bench.force_data import (
     DEFAULT_SETTING,
@@ -382,8 +382,7 @@ def reflex_rows(
 
 def handover_runs(seed: int, cal: Calibration) -> dict:
     """Frames from the pull's start to each rule's release, and false releases held still."""
-    rng = np.random.default_rng([seed, 3])
-    start = float(rng.uniform(1.4, 2.2))
+    start = tasks.pull_start_secs(seed)
     base = sim.load_scene("scenes/handover_task.yaml")
     z0 = 0.005
     keys = [(0.0, z0), (start, z0), (start + 1.0, z0 + 0.015), (4.0, z0 + 0.040)]
