@@ -223,6 +223,25 @@ def pull_start_secs(seed: int) -> float:
     return float(np.random.default_rng([seed, 3]).uniform(2.0, 2.8))
 
 
+def release_latency(topics: dict[str, list]) -> tuple[float | None, list[float]]:
+    """From the pull's start (or the stable grasp, were it later: no release can be
+    decided before it) to the first release: seconds of data time (None: no release or
+    no pull), and milliseconds through the graph (the recorder's receipts of that
+    instant's world state and of the release; empty when it has no such state)."""
+    pull = pull_start_nanos(topics)
+    stable = [s for s, _ in events(topics, "stable")]
+    if pull is not None and stable:
+        pull = max(pull, stable[0])
+    releases = [
+        (s, log) for s, log, e in topics.get("supervisor/event", []) if e.event == "release"
+    ]
+    if not releases or pull is None:
+        return None, []
+    frames = {stamp: log for stamp, log, _ in topics.get("world/state", [])}
+    graph_ms = [(releases[0][1] - frames[pull]) / 1e6] if pull in frames else []
+    return (releases[0][0] - pull) / 1e9, graph_ms
+
+
 def handover(seed: int, tmp: Path, *extra: str) -> list[dict[str, Any]]:
     start = pull_start_secs(seed)
     z0 = 0.005
@@ -241,18 +260,7 @@ def handover(seed: int, tmp: Path, *extra: str) -> list[dict[str, Any]]:
     _, _, topics, wall = launch(
         "graph.yaml", tmp / "pull.mcap", "--set", f"world.scene={pulled}", *extra
     )
-    pull = pull_start_nanos(topics)
-    stable = [s for s, _ in events(topics, "stable")]
-    if pull is not None and stable:
-        pull = max(pull, stable[0])  # no release can be decided before the stable grasp
-    releases = [
-        (s, log) for s, log, e in topics.get("supervisor/event", []) if e.event == "release"
-    ]
-    latency = (releases[0][0] - pull) / 1e9 if releases and pull is not None else None
-    frames = {stamp: log for stamp, log, _ in topics.get("world/state", [])}
-    graph_ms = (
-        [(releases[0][1] - frames[pull]) / 1e6] if latency is not None and pull in frames else []
-    )
+    latency, graph_ms = release_latency(topics)
     _, _, held_topics, held_wall = launch(
         "graph.yaml", tmp / "hold.mcap", "--set", f"world.scene={held}", *extra
     )
