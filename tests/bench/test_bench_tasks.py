@@ -1,5 +1,6 @@
 """Smoke test of ``python -m bench.tasks``: one stacking scene runs and the JSON has the
-promised shape (task, success rate, latencies). No figure is judged beyond being there; the handover latency's arithmetic on made-up topics."""
+promised shape (task, success rate, latencies). No figure is judged beyond being there.
+The handover's release latency is computed right on made-up topics."""
 
 from __future__ import annotations
 
