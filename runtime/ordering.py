@@ -48,8 +48,8 @@ class StampOrder:
 
     ``window_nanos``: live, the longest a message is held (None: no bound, lockstep).
     ``waits``: live, per input, the other inputs its messages wait for (an input not
-    named waits for every other; inputs not in ``ports`` are left out); ignored in lockstep,
-    where each waits for every other.
+    named waits for every other; inputs not in ``ports`` are left out); ignored in
+    lockstep, where each waits for every other.
     """
 
     def __init__(
