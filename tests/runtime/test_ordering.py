@@ -178,3 +178,14 @@ def test_live_a_release_is_not_held_back_by_the_slip_path(events: Any) -> None:
         "squeeze",
         "release",
     ]
+
+
+def test_order_waits_must_name_ordered_inputs() -> None:
+    from nodes.supervisor.handover import HandoverSupervisor
+
+    class Careless(HandoverSupervisor):
+        order_waits = {"shear": ("pose",)}  # pose goes straight through: nothing to wait for
+
+    with pytest.raises(TypeError, match="order_waits names ports that are not ordered"):
+        Careless.check_declaration()
+    HandoverSupervisor.check_declaration()
