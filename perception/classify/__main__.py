@@ -3,6 +3,7 @@
     python -m perception.classify train DATASET [DATASET ...] --epochs E --out model.pt [knobs]
     python -m perception.classify evaluate MODEL DATASET [--json] [--end-mm 15]
     python -m perception.classify info DATASET
+    python -m perception.classify average START TUNED --alpha A --out model.pt
 
 ``train`` prints a progress bar (stderr), one log line per epoch (stdout, and as JSON
 lines in ``--log``, default ``OUT.log.jsonl``) and the confusion matrix of the
@@ -10,7 +11,8 @@ validation split (30% of the grasps, by grasp) at the end; several datasets (of 
 classes) train as one; ``--init MODEL`` fine-tunes a trained model on them. ``evaluate``
 scores a saved model on a held-out dataset: the confusion matrix, the accuracy per grasp,
 apart for grasps held within ``--end-mm`` of an object's end (where the objects look most
-alike), and the grasps it gets wrong.
+alike), and the grasps it gets wrong. ``average`` writes the model whose weights lie
+``--alpha`` of the way from a start to its fine-tune (``checkpoint.interpolate``).
 """
 
 from __future__ import annotations
@@ -29,7 +31,12 @@ import numpy as np
 import torch
 
 from perception.classify.autolabel import end_distance_m
-from perception.classify.checkpoint import ModelMeta, load_checkpoint, save_checkpoint
+from perception.classify.checkpoint import (
+    ModelMeta,
+    interpolate,
+    load_checkpoint,
+    save_checkpoint,
+)
 from perception.classify.dataset import (
     MANIFEST,
     Samples,
@@ -247,6 +254,26 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_average(args: argparse.Namespace) -> int:
+    start, tuned = load_checkpoint(args.start), load_checkpoint(args.tuned)
+    model = interpolate(start, tuned, args.alpha)
+    record = {
+        "command": "python -m perception.classify " + shlex.join(args.argv),
+        "alpha": args.alpha,
+        "start": {"path": args.start, "sha256": _sha256(Path(args.start))},
+        # The fine-tune's record nests its own start's (``init``).
+        "tuned": {
+            "path": args.tuned,
+            "sha256": _sha256(Path(args.tuned)),
+            "training": dict(tuned[1].training),
+        },
+    }
+    meta = ModelMeta.for_spec(tuned[1].spec, tuned[1].classes, tuned[1].width, record)
+    save_checkpoint(args.out, model, meta, half=not args.full_precision)
+    print(f"saved {args.out}: {args.alpha:g} of the way from {args.start} to {args.tuned}")
+    return 0
+
+
 def parser() -> argparse.ArgumentParser:
     """The argument parser (public so docs and tests can list the options)."""
     top = argparse.ArgumentParser(
@@ -295,6 +322,13 @@ def parser() -> argparse.ArgumentParser:
     i = sub.add_parser("info", help="summarise a dataset's manifest")
     i.add_argument("dataset")
     i.set_defaults(func=_cmd_info)
+    a = sub.add_parser("average", help="interpolate between a model and its fine-tune")
+    a.add_argument("start", help="the model the fine-tune started from")
+    a.add_argument("tuned", help="the fine-tuned model")
+    a.add_argument("--alpha", type=float, required=True, help="0 = start, 1 = tuned")
+    a.add_argument("--out", required=True, help="checkpoint path (.pt)")
+    a.add_argument("--full-precision", action="store_true", help="store float32 weights")
+    a.set_defaults(func=_cmd_average)
     return top
 
 

@@ -158,6 +158,39 @@ def load_checkpoint(path: str | Path) -> tuple[ResNet18, ModelMeta]:
     return model, meta
 
 
+def interpolate(
+    start: tuple[ResNet18, ModelMeta], tuned: tuple[ResNet18, ModelMeta], alpha: float
+) -> ResNet18:
+    """A network whose weights lie ``alpha`` of the way from ``start``'s to ``tuned``'s.
+
+    Every floating-point tensor of the state (weights, batch-norm statistics, the mean
+    image) is ``(1 - alpha) * start + alpha * tuned``; counters are ``tuned``'s. Meant
+    for a fine-tune and the model it started from (same shape, same basin): between the
+    two, a model keeps more of what the start knew and still gains most of what the
+    fine-tune learnt (weight-space ensembling, Wortsman et al. 2022, "Robust
+    fine-tuning of zero-shot models"). Neither given model changes.
+
+    Raises:
+        CheckpointError: ``alpha`` outside [0, 1], or models of different classes,
+            inputs or width.
+    """
+    if not 0.0 <= alpha <= 1.0:
+        raise CheckpointError(f"alpha must be in [0, 1], got {alpha!r}")
+    for name in ("classes", "modality", "input_px", "width", "depth_center_m", "depth_scale_m"):
+        a, b = getattr(start[1], name), getattr(tuned[1], name)
+        if a != b:
+            raise CheckpointError(f"the models differ in {name}: {a!r} and {b!r}")
+    a_state, b_state = start[0].state_dict(), tuned[0].state_dict()
+    mixed = {
+        k: (1.0 - alpha) * a_state[k] + alpha * v if v.is_floating_point() else v.clone()
+        for k, v in b_state.items()
+    }
+    model = build_model(tuned[1])
+    model.load_state_dict(mixed)
+    model.eval()
+    return model
+
+
 class Classifier:
     """A trained model ready for frames: preprocessing, forward pass, softmax.
 
