@@ -3,7 +3,7 @@
     python -m perception.classify train DATASET [DATASET ...] --epochs E --out model.pt [knobs]
     python -m perception.classify evaluate MODEL DATASET [--json] [--end-mm 15]
     python -m perception.classify info DATASET
-    python -m perception.classify average START TUNED --alpha A --out model.pt
+    python -m perception.classify average MODEL [MODEL ...] [--weights W ...] --out model.pt
 
 ``train`` prints a progress bar (stderr), one log line per epoch (stdout, and as JSON
 lines in ``--log``, default ``OUT.log.jsonl``) and the confusion matrix of the
@@ -11,8 +11,8 @@ validation split (30% of the grasps, by grasp) at the end; several datasets (of 
 classes) train as one; ``--init MODEL`` fine-tunes a trained model on them. ``evaluate``
 scores a saved model on a held-out dataset: the confusion matrix, the accuracy per grasp,
 apart for grasps held within ``--end-mm`` of an object's end (where the objects look most
-alike), and the grasps it gets wrong. ``average`` writes the model whose weights lie
-``--alpha`` of the way from a start to its fine-tune (``checkpoint.interpolate``).
+alike), and the grasps it gets wrong. ``average`` writes the model whose weights are the (weighted) mean
+of several, a start and its fine-tunes (``checkpoint.average``).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ import torch
 from perception.classify.autolabel import end_distance_m
 from perception.classify.checkpoint import (
     ModelMeta,
-    interpolate,
+    average,
     load_checkpoint,
     save_checkpoint,
 )
@@ -255,22 +255,21 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 
 def _cmd_average(args: argparse.Namespace) -> int:
-    start, tuned = load_checkpoint(args.start), load_checkpoint(args.tuned)
-    model = interpolate(start, tuned, args.alpha)
+    models = [load_checkpoint(path) for path in args.model]
+    model = average(models, args.weights)
     record = {
         "command": "python -m perception.classify " + shlex.join(args.argv),
-        "alpha": args.alpha,
-        "start": {"path": args.start, "sha256": _sha256(Path(args.start))},
-        # The fine-tune's record nests its own start's (``init``).
-        "tuned": {
-            "path": args.tuned,
-            "sha256": _sha256(Path(args.tuned)),
-            "training": dict(tuned[1].training),
-        },
+        "weights": args.weights or [1.0] * len(models),
+        # Each model's own record (a fine-tune's nests its start's, ``init``).
+        "averaged": [
+            {"path": path, "sha256": _sha256(Path(path)), "training": dict(meta.training)}
+            for path, (_, meta) in zip(args.model, models, strict=True)
+        ],
     }
-    meta = ModelMeta.for_spec(tuned[1].spec, tuned[1].classes, tuned[1].width, record)
+    last = models[-1][1]
+    meta = ModelMeta.for_spec(last.spec, last.classes, last.width, record)
     save_checkpoint(args.out, model, meta, half=not args.full_precision)
-    print(f"saved {args.out}: {args.alpha:g} of the way from {args.start} to {args.tuned}")
+    print(f"saved {args.out}: the mean of {len(models)} models' weights")
     return 0
 
 
@@ -322,10 +321,9 @@ def parser() -> argparse.ArgumentParser:
     i = sub.add_parser("info", help="summarise a dataset's manifest")
     i.add_argument("dataset")
     i.set_defaults(func=_cmd_info)
-    a = sub.add_parser("average", help="interpolate between a model and its fine-tune")
-    a.add_argument("start", help="the model the fine-tune started from")
-    a.add_argument("tuned", help="the fine-tuned model")
-    a.add_argument("--alpha", type=float, required=True, help="0 = start, 1 = tuned")
+    a = sub.add_parser("average", help="average the weights of a model and its fine-tunes")
+    a.add_argument("model", nargs="+", help="checkpoints of one shape (a start, its fine-tunes)")
+    a.add_argument("--weights", type=float, nargs="+", default=None, help="default: uniform")
     a.add_argument("--out", required=True, help="checkpoint path (.pt)")
     a.add_argument("--full-precision", action="store_true", help="store float32 weights")
     a.set_defaults(func=_cmd_average)
