@@ -40,7 +40,9 @@ every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` e
   lightly), run closed loop twice, without and with the reflex (slip onset: raise the
   grip, bounded per object, ``perception.force.reflex``); kept (slid less than
   ``DROP_M``) or dropped, and dropped with the grip at the object's bound (a filling
-  heavier than the bound can hold: the bound's doing, not the reflex's). On both
+  heavier than the bound can hold: the bound's doing, not the reflex's); of the open
+  loop's drops, the share the reflex kept (``saved_fraction``), and the share of those
+  not lost at the bound (``saved_within_bound_fraction``). On both
   worlds: MuJoCo's run live (a free object being filled, the MuJoCo calibration); there
   the shell gives centimetres under a load, so kept is: still touching both bubbles at
   the end and moving slower than ``force_mujoco.DROP_SPEED_M_PER_S``.
@@ -76,7 +78,7 @@ from typing import Any
 import numpy as np
 
 import sim
-from bench import force_mujoco
+from bench import force_mujoco, tasks
 from bench.common import Row, main, median, one_core, percentile, progress
 from bench.force_data import (
     DEFAULT_SETTING,
@@ -352,38 +354,51 @@ def closed_loop(
 def reflex_rows(
     seeds: list[int], duration_secs: float, cal: Calibration, mujoco_mesh_m: float = 0.0
 ) -> list[Row]:
+    """Each seed without the reflex, then with it. The ``on`` row says how many of the
+    open loop's drops the reflex kept (``saved``), and of them those it could keep within
+    the object's bound (a drop with the grip at the bound is the bound's doing)."""
     rows: list[Row] = []
+    runs: dict[bool, list[dict]] = {}
     for reflex in (False, True):
-        runs = [
+        runs[reflex] = [
             closed_loop(s, duration_secs, cal, reflex=reflex, mujoco_mesh_m=mujoco_mesh_m)
             for s in seeds
         ]
-        rows.append(
-            {
-                "sweep": "reflex",
-                "world": "mujoco" if mujoco_mesh_m else "sim",
-                "setting": "on" if reflex else "off",
-                "method": "physics",
-                "samples": len(runs),
-                "kept": sum(r["kept"] for r in runs),
-                "dropped": sum(not r["kept"] for r in runs),
-                "dropped_at_bound": sum(
-                    not r["kept"] and r["final_grip_n"] >= r["max_grip_n"] for r in runs
-                ),
-                "slide_mm_median": median([r["slide_mm"] for r in runs]),
-                "raises_median": median([float(r["raises"]) for r in runs]),
-                "objects": ",".join(
-                    f"{r['object']}:{'kept' if r['kept'] else 'dropped'}" for r in runs
-                ),
-            }
-        )
+        done = runs[reflex]
+        at_bound = [not r["kept"] and r["final_grip_n"] >= r["max_grip_n"] for r in done]
+        row: Row = {
+            "sweep": "reflex",
+            "world": "mujoco" if mujoco_mesh_m else "sim",
+            "setting": "on" if reflex else "off",
+            "method": "physics",
+            "samples": len(done),
+            "kept": sum(r["kept"] for r in done),
+            "dropped": sum(not r["kept"] for r in done),
+            "dropped_at_bound": sum(at_bound),
+            "slide_mm_median": median([r["slide_mm"] for r in done]),
+            "raises_median": median([float(r["raises"]) for r in done]),
+            "objects": ",".join(
+                f"{r['object']}:{'kept' if r['kept'] else 'dropped'}"
+                + (f"@{r['final_grip_n']:.0f}N" if bound else "")
+                for r, bound in zip(done, at_bound, strict=True)
+            ),
+        }
+        if reflex:
+            lost = [not r["kept"] for r in runs[False]]
+            saved = [a and r["kept"] for a, r in zip(lost, done, strict=True)]
+            within = [a and not b for a, b in zip(lost, at_bound, strict=True)]
+            row["open_loop_dropped"] = sum(lost)
+            row["saved_fraction"] = sum(saved) / sum(lost) if any(lost) else float("nan")
+            row["saved_within_bound_fraction"] = (
+                sum(saved) / sum(within) if any(within) else float("nan")
+            )
+        rows.append(row)
     return rows
 
 
 def handover_runs(seed: int, cal: Calibration) -> dict:
     """Frames from the pull's start to each rule's release, and false releases held still."""
-    rng = np.random.default_rng([seed, 3])
-    start = float(rng.uniform(1.4, 2.2))
+    start = tasks.pull_start_secs(seed)
     base = sim.load_scene("scenes/handover_task.yaml")
     z0 = 0.005
     keys = [(0.0, z0), (start, z0), (start + 1.0, z0 + 0.015), (4.0, z0 + 0.040)]
@@ -547,7 +562,8 @@ COLUMNS = [
     "torque_err_nm_median", "within_goal_fraction", "shift_err_mm_median", "ms_per_frame",
     "rate_hz",
     "detected_fraction", "onset_frames_median", "onset_ms_median", "false_alarms_per_min",
-    "kept", "dropped", "dropped_at_bound", "release_latency_ms_median", "false_release_rate",
+    "kept", "dropped", "dropped_at_bound", "saved_fraction", "saved_within_bound_fraction",
+    "release_latency_ms_median", "false_release_rate",
 ]  # fmt: skip
 
 

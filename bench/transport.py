@@ -35,7 +35,10 @@ CURVE costs (``bench.transport_netns``; skipped, with the reason, without root).
 Rows report medians over repeats (of each repeat's rate, median and p99 latency).
 ``throughput_vs_raw`` is the median over repeats of the rate divided by raw's rate in
 the same repeat and transport (measured minutes apart, the machine's load drifts more
-than it does within one repeat), ``throughput_vs_raw_min``/``_max`` their range;
+than it does within one repeat), ``throughput_vs_raw_min``/``_max`` their range. Within
+a repeat ``runtime`` and ``raw`` run one right after the other, in alternating order,
+and a full run has 9 short repeats rather than a few long ones: the median of many
+adjacent pairs is what a loaded machine disturbs least;
 ``latency_vs_raw`` divides by the raw row's median latency; ``source_cpu_vs_raw`` and
 ``sink_cpu_vs_raw`` are the CPU per frame of each side against raw's, paired by repeat
 as the throughput is (``_min``/``_max`` their range).
@@ -71,7 +74,9 @@ from runtime.graph import check
 from runtime.launcher import Launcher
 
 TRANSPORTS = ("ipc", "tcp")
-IMPLS = ("runtime", "codec", "raw", "raw_parts")
+# runtime and raw next to each other in either order (a repeat runs this order or its
+# reverse): each repeat's ratio compares two runs seconds apart.
+IMPLS = ("runtime", "raw", "codec", "raw_parts")
 
 
 # -- the runtime: a two-node graph under the real launcher -------------------------

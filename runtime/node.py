@@ -24,7 +24,7 @@ the graph with ``self.io.request_stop(reason)`` when they are done.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, ClassVar, Protocol
 
 import msgspec
@@ -113,6 +113,10 @@ class Node:
     # ``order_window_secs``, without a bound in lockstep (``runtime.ordering``).
     ordered_inputs: ClassVar[tuple[str, ...]] = ()
     order_window_secs: ClassVar[float] = 0.5
+    # Live, per ordered input, the ordered inputs its messages wait for, when not every
+    # other: a decision that reads only some of them is not held back by the others'
+    # longer paths. Lockstep ignores it (every input waits for every other).
+    order_waits: ClassVar[Mapping[str, tuple[str, ...]]] = {}
 
     def __init__(self, name: str, params: Any, io: IO) -> None:
         if not isinstance(params, self.Params):
@@ -158,3 +162,9 @@ class Node:
                 raise TypeError(
                     f"{cls.__name__}: {what}_inputs names unknown ports {sorted(unknown)}"
                 )
+        waits = {p for port, of in cls.order_waits.items() for p in (port, *of)}
+        if waits - set(cls.ordered_inputs):
+            raise TypeError(
+                f"{cls.__name__}: order_waits names ports that are not ordered inputs"
+                f" {sorted(waits - set(cls.ordered_inputs))}"
+            )

@@ -19,13 +19,21 @@ go back. Live, a message is held at most ``Node.order_window_secs`` of the wall 
 bound on the latency this adds, and on how far apart two paths may be for the order to
 be exact. In lockstep there is no such bound: what is still held when the bag ends is
 handed over, in the same order, once the replay has sent its last message.
+
+Live, a node may also say which of the others each input's messages wait for
+(``Node.order_waits``): a release decided on the shear need not wait for the slip path,
+the longest, when the shear rule reads nothing the slip brings. Such a message is handed
+over once the inputs it waits for have advanced past its stamp and none of their held
+messages sorts before it; a message of an input it does not wait for may then come after
+it although stamped earlier. Two inputs that wait for each other keep their exact order;
+in lockstep every input waits for every other (the order is the total one above).
 """
 
 from __future__ import annotations
 
-import heapq
+import bisect
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 
@@ -39,13 +47,27 @@ class StampOrder:
     """Holds messages of ``ports`` until no earlier-stamped one can come on another.
 
     ``window_nanos``: live, the longest a message is held (None: no bound, lockstep).
+    ``waits``: live, per input, the other inputs its messages wait for (an input not
+    named waits for every other; inputs not in ``ports`` are left out); ignored in
+    lockstep, where each waits for every other.
     """
 
-    def __init__(self, ports: Sequence[str], window_nanos: int | None) -> None:
+    def __init__(
+        self,
+        ports: Sequence[str],
+        window_nanos: int | None,
+        waits: Mapping[str, Sequence[str]] | None = None,
+    ) -> None:
         self.rank = {port: k for k, port in enumerate(ports)}
         self.window_nanos = window_nanos
+        live = waits if window_nanos is not None else None
+        everyone = frozenset(self.rank)
+        self.waits = {
+            port: (frozenset(live[port]) if live and port in live else everyone) & everyone - {port}
+            for port in self.rank
+        }
         self.newest: dict[str, int] = {}  # per input: the newest stamp received
-        # (stamp, rank, arrival, port, message, deadline), smallest first.
+        # (stamp, rank, arrival, port, message, deadline), kept sorted.
         self._held: list[tuple[int, int, int, str, Any, int]] = []
         self._arrivals = 0
 
@@ -57,16 +79,15 @@ class StampOrder:
         stamp = stamp_of(msg)
         self.newest[port] = max(stamp, self.newest.get(port, stamp))
         deadline = now_nanos + (self.window_nanos or 0)
-        heapq.heappush(self._held, (stamp, self.rank[port], self._arrivals, port, msg, deadline))
+        bisect.insort(self._held, (stamp, self.rank[port], self._arrivals, port, msg, deadline))
         self._arrivals += 1
 
-    def _settled(self, stamp: int, rank: int) -> bool:
-        """Whether no input other than the one of ``rank`` can still bring a message that
+    def _settled(self, stamp: int, rank: int, port: str) -> bool:
+        """Whether no input ``port``'s messages wait for can still bring a message that
         sorts before ``(stamp, rank)``."""
-        for port, other in self.rank.items():
-            if other == rank:
-                continue
-            newest = self.newest.get(port)
+        for other_port in self.waits[port]:
+            other = self.rank[other_port]
+            newest = self.newest.get(other_port)
             if newest is None or newest < stamp or (newest == stamp and other < rank):
                 return False
         return True
@@ -76,14 +97,24 @@ class StampOrder:
         ``now_nanos`` and a window, those held past it (with every one before them)."""
         out: list[tuple[str, Any]] = []
         held = self._held
-        while held:
-            stamp, rank, _, port, msg, deadline = held[0]
-            due = self.due_nanos()
-            late = now_nanos is not None and due is not None and due <= now_nanos
-            if not late and not self._settled(stamp, rank):
+        while held and now_nanos is not None and (due := self.due_nanos()) is not None:
+            if due > now_nanos:
                 break
-            heapq.heappop(held)
-            out.append((port, msg))
+            out.append((held[0][3], held.pop(0)[4]))
+        kept: list[tuple[int, int, int, str, Any, int]] = []
+        waiting: set[str] = set()  # inputs with a message still held, earlier in the order
+        for item in held:
+            stamp, rank, _, port, msg, _ = item
+            if (
+                port in waiting
+                or waiting & self.waits[port]
+                or not self._settled(stamp, rank, port)
+            ):
+                waiting.add(port)
+                kept.append(item)
+            else:
+                out.append((port, msg))
+        self._held = kept
         return out
 
     def flush(self) -> list[tuple[str, Any]]:

@@ -29,8 +29,10 @@ Stamp order. The inputs a node names in ``ordered_inputs`` (two or more of them 
 go through a :class:`runtime.ordering.StampOrder`: each message waits until the other
 ordered inputs have advanced past its stamp (live at most ``order_window_secs``), and is
 handled by stamp, so a decision taken from inputs with paths of different lengths is
-the same live and in a replay. In lockstep the wait has no bound; the launcher has the
-node hand over what it still holds once the replay has sent its last message.
+the same live and in a replay. Live, an input may wait for only some of the others
+(``order_waits``). In lockstep the wait has no bound and every input waits for every
+other; the launcher has the node hand over what it still holds once the replay has sent
+its last message.
 
 Drops. Every output stamps ``header.seq``; a receiver counts sequence gaps as
 ``dropped`` (lost at a high-water mark) and, on ``latest`` inputs, skipped messages
@@ -118,7 +120,7 @@ class Runner:
         self.port_order = {inp["port"]: k for k, inp in enumerate(spec["inputs"])}
         ordered = [port for port in cls.ordered_inputs if port in self.port_order]
         window = None if self.io.lockstep else round(cls.order_window_secs * 1e9)
-        self.order = StampOrder(ordered, window) if len(ordered) > 1 else None
+        self.order = StampOrder(ordered, window, cls.order_waits) if len(ordered) > 1 else None
         self.io.order = self.order
         self.flush = False  # lockstep: told to hand over what the stamp order holds
         self.busy_since = 0.0

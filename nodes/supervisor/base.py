@@ -135,9 +135,11 @@ class Task(Node):
         *,
         data: TaskData | None = None,
         with_pose: bool = True,
+        stamp_nanos: int | None = None,
     ) -> None:
         """Publish and log a TaskEvent; ``with_pose`` appends the last pose estimate to the
-        detail. The log line shows ``data`` as JSON, then the detail."""
+        detail. The log line shows ``data`` as JSON, then the detail. Stamped
+        ``stamp_nanos``, by default the data time (the newest stamp handled)."""
         if with_pose and self.pose is not None and self.pose.status in ("ok", "recovered"):
             xyz_mm = self.pose.tool_from_object[:3, 3] * 1000
             detail += f" | pose xyz_mm=({xyz_mm[0]:.1f}, {xyz_mm[1]:.1f}, {xyz_mm[2]:.1f})"
@@ -146,7 +148,7 @@ class Task(Node):
         self.io.publish(
             "event",
             TaskEvent(
-                header=Header(stamp_nanos=self.now_nanos or self.io.now_nanos()),
+                header=Header(stamp_nanos=stamp_nanos or self.now_nanos or self.io.now_nanos()),
                 task=self.task,
                 event=event,
                 detail=detail,
@@ -189,7 +191,9 @@ class SingleGraspTask(Task):
         # input's message came first is timing, and a lockstep replay orders by stamp.
         self.release_sent_nanos = max(self.msg_nanos, self.grasp_stable_nanos or 0)
         self.release_detail = detail
-        self.event("release", detail)
+        # Stamped so too: an input that need not wait for the deciding one (the
+        # handover's grasp and shear, live, beside its wrench) may be ahead of it.
+        self.event("release", detail, stamp_nanos=self.release_sent_nanos)
 
     def on_grasp(self, msg: GraspState) -> None:
         if msg.event == "stable" and self.state == "grasping":

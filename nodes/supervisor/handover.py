@@ -107,6 +107,13 @@ class HandoverSupervisor(SingleGraspTask):
     # for information only and goes straight through. On a tie (one camera frame) the
     # longer paths come first, so no message waits for the next frame of a slow path.
     ordered_inputs = ("grasp", "slip", "wrench", "shear")
+    # Live, the release waits only for what its rules read: the shear rule for the grasp's
+    # state, the force rule for that and the shear (its stand-in). Neither waits for the
+    # slip, the longest path (camera -> wrench -> slip): a slip onset stamped before a
+    # release but arriving after it finds the grip let go and is not answered (in
+    # lockstep, and whenever the slip path keeps up, it squeezes first). A slip onset
+    # waits for every other input: it reads the force and whether a pull is building.
+    order_waits = {"grasp": ("shear",), "shear": ("grasp",), "wrench": ("grasp", "shear")}
     task = "handover"
 
     def setup(self) -> None:
@@ -163,6 +170,8 @@ class HandoverSupervisor(SingleGraspTask):
     def on_slip(self, msg: SlipState) -> None:
         if self.state != "holding" or not msg.onset or not self.params.reflex:
             return
+        if self.stable_stamp_nanos is not None and msg.header.stamp_nanos < self.stable_stamp_nanos:
+            return  # from the closing: the grasp, handed over first, is no longer waited for
         if self.pull.count > 0:
             return  # a pull is building: the release, not a squeeze, answers it
         load = 0.0 if self.object_force_n is None else float(np.hypot(*self.object_force_n[1:]))

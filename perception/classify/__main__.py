@@ -3,6 +3,7 @@
     python -m perception.classify train DATASET [DATASET ...] --epochs E --out model.pt [knobs]
     python -m perception.classify evaluate MODEL DATASET [--json] [--end-mm 15]
     python -m perception.classify info DATASET
+    python -m perception.classify average MODEL [MODEL ...] [--weights W ...] --out model.pt
 
 ``train`` prints a progress bar (stderr), one log line per epoch (stdout, and as JSON
 lines in ``--log``, default ``OUT.log.jsonl``) and the confusion matrix of the
@@ -10,7 +11,8 @@ validation split (30% of the grasps, by grasp) at the end; several datasets (of 
 classes) train as one; ``--init MODEL`` fine-tunes a trained model on them. ``evaluate``
 scores a saved model on a held-out dataset: the confusion matrix, the accuracy per grasp,
 apart for grasps held within ``--end-mm`` of an object's end (where the objects look most
-alike), and the grasps it gets wrong.
+alike), and the grasps it gets wrong. ``average`` writes the model whose weights are the (weighted) mean
+of several, a start and its fine-tunes (``checkpoint.average``).
 """
 
 from __future__ import annotations
@@ -29,7 +31,12 @@ import numpy as np
 import torch
 
 from perception.classify.autolabel import end_distance_m
-from perception.classify.checkpoint import ModelMeta, load_checkpoint, save_checkpoint
+from perception.classify.checkpoint import (
+    ModelMeta,
+    average,
+    load_checkpoint,
+    save_checkpoint,
+)
 from perception.classify.dataset import (
     MANIFEST,
     Samples,
@@ -247,6 +254,25 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_average(args: argparse.Namespace) -> int:
+    models = [load_checkpoint(path) for path in args.model]
+    model = average(models, args.weights)
+    record = {
+        "command": "python -m perception.classify " + shlex.join(args.argv),
+        "weights": args.weights or [1.0] * len(models),
+        # Each model's own record (a fine-tune's nests its start's, ``init``).
+        "averaged": [
+            {"path": path, "sha256": _sha256(Path(path)), "training": dict(meta.training)}
+            for path, (_, meta) in zip(args.model, models, strict=True)
+        ],
+    }
+    last = models[-1][1]
+    meta = ModelMeta.for_spec(last.spec, last.classes, last.width, record)
+    save_checkpoint(args.out, model, meta, half=not args.full_precision)
+    print(f"saved {args.out}: the mean of {len(models)} models' weights")
+    return 0
+
+
 def parser() -> argparse.ArgumentParser:
     """The argument parser (public so docs and tests can list the options)."""
     top = argparse.ArgumentParser(
@@ -295,6 +321,12 @@ def parser() -> argparse.ArgumentParser:
     i = sub.add_parser("info", help="summarise a dataset's manifest")
     i.add_argument("dataset")
     i.set_defaults(func=_cmd_info)
+    a = sub.add_parser("average", help="average the weights of a model and its fine-tunes")
+    a.add_argument("model", nargs="+", help="checkpoints of one shape (a start, its fine-tunes)")
+    a.add_argument("--weights", type=float, nargs="+", default=None, help="default: uniform")
+    a.add_argument("--out", required=True, help="checkpoint path (.pt)")
+    a.add_argument("--full-precision", action="store_true", help="store float32 weights")
+    a.set_defaults(func=_cmd_average)
     return top
 
 

@@ -158,6 +158,49 @@ def load_checkpoint(path: str | Path) -> tuple[ResNet18, ModelMeta]:
     return model, meta
 
 
+def average(
+    models: Sequence[tuple[ResNet18, ModelMeta]], weights: Sequence[float] | None = None
+) -> ResNet18:
+    """A network whose weights are the weighted mean of ``models``' (uniform by default).
+
+    Every floating-point tensor of the state (weights, batch-norm statistics, the mean
+    image) is ``sum(w_i * model_i) / sum(w_i)``; counters are the last model's. Meant for
+    fine-tunes of one start and the start itself (same shape, same basin): the mean keeps
+    more of what the start knew and gains most of what each fine-tune learnt
+    (weight-space ensembling: Wortsman et al. 2022, "Model soups" and "Robust
+    fine-tuning of zero-shot models"). The given models do not change.
+
+    Raises:
+        CheckpointError: no model, a weight count that differs from the model count, a
+            negative weight or all zero, or models of different classes, inputs or width.
+    """
+    if not models:
+        raise CheckpointError("average needs at least one model")
+    w = [1.0] * len(models) if weights is None else [float(v) for v in weights]
+    if len(w) != len(models):
+        raise CheckpointError(f"{len(w)} weights for {len(models)} models")
+    if min(w) < 0 or not sum(w) > 0:
+        raise CheckpointError(f"weights must be >= 0 and not all zero, got {w}")
+    first = models[0][1]
+    for _, meta in models[1:]:
+        for name in ("classes", "modality", "input_px", "width", "depth_center_m", "depth_scale_m"):
+            a, b = getattr(first, name), getattr(meta, name)
+            if a != b:
+                raise CheckpointError(f"the models differ in {name}: {a!r} and {b!r}")
+    states = [m.state_dict() for m, _ in models]
+    share = [v / sum(w) for v in w]
+    mixed = {
+        k: sum(f * state[k] for f, state in zip(share, states, strict=True))
+        if v.is_floating_point()
+        else v.clone()
+        for k, v in states[-1].items()
+    }
+    model = build_model(models[-1][1])
+    model.load_state_dict(mixed)
+    model.eval()
+    return model
+
+
 class Classifier:
     """A trained model ready for frames: preprocessing, forward pass, softmax.
 

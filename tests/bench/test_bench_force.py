@@ -35,6 +35,12 @@ def test_quick_json_has_every_sweep() -> None:
     assert set(reflex) == {(w, s) for w in ("sim", "mujoco") for s in ("off", "on")}
     assert all(r["kept"] + r["dropped"] == r["samples"] for r in reflex.values())
     assert all(0 <= r["dropped_at_bound"] <= r["dropped"] for r in reflex.values())
+    for world in ("sim", "mujoco"):  # of the open loop's drops, the share kept
+        on = reflex[(world, "on")]
+        assert on["open_loop_dropped"] == reflex[(world, "off")]["dropped"]
+        saved, within = on["saved_fraction"], on["saved_within_bound_fraction"]
+        assert (0.0 <= saved <= 1.0) if on["open_loop_dropped"] else math.isnan(saved)
+        assert math.isnan(within) or saved <= within <= 1.0, on
     handover = {r["method"]: r for r in rows if r["sweep"] == "handover"}
     assert set(handover) == {"shear", "force"}
     assert all(0.0 <= r["false_release_rate"] <= 1.0 for r in handover.values())

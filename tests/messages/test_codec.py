@@ -9,7 +9,7 @@ mutated frames at :func:`decode` and allow nothing else to escape.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Annotated, Any
 
 import msgpack
@@ -32,6 +32,7 @@ from messages import (
     Pressure,
     Tick,
     ToFImage,
+    codec,
     decode,
     decode_header,
     encode,
@@ -624,11 +625,64 @@ def test_bad_frame_cases_start_from_a_good_frame() -> None:
     assert isinstance(decode(_with_header(lambda h: None))[1], ToFImage)
 
 
+@pytest.fixture
+def layouts() -> Iterator[dict[Any, Any]]:
+    """decode's remembered array layouts of ToFImage, empty for this test."""
+    remembered = codec._plan(ToFImage).layouts
+    remembered.clear()
+    yield remembered
+    remembered.clear()
+
+
+@pytest.mark.parametrize("remembered", [False, True], ids=["first frame", "layout remembered"])
 @pytest.mark.parametrize("case", sorted(BAD_FRAMES))
-def test_bad_frame_raises_frame_decode_error(case: str) -> None:
+def test_bad_frame_raises_frame_decode_error(
+    case: str, remembered: bool, layouts: dict[Any, Any]
+) -> None:
+    # decode checks a stream's array rows once and then only its fields, buffers and frame
+    # count: every bad frame is refused after a good one of the same rows as well.
+    if remembered:
+        decode(_tof_frames())
+        assert layouts
     frames = BAD_FRAMES[case]()
     with pytest.raises(FrameDecodeError):
         decode(frames)
+
+
+def test_a_remembered_layout_is_used_and_still_refuses_what_differs(
+    layouts: dict[Any, Any], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    checked: list[str] = []
+    full = codec._layout
+
+    def spy(topic: str, wire_type: str, arrays: Any, plan: Any) -> Any:
+        checked.append(wire_type)
+        return full(topic, wire_type, arrays, plan)
+
+    monkeypatch.setattr(codec, "_layout", spy)
+    good = _tof_frames()
+    assert decode(good)[1].header.seq == 1
+    assert checked == ["ToFImage"] and len(layouts) == 1
+    # The same rows with other fields (the next frame of the stream): not checked again.
+    _, again = decode(_with_header(_set(("fields", "header", "seq"), 2)))
+    assert again.header.seq == 2 and checked == ["ToFImage"]
+    # The same rows, and what the remembered layout does not vouch for is still refused.
+    for bad in (
+        [*good[:2], good[2][:-1], *good[3:]],  # a buffer one byte short
+        good[:-1],  # a buffer missing
+        [*good, b""],  # a buffer too many
+        _with_header(_set(("fields", "fx_px"), "wide")),  # a field of the wrong type
+        _with_header(_drop(("fields", "sensor"))),  # a required field missing
+        _with_header(_set(("extra",), 1)),  # an unknown key beside the rows
+    ):
+        with pytest.raises(FrameDecodeError):
+            decode(bad)
+    with pytest.raises(FrameDecodeError, match="expected Pressure"):
+        decode(good, expect=Pressure)
+    # Rows that differ in one byte are checked in full, and refused.
+    with pytest.raises(FrameDecodeError, match="dtype"):
+        decode(_with_array_row(0, dtype="<f8"))
+    assert checked == ["ToFImage"] * 2
 
 
 @pytest.mark.parametrize("spelling", ["float32", "f4", "=f4", "<f4"])

@@ -12,7 +12,7 @@ from messages.base import Header
 from messages.force import BubbleContact, SlipState, WrenchEstimate
 from messages.types import GraspState, GripperState, Pressure, ShearEstimate
 from nodes.slip import SlipNode
-from nodes.supervisor.handover import HandoverSupervisor
+from nodes.supervisor.handover import HandoverParams, HandoverSupervisor
 from nodes.wrench import WrenchNode
 from runtime.params import ParamError
 from runtime.testing import feed, make_node
@@ -244,3 +244,26 @@ def test_wrench_node_pairs_with_a_stale_partner_when_one_was_dropped(
     # of the last estimate: frame 6 pairs with the right's newest (frame 4, 67 ms old),
     # frame 7 comes within 50 ms of it.
     assert stamps == [fill_frames[k].stamp_nanos for k in (0, 1, 2, 3, 4, 6)]
+
+
+def test_handover_stamps_the_release_with_the_estimate_that_decided() -> None:
+    # Live the grasp and the shear need not wait for the wrench path (Node.order_waits):
+    # the grasp monitor's newest message can be stamped after the estimates that confirm
+    # the pull. The release is the data time of its deciding estimate, not that newest.
+    node, io = _holding_handover()
+    feed(node, "grasp", GraspState(header=Header(stamp_nanos=60), stable=True))
+    feed(node, "wrench", _wrench(30, -0.7))
+    feed(node, "wrench", _wrench(40, -0.9))
+    (release,) = [e for e in io.published["event"] if e.event == "release"]
+    assert release.header.stamp_nanos == 40
+
+
+def test_handover_answers_no_slip_onset_from_before_the_stable_grasp() -> None:
+    # The grasp no longer waits for the slip path: an onset from the closing can come
+    # after the stable grasp. It is no slip of the held object.
+    node, io = _holding_handover()  # stable at 20
+    onset = SlipState(header=Header(stamp_nanos=15), sensor="left", phase="edge", onset="edge")
+    feed(node, "slip", onset)
+    assert [e.event for e in io.published["event"]][-1] == "stable"
+    assert io.published["command"][-1].command == "grasp"
+    assert io.published["command"][-1].force_n == HandoverParams().grasp_force_n

@@ -17,6 +17,7 @@ from perception.classify.checkpoint import (
     CheckpointError,
     Classifier,
     ModelMeta,
+    average,
     build_model,
     load_checkpoint,
     save_checkpoint,
@@ -142,6 +143,51 @@ def test_fine_tuning_starts_from_the_init_model(
     printed = capsys.readouterr()
     assert "init model has width 0.125, the training needs 0.25" in printed.err
     assert "frames loaded" not in printed.out
+
+
+def test_average_of_a_model_and_its_fine_tune(
+    trained, toy: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    samples = load_samples(toy, InputSpec(modality="depth", input_px=32))
+    config = TrainConfig(epochs=2, modality="depth", seed=1, **TINY)
+    tuned = train(
+        samples, config, progress_stream=io.StringIO(), init=(trained.model, trained.meta)
+    )
+    pair = [(trained.model, trained.meta), (tuned.model, tuned.meta)]
+    start, end = trained.model.state_dict(), tuned.model.state_dict()
+    assert not torch.equal(start["fc.weight"], end["fc.weight"])
+    # Weights (1, 0) and (0, 1) give the two models; (3, 1) the mix, tensor by tensor (the
+    # batch-norm counters are the last model's).
+    for weights, want in (([1, 0], start), ([0, 1], end)):
+        got = average(pair, weights).state_dict()
+        assert all(torch.equal(got[k], v) for k, v in want.items() if v.is_floating_point())
+    mix = average(pair, [3, 1]).state_dict()
+    for name, tensor in mix.items():
+        if tensor.is_floating_point():
+            assert torch.allclose(tensor, 0.75 * start[name] + 0.25 * end[name])
+    assert all(
+        torch.allclose(average(pair).state_dict()[k], 0.5 * (start[k] + end[k]))
+        for k in ["fc.weight", "input_mean"]
+    )
+    for weights, message in (([1], "1 weights for 2 models"), ([1, -1], "must be >= 0")):
+        with pytest.raises(CheckpointError, match=message):
+            average(pair, weights)
+    other = ModelMeta.for_spec(InputSpec(modality="ir", input_px=32), trained.meta.classes, 0.125)
+    with pytest.raises(CheckpointError, match="differ in modality"):
+        average([pair[0], (build_model(other), other)])
+    # The CLI writes a checkpoint that records every model and the weights.
+    paths = [tmp_path / "start.pt", tmp_path / "tuned.pt", tmp_path / "mix.pt"]
+    save_checkpoint(paths[0], trained.model, trained.meta, half=False)
+    save_checkpoint(paths[1], tuned.model, tuned.meta, half=False)
+    argv = ["average", str(paths[0]), str(paths[1]), "--out", str(paths[2])]
+    assert main([*argv, "--weights", "3", "1", "--full-precision"]) == 0
+    model, meta = load_checkpoint(paths[2])
+    assert meta.training["weights"] == [3.0, 1.0]
+    assert [m["path"] for m in meta.training["averaged"]] == [str(p) for p in paths[:2]]
+    assert meta.training["averaged"][1]["training"]["config"]["epochs"] == 2
+    assert all(torch.allclose(model.state_dict()[k], v) for k, v in mix.items())
+    assert main([*argv, "--weights", "1"]) == 2
+    assert "1 weights for 2 models" in capsys.readouterr().err
 
 
 def test_confusion_matrix() -> None:

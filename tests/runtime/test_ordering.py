@@ -144,3 +144,48 @@ def test_live_a_silent_input_holds_a_message_no_longer_than_the_window() -> None
     late = order.ready(now_nanos=1050 * MS)
     assert [m.header.stamp_nanos for _, m in late] == [3 * MS, 5 * MS]
     assert order.due_nanos() is None
+
+
+def test_live_an_input_waits_only_for_the_inputs_it_names() -> None:
+    order = StampOrder(["a", "b", "c"], window_nanos=500 * MS, waits={"c": ("a",)})
+    order.add("b", grasp(5))
+    order.add("c", grasp(10))
+    order.add("a", grasp(12))
+    # c waits for a alone: it goes past b's 5 (b waits for c, which is at 10: b goes too),
+    # while b's next message, stamped 11, waits for c to pass 11.
+    order.add("b", grasp(11))
+    assert [(p, m.header.stamp_nanos // MS) for p, m in order.ready()] == [("b", 5), ("c", 10)]
+    assert order.pending() == {"a": 1, "b": 1}
+    # In lockstep the waits are ignored: c waits for b as well.
+    exact = StampOrder(["a", "b", "c"], window_nanos=None, waits={"c": ("a",)})
+    exact.add("c", grasp(10))
+    exact.add("a", grasp(12))
+    assert exact.ready() == []
+    exact.add("b", grasp(11))
+    assert [p for p, _ in exact.ready()] == ["c"]
+
+
+def test_live_a_release_is_not_held_back_by_the_slip_path(events: Any) -> None:
+    # The shear that confirms the pull has come, and the grasp monitor has moved past it;
+    # the slip node, the longest path, has not: the shear rule reads nothing it brings.
+    arrivals = [*START, ("grasp", grasp(600)), ("shear", shear(500, 2.0))]
+    assert events(arrivals, lockstep=False) == ["grasping", "stable", "release"]
+    # In lockstep the order stays exact: the release waits for the slip to pass it.
+    assert events(arrivals, lockstep=True)[-1] == "release"
+    assert events(arrivals[:-1] + [("slip", slip(480, "edge")), arrivals[-1]], lockstep=True) == [
+        "grasping",
+        "stable",
+        "squeeze",
+        "release",
+    ]
+
+
+def test_order_waits_must_name_ordered_inputs() -> None:
+    from nodes.supervisor.handover import HandoverSupervisor
+
+    class Careless(HandoverSupervisor):
+        order_waits = {"shear": ("pose",)}  # pose goes straight through: nothing to wait for
+
+    with pytest.raises(TypeError, match="order_waits names ports that are not ordered"):
+        Careless.check_declaration()
+    HandoverSupervisor.check_declaration()
