@@ -88,6 +88,7 @@ from bench.force_data import (
     draw,
     features_of,
     held,
+    monitor_step,
     samples,
     shift_errors_m,
 )
@@ -219,17 +220,17 @@ def slip_rows(
         for side in SIDES:
             detector = SlipDetector.for_rig(cal, params)
             onsets: dict[str, int] = {}
-            stable = False
+            stable, start = False, None
             for i, f in enumerate(rec.frames):
                 feats = f.features[side]
-                if (
-                    not stable
-                    and feats.tracked
-                    and i > 0
-                    and rec.frames[i - 1].features[side].tracked
-                ):
-                    detector.reference()  # the tare and a frame more: the grasp is held
-                    stable = True
+                # The slip node's reference: the grasp monitor's stable grasp (what
+                # moved before it, the jaws closing and the hand letting go, is not slip).
+                if f.stable and not stable:
+                    detector.reference()
+                    start = i if start is None else start
+                elif stable and not f.stable:
+                    detector.drop()
+                stable = f.stable
                 w = estimate(feats, side, cal, "physics")
                 report = detector.update(feats, w.force_n, f.t_secs)
                 truth_now = f.slipping[side]
@@ -240,10 +241,18 @@ def slip_rows(
                         false_alarms += 1
                 if stable and max(soon) == 0.0 and truth_now == 0.0:
                     still_secs += period_secs
+            if start is None:
+                continue  # never held: nothing to score
+            # The truth's onsets from the reference on (a patch still slipping from
+            # before it starts no onset there).
             truth = {
-                "edge": first([f.slipping[side] > 0.0 for f in rec.frames]),
-                "patch": first([f.slipping[side] >= 1.0 for f in rec.frames]),
-            }
+                "edge": first([i >= start and f.slipping[side] > 0.0
+                               and rec.frames[i - 1].slipping[side] == 0.0
+                               for i, f in enumerate(rec.frames)]),
+                "patch": first([i >= start and f.slipping[side] >= 1.0
+                                and rec.frames[i - 1].slipping[side] < 1.0
+                                for i, f in enumerate(rec.frames)]),
+            }  # fmt: skip
             for phase in ("edge", "patch"):
                 if truth[phase] is None:
                     continue
@@ -292,11 +301,7 @@ def stepped(simulator: sim.Simulator) -> Iterator[tuple[Any, Any, dict]]:
     monitor = GraspMonitor()
     while not simulator.world.done:
         inst = simulator.step()
-        snap = inst.snapshot
-        stamp = sim.stamp_of(snap)
-        for side in SIDES:
-            monitor.update_pressure(side, snap.pressure_pa[side], stamp)
-        status = monitor.update_gripper(snap.speed_m_per_s, snap.width_m, stamp)
+        status = monitor_step(monitor, inst.snapshot)
         yield inst, status, bubbles.frame(inst, simulator.scene)
 
 
