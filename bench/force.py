@@ -488,24 +488,42 @@ QUICK = Sizes(
 )  # fmt: skip
 
 
-def run(quick: bool, sizes: Sizes | None = None) -> list[Row]:
+SWEEPS = ("wrench", "slip", "reflex", "handover")
+
+
+def run(quick: bool, sizes: Sizes | None = None, sweeps: tuple[str, ...] = SWEEPS) -> list[Row]:
+    """Every sweep in ``sweeps`` (the module docstring); without ``wrench`` only the
+    default flow setting's features are computed (the others serve the wrench sweep)."""
     one_core()
     z = QUICK if quick else (sizes or Sizes())
     n, duration = z.grasps, z.duration_secs
+    settings = () if "wrench" in sweeps else (DEFAULT_SETTING,)
     cal_seeds, test_seeds = list(range(n)), list(range(n, 2 * n))
-    cal_recs = [record_all(s, duration) for s in progress(cal_seeds, "bench.force calibration")]
-    test_recs = [record_all(s, duration) for s in progress(test_seeds, "bench.force held-out")]
-    placeholder = calibrate(
-        [s for rec in cal_recs for s in samples(rec.frames)], rig="sim", source="timing"
-    )
-    secs = {
-        setting: time_setting(
-            test_seeds[0], 1.2 if quick else 2.0, setting, placeholder, z.timing_repeats
+    cal_recs = [
+        record_all(s, duration, settings=settings)
+        for s in progress(cal_seeds, "bench.force calibration")
+    ]
+    test_recs = [
+        record_all(s, duration, settings=settings)
+        for s in progress(test_seeds, "bench.force held-out")
+    ]
+    rows: list[Row] = []
+    if "wrench" in sweeps:
+        placeholder = calibrate(
+            [s for rec in cal_recs for s in samples(rec.frames)], rig="sim", source="timing"
         )
-        for setting in progress(list(SETTINGS), "bench.force timing")
-    }
-    rows, cals = wrench_rows("sim", cal_recs, test_recs, secs)
-    cal = cals[DEFAULT_SETTING]
+        secs = {
+            setting: time_setting(
+                test_seeds[0], 1.2 if quick else 2.0, setting, placeholder, z.timing_repeats
+            )
+            for setting in progress(list(SETTINGS), "bench.force timing")
+        }
+        rows, cals = wrench_rows("sim", cal_recs, test_recs, secs)
+        cal = cals[DEFAULT_SETTING]
+    else:
+        cal = calibrate(
+            [s for rec in cal_recs for s in samples(rec.frames)], rig="sim", source="bench.force"
+        )
     # The second world: the engine's contact forces, calibrated on its own grasps.
     # (--quick: one grasp, scored on itself: a smoke test, not held out.)
     # Its slips: loaded grasps of a free object (filled, pulled past the stick limit),
@@ -514,36 +532,40 @@ def run(quick: bool, sizes: Sizes | None = None) -> list[Row]:
     with tempfile.TemporaryDirectory() as tmp:
         workdir = Path(tmp) if quick else Path(os.environ.get("WORLDS_DIR", "out/worlds"))
         workdir.mkdir(parents=True, exist_ok=True)
-        recs = force_mujoco.grasps(z.mujoco, z.mujoco_mesh_m, workdir)
+        recs = force_mujoco.grasps(z.mujoco, z.mujoco_mesh_m, workdir, settings)
         slides = force_mujoco.loaded(
-            z.slides, z.mujoco_mesh_m, workdir, duration_secs=z.loaded_secs
+            z.slides, z.mujoco_mesh_m, workdir, duration_secs=z.loaded_secs, settings=settings
         )
         mujoco_still = force_mujoco.loaded(
             z.still, z.mujoco_mesh_m, workdir, duration_secs=z.mujoco_still_secs, still=True
         )
     half = max(1, z.mujoco // 2)
-    rows += wrench_rows("mujoco", recs[:half], recs[half:] or recs, secs)[0]
     period = draw(0).scene.frame_period_secs
     cut = max(1, z.slides // 2)
     mujoco_cal = force_mujoco.calibrate_mujoco(recs[:half], slides[:cut], "bench.force")
-    # The force on the loaded grasps held out (loads along tool y and z).
-    rows += wrench_rows("mujoco_loaded", recs[:half] + slides[:cut], slides[cut:] or slides, secs)[
-        0
-    ]
-    # Long still holds for the false alarms (the default setting only).
-    still = [
-        record_all(100 + i, z.still_secs, load="still", settings=(DEFAULT_SETTING,))
-        for i in progress(range(z.still), "bench.force still holds")
-    ]
-    rows += slip_rows("sim", test_recs + still, cal, period)
-    rows += slip_rows("mujoco", (slides[cut:] or slides) + mujoco_still, mujoco_cal, period)
-    reflex_seeds = [n * 2 + i for i in range(z.reflex)]
-    rows += reflex_rows(reflex_seeds, 2.5 if quick else 4.0, cal)
-    rows += reflex_rows(
-        force_mujoco.reflex_seeds(z.mujoco_reflex), 2.5 if quick else 4.0, mujoco_cal,
-        z.mujoco_mesh_m,
-    )  # fmt: skip
-    rows += handover_rows(list(range(z.handover)), cal, period)
+    if "wrench" in sweeps:
+        rows += wrench_rows("mujoco", recs[:half], recs[half:] or recs, secs)[0]
+        # The force on the loaded grasps held out (loads along tool y and z).
+        rows += wrench_rows(
+            "mujoco_loaded", recs[:half] + slides[:cut], slides[cut:] or slides, secs
+        )[0]
+    if "slip" in sweeps:
+        # Long still holds for the false alarms (the default setting only).
+        still = [
+            record_all(100 + i, z.still_secs, load="still", settings=(DEFAULT_SETTING,))
+            for i in progress(range(z.still), "bench.force still holds")
+        ]
+        rows += slip_rows("sim", test_recs + still, cal, period)
+        rows += slip_rows("mujoco", (slides[cut:] or slides) + mujoco_still, mujoco_cal, period)
+    if "reflex" in sweeps:
+        reflex_seeds = [n * 2 + i for i in range(z.reflex)]
+        rows += reflex_rows(reflex_seeds, 2.5 if quick else 4.0, cal)
+        rows += reflex_rows(
+            force_mujoco.reflex_seeds(z.mujoco_reflex), 2.5 if quick else 4.0, mujoco_cal,
+            z.mujoco_mesh_m,
+        )  # fmt: skip
+    if "handover" in sweeps:
+        rows += handover_rows(list(range(z.handover)), cal, period)
     return rows
 
 
@@ -570,7 +592,13 @@ if __name__ == "__main__":
     parser.add_argument(
         "--mujoco-mesh", type=float, default=Sizes.mujoco_mesh_m, help="MuJoCo mesh edge, m"
     )
+    parser.add_argument(
+        "--sweeps", default=",".join(SWEEPS), help=f"comma-separated, of {','.join(SWEEPS)}"
+    )
     extra, rest = parser.parse_known_args()
+    sweeps = tuple(extra.sweeps.split(","))
+    if not sweeps or set(sweeps) - set(SWEEPS):
+        sys.exit(f"bench.force: --sweeps takes some of {','.join(SWEEPS)}, got {extra.sweeps!r}")
     counts = (
         *(extra.grasps, extra.mujoco, extra.slides, extra.still, extra.reflex),
         *(extra.mujoco_reflex, extra.handover),
@@ -589,4 +617,4 @@ if __name__ == "__main__":
         handover=extra.handover,
         mujoco_mesh_m=extra.mujoco_mesh,
     )
-    main("force", lambda quick: run(quick, chosen), columns=COLUMNS, argv=rest)
+    main("force", lambda quick: run(quick, chosen, sweeps), columns=COLUMNS, argv=rest)

@@ -135,9 +135,13 @@ def latex_slip(instants: list[sim.Instant], scene: sim.Scene) -> list[dict[str, 
     return [{s: slipping_share(float(row[k])) for k, s in enumerate(SIDES)} for row in smooth]
 
 
-def grasps(count: int, spacing_m: float, workdir: Path) -> list[Recorded]:
+def grasps(
+    count: int, spacing_m: float, workdir: Path, settings: tuple[str, ...] = ()
+) -> list[Recorded]:
     """``bench.worlds``' grasps on the MuJoCo world (recorded once per scene and mesh in
-    ``workdir``, shared with ``bench.worlds``), with the engine's wrench as the truth."""
+    ``workdir``, shared with ``bench.worlds``), with the engine's wrench and the latex
+    sliding over the object (:func:`latex_slip`) as the truth; the features of
+    ``settings`` (default: every one)."""
     from bench import worlds
     from runtime.bag import BagReader
 
@@ -148,7 +152,11 @@ def grasps(count: int, spacing_m: float, workdir: Path) -> list[Recorded]:
         instants = worlds.replay_mujoco(scene_path, bag)
         with BagReader(bag) as reader:
             truths = [m.decode() for m in reader.messages(["world/wrench"])]
-        out.append(features_of(instants, sim.load_scene(scene_path), truths))
+        scene = sim.load_scene(scene_path)
+        rec = features_of(instants, scene, truths, settings)
+        for f, slipping in zip(rec.frames, latex_slip(instants, scene), strict=True):
+            f.slipping = slipping
+        out.append(rec)
     return out
 
 
@@ -175,14 +183,15 @@ def loaded(
     *,
     duration_secs: float = LOADED_SECS,
     still: bool = False,
+    settings: tuple[str, ...] = (),
 ) -> list[Recorded]:
     """Loaded grasps ``0 .. count - 1`` (:func:`loaded_spec`) on MuJoCo: a free object
     under the engine's gravity, filled or pulled past the stick limit, so it slips on
     MuJoCo's friction. Recorded once per scene and mesh in ``workdir`` (as
-    ``bench.worlds``' grasps), the default feature setting; truth: the engine's wrench,
-    the latex sliding over the object (:func:`latex_slip`) and the object's slide in
-    the hand. Every feature setting's features; with ``still``, the
-    still holds instead (the default setting's only)."""
+    ``bench.worlds``' grasps); truth: the engine's wrench, the latex sliding over the
+    object (:func:`latex_slip`) and the object's slide in the hand. The features of
+    ``settings`` (default: every one); with ``still``, the still holds instead (the
+    default setting's only)."""
     from bench import worlds
     from runtime.bag import BagReader
     from sim.mujoco.world import DROPPED_M
@@ -196,7 +205,7 @@ def loaded(
         instants = worlds.replay_mujoco(scene_path, bag)
         with BagReader(bag) as reader:
             truths = [m.decode() for m in reader.messages(["world/wrench"])]
-        rec = features_of(instants, spec.scene, truths, (DEFAULT_SETTING,) if still else ())
+        rec = features_of(instants, spec.scene, truths, (DEFAULT_SETTING,) if still else settings)
         truth = worlds.recorded_frames(bag)
         rec.frames = [
             dataclasses.replace(
