@@ -255,8 +255,9 @@ def main(argv: list[str] | None = None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         workdir = Path(os.environ.get("WORLDS_DIR", tmp))
         workdir.mkdir(parents=True, exist_ok=True)
-        grasp_recs = grasps(args.grasps, args.mesh, workdir)
-        slide_recs = loaded(args.slides, args.mesh, workdir)
+        # The calibration fits the default flow setting's features only.
+        grasp_recs = grasps(args.grasps, args.mesh, workdir, (DEFAULT_SETTING,))
+        slide_recs = loaded(args.slides, args.mesh, workdir, settings=(DEFAULT_SETTING,))
     source = (
         f"bench.force_mujoco: {args.grasps} grasps of bench.worlds' seed and {args.slides}"
         f" loaded grasps (filled, pulled; a free object), {args.mesh * 1000:g} mm mesh"
