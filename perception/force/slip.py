@@ -308,8 +308,10 @@ class SlipDetector:
         # window fills), so that one frame's jitter of the imprint is no slide.
         k = max(1, min(self.params.imprint_frames, len(self._history) // 2))
         history = list(self._history)
-        core0, c0 = (np.mean([h[i] for h in history[:k]], axis=0) for i in (1, 3))
-        core1, c1 = (np.mean([h[i] for h in history[-k:]], axis=0) for i in (1, 3))
+        core0 = np.mean([h[1] for h in history[:k]], axis=0)
+        c0 = np.mean([h[3] for h in history[:k]], axis=0)
+        core1 = np.mean([h[1] for h in history[-k:]], axis=0)
+        c1 = np.mean([h[3] for h in history[-k:]], axis=0)
         moved = c1 - c0
         norm = float(np.hypot(*moved))
         if norm < self.params.patch_lead_m:
