@@ -25,7 +25,9 @@ module turns its runs into the force estimators' data, as ``bench.force_data`` d
   over the frame and its neighbours (:data:`SMOOTH_FRAMES`: a mesh of 12 mm leaves
   10-20 points in a patch, so one point more or less moves the share by 5-10%). The
   edge slips from :data:`EDGE_SHARE` of the points, the whole patch from
-  :data:`PATCH_SHARE` (:func:`slipping_share`, :func:`latex_slip`). The engine's own
+  :data:`PATCH_SHARE` (:func:`slipping_share`, :func:`latex_slip`), from the grasp
+  monitor's stable grasp on (the jaws closing make the membrane conform to the object,
+  its points moving over it as the patch forms). The engine's own
   flag, the share of its contacts at the friction cone's limit, was the truth before:
   the rim's contacts, pressed by almost nothing, sit at their cone from the first
   shear and flicker in and out of it (0.25-0.6 from frame to frame on a mug being
@@ -102,10 +104,14 @@ def sliding_share(
     return float(np.mean(moved > SLIP_SPEED_M_PER_S * period_secs))
 
 
-def latex_slip(instants: list[sim.Instant], scene: sim.Scene) -> list[dict[str, float]]:
+def latex_slip(
+    instants: list[sim.Instant], scene: sim.Scene, stable: list[bool]
+) -> list[dict[str, float]]:
     """Per frame and bubble, the truth of slip (the module docstring): the share of the
     contact's points sliding over the object, smoothed over :data:`SMOOTH_FRAMES`,
-    through :func:`slipping_share`."""
+    through :func:`slipping_share`; zero where the grasp is not ``stable`` (the grasp
+    monitor's: while the jaws close the membrane conforms to the object, and its points
+    move over it as the patch forms, which is no slip)."""
     from geometry.se3 import invert
     from sim.mujoco.mesh import contact_tolerance_m
 
@@ -132,7 +138,10 @@ def latex_slip(instants: list[sim.Instant], scene: sim.Scene) -> list[dict[str, 
             last[side] = (local, touching)
     kernel = np.ones(SMOOTH_FRAMES) / SMOOTH_FRAMES
     smooth = np.stack([np.convolve(raw[:, k], kernel, "same") for k in range(len(SIDES))], 1)
-    return [{s: slipping_share(float(row[k])) for k, s in enumerate(SIDES)} for row in smooth]
+    return [
+        {s: slipping_share(float(row[k])) if held else 0.0 for k, s in enumerate(SIDES)}
+        for row, held in zip(smooth, stable, strict=True)
+    ]
 
 
 def grasps(
@@ -154,7 +163,8 @@ def grasps(
             truths = [m.decode() for m in reader.messages(["world/wrench"])]
         scene = sim.load_scene(scene_path)
         rec = features_of(instants, scene, truths, settings)
-        for f, slipping in zip(rec.frames, latex_slip(instants, scene), strict=True):
+        truth = latex_slip(instants, scene, [f.stable for f in rec.frames])
+        for f, slipping in zip(rec.frames, truth, strict=True):
             f.slipping = slipping
         out.append(rec)
     return out
@@ -212,7 +222,10 @@ def loaded(
                 f, slipping=slipping, slide_m=np.asarray(t["slide_m"]), drop_m=DROPPED_M
             )
             for f, t, slipping in zip(
-                rec.frames, truth, latex_slip(instants, spec.scene), strict=True
+                rec.frames,
+                truth,
+                latex_slip(instants, spec.scene, [f.stable for f in rec.frames]),
+                strict=True,
             )
         ]
         out.append(rec)
