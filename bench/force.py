@@ -28,7 +28,9 @@ every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` e
   the edge's is the detector's first onset of either kind, a whole patch sliding has
   its edge slipping too); a true onset in the recording's last ``MIN_SCORED_FRAMES``
   is not scored (``cut_at_end``); false alarms per minute of still holding (any onset
-  while the truth is stuck and stays so for ``MAX_EARLY_FRAMES``). On both worlds: ``world.sim``'s held-out grasps and
+  while the truth is stuck and stays so for ``MAX_EARLY_FRAMES``). The detector is
+  referenced at the grasp monitor's stable grasp (``Frame.stable``), as the ``slip``
+  node is; the truth's onsets are scored from there. On both worlds: ``world.sim``'s held-out grasps and
   long still holds (the detector's limits from its calibration grasps); MuJoCo's
   loaded grasps (``bench.force_mujoco``: a free object under the engine's gravity,
   filled or pulled past the stick limit; its truth of slip; the limits fitted on the
@@ -57,7 +59,9 @@ By default: 8 ``world.sim`` grasps per set, 8 MuJoCo grasps, 8 MuJoCo loaded gra
 grasps), ``--still``, ``--reflex``, ``--mujoco-reflex`` and ``--handover`` set them.
 ``--quick`` runs two grasps per set of ``world.sim``, one MuJoCo grasp, one loaded
 grasp and one still hold of 1.5 s at a 12 mm mesh (scored on themselves: a smoke test,
-not held out), one reflex grasp on each world and one handover.
+not held out), one reflex grasp on each world and one handover. ``--sweeps`` runs some
+of them (``--sweeps slip``: the slip sweep alone, with the default flow setting's
+features only).
 """
 
 from __future__ import annotations
