@@ -20,8 +20,9 @@ module turns its runs into the force estimators' data, as ``bench.force_data`` d
   them); a point of the contact sticks while it stays put in the object's frame. Per
   bubble and frame, the share of the points touching the object in this frame and the
   last that moved over it faster than :data:`SLIP_SPEED_M_PER_S` (3 mm/s: 0.1 mm a
-  frame at 30 Hz; MuJoCo's soft friction lets a loaded contact creep at up to about
-  a third of that, and a whole patch sliding out moves at 10-100 times it), averaged
+  frame at 30 Hz; MuJoCo's soft friction lets a contact creep, 0.003-0.005 mm a frame
+  held still and up to 0.09 mm a frame under a growing load while every point holds,
+  and a whole patch sliding out moves at 4-40 times the threshold), averaged
   over the frame and its neighbours (:data:`SMOOTH_FRAMES`: a mesh of 12 mm leaves
   10-20 points in a patch, so one point more or less moves the share by 5-10%). The
   edge slips from :data:`EDGE_SHARE` of the points, the whole patch from
@@ -30,10 +31,10 @@ module turns its runs into the force estimators' data, as ``bench.force_data`` d
   its points moving over it as the patch forms). The engine's own
   flag, the share of its contacts at the friction cone's limit, was the truth before:
   the rim's contacts, pressed by almost nothing, sit at their cone from the first
-  shear and flicker in and out of it (0.25-0.6 from frame to frame on a mug being
-  filled whose points all still stuck), so its "onsets" came up to 18 frames before
-  any point of the latex moved over the object, or between two frames of a still
-  hold. ``world.sim`` reports its patch's slipping area directly.
+  shear and flicker in and out of it (0.02-0.56 from frame to frame on a mug being
+  filled whose points all still stuck), so its first half-share came up to 26 frames
+  (median 5) before a third of the latex slid, and passed a half on bubbles whose
+  latex never slid. ``world.sim`` reports its patch's slipping area directly.
 
 The calibration file of the MuJoCo world (both estimators, the friction and the slip
 limits, fitted on its grasps and loaded grasps)::
