@@ -28,7 +28,9 @@ every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` e
   the edge's is the detector's first onset of either kind, a whole patch sliding has
   its edge slipping too); a true onset in the recording's last ``MIN_SCORED_FRAMES``
   is not scored (``cut_at_end``); false alarms per minute of still holding (any onset
-  while the truth is stuck and stays so for ``MAX_EARLY_FRAMES``). On both worlds: ``world.sim``'s held-out grasps and
+  while the truth is stuck and stays so for ``MAX_EARLY_FRAMES``). The detector is
+  referenced at the grasp monitor's stable grasp (``Frame.stable``), as the ``slip``
+  node is; the truth's onsets are scored from there. On both worlds: ``world.sim``'s held-out grasps and
   long still holds (the detector's limits from its calibration grasps); MuJoCo's
   loaded grasps (``bench.force_mujoco``: a free object under the engine's gravity,
   filled or pulled past the stick limit; its truth of slip; the limits fitted on the
@@ -59,7 +61,9 @@ By default: 8 ``world.sim`` grasps per set, 8 MuJoCo grasps, 8 MuJoCo loaded gra
 grasps), ``--still``, ``--reflex``, ``--mujoco-reflex`` and ``--handover`` set them.
 ``--quick`` runs two grasps per set of ``world.sim``, one MuJoCo grasp, one loaded
 grasp and one still hold of 1.5 s at a 12 mm mesh (scored on themselves: a smoke test,
-not held out), one reflex grasp on each world and one handover.
+not held out), one reflex grasp on each world and one handover. ``--sweeps`` runs some
+of them (``--sweeps slip``: the slip sweep alone, with the default flow setting's
+features only).
 """
 
 from __future__ import annotations
@@ -90,6 +94,7 @@ from bench.force_data import (
     draw,
     features_of,
     held,
+    monitor_step,
     samples,
     shift_errors_m,
 )
@@ -221,17 +226,17 @@ def slip_rows(
         for side in SIDES:
             detector = SlipDetector.for_rig(cal, params)
             onsets: dict[str, int] = {}
-            stable = False
+            stable, start = False, None
             for i, f in enumerate(rec.frames):
                 feats = f.features[side]
-                if (
-                    not stable
-                    and feats.tracked
-                    and i > 0
-                    and rec.frames[i - 1].features[side].tracked
-                ):
-                    detector.reference()  # the tare and a frame more: the grasp is held
-                    stable = True
+                # The slip node's reference: the grasp monitor's stable grasp (what
+                # moved before it, the jaws closing and the hand letting go, is not slip).
+                if f.stable and not stable:
+                    detector.reference()
+                    start = i if start is None else start
+                elif stable and not f.stable:
+                    detector.drop()
+                stable = f.stable
                 w = estimate(feats, side, cal, "physics")
                 report = detector.update(feats, w.force_n, f.t_secs)
                 truth_now = f.slipping[side]
@@ -242,10 +247,18 @@ def slip_rows(
                         false_alarms += 1
                 if stable and max(soon) == 0.0 and truth_now == 0.0:
                     still_secs += period_secs
+            if start is None:
+                continue  # never held: nothing to score
+            # The truth's onsets from the reference on (a patch still slipping from
+            # before it starts no onset there).
             truth = {
-                "edge": first([f.slipping[side] > 0.0 for f in rec.frames]),
-                "patch": first([f.slipping[side] >= 1.0 for f in rec.frames]),
-            }
+                "edge": first([i >= start and f.slipping[side] > 0.0
+                               and rec.frames[i - 1].slipping[side] == 0.0
+                               for i, f in enumerate(rec.frames)]),
+                "patch": first([i >= start and f.slipping[side] >= 1.0
+                                and rec.frames[i - 1].slipping[side] < 1.0
+                                for i, f in enumerate(rec.frames)]),
+            }  # fmt: skip
             for phase in ("edge", "patch"):
                 if truth[phase] is None:
                     continue
@@ -294,11 +307,7 @@ def stepped(simulator: sim.Simulator) -> Iterator[tuple[Any, Any, dict]]:
     monitor = GraspMonitor()
     while not simulator.world.done:
         inst = simulator.step()
-        snap = inst.snapshot
-        stamp = sim.stamp_of(snap)
-        for side in SIDES:
-            monitor.update_pressure(side, snap.pressure_pa[side], stamp)
-        status = monitor.update_gripper(snap.speed_m_per_s, snap.width_m, stamp)
+        status = monitor_step(monitor, inst.snapshot)
         yield inst, status, bubbles.frame(inst, simulator.scene)
 
 
@@ -498,24 +507,42 @@ QUICK = Sizes(
 )  # fmt: skip
 
 
-def run(quick: bool, sizes: Sizes | None = None) -> list[Row]:
+SWEEPS = ("wrench", "slip", "reflex", "handover")
+
+
+def run(quick: bool, sizes: Sizes | None = None, sweeps: tuple[str, ...] = SWEEPS) -> list[Row]:
+    """Every sweep in ``sweeps`` (the module docstring); without ``wrench`` only the
+    default flow setting's features are computed (the others serve the wrench sweep)."""
     one_core()
     z = QUICK if quick else (sizes or Sizes())
     n, duration = z.grasps, z.duration_secs
+    settings = () if "wrench" in sweeps else (DEFAULT_SETTING,)
     cal_seeds, test_seeds = list(range(n)), list(range(n, 2 * n))
-    cal_recs = [record_all(s, duration) for s in progress(cal_seeds, "bench.force calibration")]
-    test_recs = [record_all(s, duration) for s in progress(test_seeds, "bench.force held-out")]
-    placeholder = calibrate(
-        [s for rec in cal_recs for s in samples(rec.frames)], rig="sim", source="timing"
-    )
-    secs = {
-        setting: time_setting(
-            test_seeds[0], 1.2 if quick else 2.0, setting, placeholder, z.timing_repeats
+    cal_recs = [
+        record_all(s, duration, settings=settings)
+        for s in progress(cal_seeds, "bench.force calibration")
+    ]
+    test_recs = [
+        record_all(s, duration, settings=settings)
+        for s in progress(test_seeds, "bench.force held-out")
+    ]
+    rows: list[Row] = []
+    if "wrench" in sweeps:
+        placeholder = calibrate(
+            [s for rec in cal_recs for s in samples(rec.frames)], rig="sim", source="timing"
         )
-        for setting in progress(list(SETTINGS), "bench.force timing")
-    }
-    rows, cals = wrench_rows("sim", cal_recs, test_recs, secs)
-    cal = cals[DEFAULT_SETTING]
+        secs = {
+            setting: time_setting(
+                test_seeds[0], 1.2 if quick else 2.0, setting, placeholder, z.timing_repeats
+            )
+            for setting in progress(list(SETTINGS), "bench.force timing")
+        }
+        rows, cals = wrench_rows("sim", cal_recs, test_recs, secs)
+        cal = cals[DEFAULT_SETTING]
+    else:
+        cal = calibrate(
+            [s for rec in cal_recs for s in samples(rec.frames)], rig="sim", source="bench.force"
+        )
     # The second world: the engine's contact forces, calibrated on its own grasps.
     # (--quick: one grasp, scored on itself: a smoke test, not held out.)
     # Its slips: loaded grasps of a free object (filled, pulled past the stick limit),
@@ -524,36 +551,40 @@ def run(quick: bool, sizes: Sizes | None = None) -> list[Row]:
     with tempfile.TemporaryDirectory() as tmp:
         workdir = Path(tmp) if quick else Path(os.environ.get("WORLDS_DIR", "out/worlds"))
         workdir.mkdir(parents=True, exist_ok=True)
-        recs = force_mujoco.grasps(z.mujoco, z.mujoco_mesh_m, workdir)
+        recs = force_mujoco.grasps(z.mujoco, z.mujoco_mesh_m, workdir, settings)
         slides = force_mujoco.loaded(
-            z.slides, z.mujoco_mesh_m, workdir, duration_secs=z.loaded_secs
+            z.slides, z.mujoco_mesh_m, workdir, duration_secs=z.loaded_secs, settings=settings
         )
         mujoco_still = force_mujoco.loaded(
             z.still, z.mujoco_mesh_m, workdir, duration_secs=z.mujoco_still_secs, still=True
         )
     half = max(1, z.mujoco // 2)
-    rows += wrench_rows("mujoco", recs[:half], recs[half:] or recs, secs)[0]
     period = draw(0).scene.frame_period_secs
     cut = max(1, z.slides // 2)
     mujoco_cal = force_mujoco.calibrate_mujoco(recs[:half], slides[:cut], "bench.force")
-    # The force on the loaded grasps held out (loads along tool y and z).
-    rows += wrench_rows("mujoco_loaded", recs[:half] + slides[:cut], slides[cut:] or slides, secs)[
-        0
-    ]
-    # Long still holds for the false alarms (the default setting only).
-    still = [
-        record_all(100 + i, z.still_secs, load="still", settings=(DEFAULT_SETTING,))
-        for i in progress(range(z.still), "bench.force still holds")
-    ]
-    rows += slip_rows("sim", test_recs + still, cal, period)
-    rows += slip_rows("mujoco", (slides[cut:] or slides) + mujoco_still, mujoco_cal, period)
-    reflex_seeds = [n * 2 + i for i in range(z.reflex)]
-    rows += reflex_rows(reflex_seeds, 2.5 if quick else 4.0, cal)
-    rows += reflex_rows(
-        force_mujoco.reflex_seeds(z.mujoco_reflex), 2.5 if quick else 4.0, mujoco_cal,
-        z.mujoco_mesh_m,
-    )  # fmt: skip
-    rows += handover_rows(list(range(z.handover)), cal, period)
+    if "wrench" in sweeps:
+        rows += wrench_rows("mujoco", recs[:half], recs[half:] or recs, secs)[0]
+        # The force on the loaded grasps held out (loads along tool y and z).
+        rows += wrench_rows(
+            "mujoco_loaded", recs[:half] + slides[:cut], slides[cut:] or slides, secs
+        )[0]
+    if "slip" in sweeps:
+        # Long still holds for the false alarms (the default setting only).
+        still = [
+            record_all(100 + i, z.still_secs, load="still", settings=(DEFAULT_SETTING,))
+            for i in progress(range(z.still), "bench.force still holds")
+        ]
+        rows += slip_rows("sim", test_recs + still, cal, period)
+        rows += slip_rows("mujoco", (slides[cut:] or slides) + mujoco_still, mujoco_cal, period)
+    if "reflex" in sweeps:
+        reflex_seeds = [n * 2 + i for i in range(z.reflex)]
+        rows += reflex_rows(reflex_seeds, 2.5 if quick else 4.0, cal)
+        rows += reflex_rows(
+            force_mujoco.reflex_seeds(z.mujoco_reflex), 2.5 if quick else 4.0, mujoco_cal,
+            z.mujoco_mesh_m,
+        )  # fmt: skip
+    if "handover" in sweeps:
+        rows += handover_rows(list(range(z.handover)), cal, period)
     return rows
 
 
@@ -581,7 +612,13 @@ if __name__ == "__main__":
     parser.add_argument(
         "--mujoco-mesh", type=float, default=Sizes.mujoco_mesh_m, help="MuJoCo mesh edge, m"
     )
+    parser.add_argument(
+        "--sweeps", default=",".join(SWEEPS), help=f"comma-separated, of {','.join(SWEEPS)}"
+    )
     extra, rest = parser.parse_known_args()
+    sweeps = tuple(extra.sweeps.split(","))
+    if not sweeps or set(sweeps) - set(SWEEPS):
+        sys.exit(f"bench.force: --sweeps takes some of {','.join(SWEEPS)}, got {extra.sweeps!r}")
     counts = (
         *(extra.grasps, extra.mujoco, extra.slides, extra.still, extra.reflex),
         *(extra.mujoco_reflex, extra.handover),
@@ -600,4 +637,4 @@ if __name__ == "__main__":
         handover=extra.handover,
         mujoco_mesh_m=extra.mujoco_mesh,
     )
-    main("force", lambda quick: run(quick, chosen), columns=COLUMNS, argv=rest)
+    main("force", lambda quick: run(quick, chosen, sweeps), columns=COLUMNS, argv=rest)

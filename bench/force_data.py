@@ -34,6 +34,7 @@ from geometry.gripper import SIDES
 from messages.force import WrenchTruth
 from perception.force.estimators import Calibration, Sample, calibrate
 from perception.force.features import BubbleFeatures, ContactFeatures, FeatureParams
+from perception.grasp import GraspMonitor, GraspStatus
 from perception.shear import ShearParams
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -132,6 +133,9 @@ class Frame:
     # How far the object may slide in the hand and still count as held (``held``): the
     # world's. MuJoCo's shell gives centimetres under a load before the object slips out.
     drop_m: float = 0.010
+    # The grasp monitor's stable grasp (``perception.grasp``, fed the pressures and the
+    # jaws as the graph's ``grasp_monitor`` is): the slip node's reference starts there.
+    stable: bool = False
 
 
 def free_and_still(snap: sim.WorldSnapshot, scene: sim.Scene) -> bool:
@@ -223,6 +227,14 @@ class Bubbles:
         return out
 
 
+def monitor_step(monitor: GraspMonitor, snap: sim.WorldSnapshot) -> GraspStatus:
+    """Feed one snapshot's pressures and jaws to the grasp monitor (as the graph does)."""
+    stamp = sim.stamp_of(snap)
+    for side in SIDES:
+        monitor.update_pressure(side, snap.pressure_pa[side], stamp)
+    return monitor.update_gripper(snap.speed_m_per_s, snap.width_m, stamp)
+
+
 def features_of(
     instants: list[sim.Instant],
     scene: sim.Scene,
@@ -235,8 +247,10 @@ def features_of(
     # The frames' own features: the default setting's (the nodes', the one the slip and
     # reflex sweeps calibrate with), else the only one recorded.
     main = DEFAULT_SETTING if DEFAULT_SETTING in bubbles else next(iter(bubbles))
+    monitor = GraspMonitor()
     for inst, truth in zip(instants, truths, strict=True):
         snap = inst.snapshot
+        status = monitor_step(monitor, snap)
         for name, b in bubbles.items():
             rec.by_setting[name].append(b.frame(inst, scene))
         none = sim.friction.BubbleWrench.none()
@@ -249,6 +263,7 @@ def features_of(
                 slipping={s: snap.wrench.get(s, none).slipping_fraction for s in SIDES},
                 slide_m=snap.slide_m.copy(),
                 feature_secs=0.0,
+                stable=status.stable,
             )
         )
     return rec
