@@ -50,9 +50,9 @@ def send_parts(sock: zmq.Socket[Any], parts: Sequence[Any]) -> None:
     message of five parts: no flag arithmetic on enum members per part, and pyzmq's
     compiled send called directly (see docs/transport.md).
     """
-    last = len(parts) - 1
-    for i, part in enumerate(parts):
-        _send(sock, part, _SNDMORE if i < last else 0, copy=False)
+    for part in parts[:-1]:
+        _send(sock, part, _SNDMORE, copy=False)
+    _send(sock, parts[-1], 0, copy=False)
 
 
 def recv_parts(sock: zmq.Socket[Any]) -> list[zmq.Frame] | None:
@@ -149,23 +149,24 @@ class ZmqIO:
 
     # -- the IO protocol -------------------------------------------------------
     def publish(self, output: str, msg: Message) -> None:
-        kind = self.output_types.get(output)
-        if output not in self.topics:
+        topic = self.topics.get(output)
+        if topic is None:
             raise KeyError(
                 f"{self.name}: {output!r} is not a declared output: {sorted(self.topics)}"
             )
+        kind = self.output_types.get(output)
         if kind is not None and not isinstance(msg, kind):
             raise TypeError(
                 f"{self.name}.{output}: expected {kind.__name__}, got {type(msg).__name__}"
             )
-        topic = self.topics[output]
         header = getattr(msg, "header", None)
         if header is not None:
             header.seq = self.published[topic]
         frames = encode(topic, msg)
         self._count_ahead(topic)
         send_parts(self.pub, frames)
-        self._check_finite(topic, msg)  # after the send: not on the frame's way out
+        if msg.finite_fields:  # after the send: not on the frame's way out
+            self._check_finite(topic, msg)
 
     def publish_raw(self, topic: str, frames: list[Any], decoded: Message | None = None) -> None:
         if topic not in self.topics.values():
@@ -181,7 +182,7 @@ class ZmqIO:
         Checked once, where the message is published, while its arrays are in this
         process's caches: not again by each subscriber, which would read every pixel of
         every frame once per reader (docs/runtime.md, "Values that must be finite")."""
-        if msg.finite_fields and (bad := msg.nonfinite_fields()):
+        if bad := msg.nonfinite_fields():
             self.nonfinite[topic] += 1
             if self.nonfinite[topic] == 1:
                 self.log.warning(
