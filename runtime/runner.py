@@ -327,7 +327,7 @@ class Runner:
                 self._call(timer.callback)
 
     def _service(self, source: Source) -> bool:
-        got = self._recv(source)
+        got = self._recv(source, waiting=True)  # the poll has just said it has one
         if got is None:
             return False
         inputs, frames = got
@@ -350,12 +350,16 @@ class Runner:
                 return True
             inputs, frames = got
 
-    def _recv(self, source: Source) -> tuple[list[Input], list[Any]] | None:
-        """The next message of an input of ``source`` and those inputs, or None."""
-        while (frames := recv_parts(source.socket)) is not None:
+    def _recv(
+        self, source: Source, *, waiting: bool = False
+    ) -> tuple[list[Input], list[Any]] | None:
+        """The next message of an input of ``source`` and those inputs, or None
+        (``waiting``: a poll has just said a message waits, see ``recv_parts``)."""
+        while (frames := recv_parts(source.socket, waiting=waiting)) is not None:
             inputs = source.inputs.get(frames[0].bytes)
             if inputs:  # else another topic that merely starts with a subscribed one
                 return inputs, frames
+            waiting = False
         return None
 
     def _deliver(self, inp: Input, frames: list[Any], skipped: int = 0) -> None:
