@@ -607,6 +607,9 @@ BAD_FRAMES: dict[str, Callable[[], list[Any]]] = {
         + _tof_frames()[3:]
     ),
     "scalar field wrong type": lambda: _with_header(_set(("fields", "sensor"), 5)),
+    "field outside its declared choices": lambda: _with_header(
+        _set(("fields", "sensor"), "middle")
+    ),
     "float field given a string": lambda: _with_header(_set(("fields", "fx_px"), "x")),
     "nested struct not a map": lambda: _with_header(_set(("fields", "header"), "h")),
     "nested field wrong type": lambda: _with_header(_set(("fields", "header", "seq"), "1")),
