@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import functools
 import math
-import typing
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -57,13 +56,12 @@ _rows_decoder = msgspec.msgpack.Decoder(_ArrayRows)
 
 
 class _Envelope(msgspec.Struct, forbid_unknown_fields=True):
-    """Frame 1 with its fields and array rows kept as undecoded MessagePack: the fields
-    are decoded straight into their class's types (see :func:`_fields_type`), the rows
-    are the key to a layout already checked (see :func:`decode`)."""
+    """Frame 1 with its array rows kept as undecoded MessagePack: the key to a layout
+    already checked (see :func:`decode`)."""
 
     type: str
     fp: str
-    fields: msgspec.Raw
+    fields: dict[str, Any]
     arrays: msgspec.Raw
 
 
@@ -110,9 +108,6 @@ class _Plan:
     arrays: tuple[_WireArray, ...]
     arrays_by_name: dict[str, _WireArray]
     scalar_names: tuple[str, ...]
-    # Frame 1's fields, decoded and validated by msgspec into a struct of the class's
-    # non-array fields (their types, constraints and defaults): no dict, no convert.
-    fields_decoder: msgspec.msgpack.Decoder[Any]
     # The header's array rows as sent -> those rows checked, for today's fingerprint: a
     # stream sends the same rows in every frame, so decode checks them once.
     layouts: dict[bytes, tuple[_Row, ...]]
@@ -136,26 +131,8 @@ def _plan(cls: type[Message]) -> _Plan:
         scalar_names=tuple(
             f.name for f in msgspec.structs.fields(cls) if f.name not in schema.array_fields
         ),
-        fields_decoder=msgspec.msgpack.Decoder(_fields_type(cls, schema.array_fields)),
         layouts={},
     )
-
-
-def _fields_type(cls: type[Message], arrays: dict[str, Array]) -> type[msgspec.Struct]:
-    """A struct of ``cls``'s fields but its arrays, declared as ``cls`` declares them (types
-    with their constraints, defaults; unknown keys ignored, as ``cls`` ignores them)."""
-    hints = typing.get_type_hints(cls, include_extras=True)
-    spec: list[Any] = []
-    for f in msgspec.structs.fields(cls):
-        if f.name in arrays:
-            continue
-        if f.default is not msgspec.NODEFAULT:
-            spec.append((f.name, hints[f.name], f.default))
-        elif f.default_factory is not msgspec.NODEFAULT:
-            spec.append((f.name, hints[f.name], msgspec.field(default_factory=f.default_factory)))
-        else:
-            spec.append((f.name, hints[f.name]))
-    return msgspec.defstruct(f"{cls.__name__}Fields", spec, kw_only=True)
 
 
 def _wire_array(msg: Message, field: _WireArray, value: Any) -> np.ndarray:
@@ -258,6 +235,12 @@ def _buffer(frame: Any) -> memoryview:
     return buf if type(buf) is memoryview else memoryview(buf)
 
 
+def _passthrough(kind: type, obj: Any) -> Any:
+    if kind is np.ndarray and isinstance(obj, np.ndarray):
+        return obj
+    raise NotImplementedError(f"cannot convert {type(obj).__name__} to {kind}")
+
+
 def _layout(topic: str, wire_type: str, arrays: _ArrayRows, plan: _Plan) -> tuple[_Row, ...]:
     """Each header row checked against its declaration: a known array field, the declared
     dtype, a shape that fits (raises ``FrameDecodeError``); no buffer is looked at."""
@@ -286,7 +269,7 @@ def _layout(topic: str, wire_type: str, arrays: _ArrayRows, plan: _Plan) -> tupl
 def _received_arrays(
     topic: str, wire_type: str, fields: dict[str, Any], rows: tuple[_Row, ...], frames: Any
 ) -> dict[str, Any]:
-    """``fields`` (made for this call alone: filled in place) with each checked row's
+    """``fields`` (decoded for this call alone: filled in place) with each checked row's
     array added, a read-only view on its frame (raises ``FrameDecodeError`` for a buffer
     of another size). One loop for every array of a message: this runs for each frame a
     node receives, and a call per array costs more than its checks."""
@@ -369,7 +352,7 @@ def decode(
         plan = _plan(cls)
         rows = plan.layouts.get(key)
         if rows is not None and envelope.fp == plan.fingerprint:
-            return topic, _message(topic, cls, plan, expect, envelope.fields, rows, frames)
+            return topic, _message(topic, cls, expect, envelope.fields, rows, frames)
     try:
         arrays = _rows_decoder.decode(key)
     except _HEADER_ERRORS as err:
@@ -391,7 +374,7 @@ def decode(
             f"{plan.fingerprint} here: the two sides declare different fields"
         )
     rows = _layout(topic, envelope.type, arrays, plan)
-    msg = _message(topic, cls, plan, expect, envelope.fields, rows, frames)
+    msg = _message(topic, cls, expect, envelope.fields, rows, frames)
     if envelope.fp == plan.fingerprint:
         if len(plan.layouts) >= _LAYOUTS_MAX:
             plan.layouts.clear()
@@ -402,27 +385,22 @@ def decode(
 def _message(
     topic: str,
     cls: type[Message],
-    plan: _Plan,
     expect: type[Message] | None,
-    fields: msgspec.Raw,
+    fields: dict[str, Any],
     rows: tuple[_Row, ...],
     frames: Sequence[Any],
 ) -> Message:
-    """The message of ``fields`` (frame 1's, undecoded) and the arrays of ``rows``
-    (checked) on ``frames[2:]``."""
+    """The message of ``fields`` and the arrays of ``rows`` (checked) on ``frames[2:]``."""
     if expect is not None and cls is not expect:
         raise FrameDecodeError(f"{topic}: expected {expect.__name__}, got {cls.__name__}")
     if len(frames) != 2 + len(rows):
         raise FrameDecodeError(
             f"{topic}: {cls.__name__} header lists {len(rows)} arrays, got {len(frames) - 2} buffers"
         )
-    arrays = _received_arrays(topic, cls.__name__, {}, rows, frames[2:])
+    fields = _received_arrays(topic, cls.__name__, fields, rows, frames[2:])
     try:
-        # Validated here, by the declared types (the struct's own __init__ checks none):
-        # then every field is passed on as decoded, the arrays beside them.
-        scalars = plan.fields_decoder.decode(fields)
-        return cls(**msgspec.structs.asdict(scalars), **arrays)
-    except (*_HEADER_ERRORS, TypeError) as err:
+        return msgspec.convert(fields, cls, dec_hook=_passthrough)
+    except (msgspec.ValidationError, NotImplementedError, TypeError) as err:
         raise FrameDecodeError(f"{topic}: {cls.__name__}: {err}") from err
 
 
