@@ -275,3 +275,27 @@ def test_a_box_corner_at_2_mm_is_ok_when_within_the_tolerance() -> None:
         assert (result.status in GOOD) == (inside >= judge.CONFIDENCE), (inside, result.message)
         wide_ok += result.status in GOOD and result.region95_deg > 2.0
     assert wide_ok >= 1
+
+
+def test_a_box_corner_at_2_mm_is_not_held_to_the_allowance_fitted_at_3_mm() -> None:
+    """The allowance for the rays' bias each face mispredicts (``judge.FACE_ERROR``) was
+    fitted at a box's corner at 3 mm noise; the misprediction grows with the noise, so
+    at 2 mm the same share made the region too wide along the weak rotation (errors
+    0.76 of the stated spread there over 100 clouds, 98 of 100 regions holding the truth)
+    and a third of the right answers ``suspect``. In proportion to the ray noise: these
+    24 clouds at 2 mm, each one LM solve from 5 degrees off, are all right, and 18 or
+    more ``ok`` (16 with the share fixed)."""
+    model = pose_hard.OBJECTS["box_corner"]
+    est = PoseEstimator(
+        LMSolver(model.field), EstimatorParams(track=False, search=False), symmetric_about_z=False
+    )
+    ok = 0
+    for k in range(900, 924):
+        rng = np.random.default_rng(k)
+        truth = pose_hard.truth_pose("box_corner", rng)
+        pts, bubble = synthetic.grasp_cloud(model, truth, n_points=3000, noise_m=0.002, rng=rng)
+        seed = synthetic.tilted_seed(truth, 5.0, rng, offset_m=0.002)
+        result = est.estimate(pts, bubble, seed_tool_from_object=seed)
+        assert metrics.right(model.field, result, truth, points_in_tool=pts), k
+        ok += result.status in GOOD
+    assert ok >= 18, ok
