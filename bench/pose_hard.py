@@ -50,6 +50,7 @@ Timing: process CPU time of the whole estimate on one thread (``cpu_ms_median``)
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -268,6 +269,31 @@ def estimator_rows(
     return rows
 
 
+def coverage_clouds(
+    kind: str, noise: float, n_cases: int, n_points: int
+) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """The coverage rows' clouds (``COVERAGE_CLOUDS`` on) of ``OBJECTS[kind]``: the
+    truth (``tool_from_object``), the points, their bubbles and the seed (5 degrees and
+    2 mm off the truth)."""
+    for k in range(COVERAGE_CLOUDS, COVERAGE_CLOUDS + n_cases):
+        rng = np.random.default_rng(1000 * k + round(noise * 1e5))
+        truth = truth_pose(kind, rng)
+        pts, bub = synthetic.grasp_cloud(
+            OBJECTS[kind], truth, n_points=n_points, noise_m=noise, rng=rng
+        )
+        yield truth, pts, bub, synthetic.tilted_seed(truth, 5.0, rng, offset_m=0.002)
+
+
+def coverage_estimator(kind: str) -> PoseEstimator:
+    """LM, one solve from the seed and the judgement per cloud (``search: false``)."""
+    model = OBJECTS[kind]
+    return PoseEstimator(
+        _solver("lm", model.field),
+        EstimatorParams(track=False, search=False),
+        symmetric_about_z=model.symmetric_about_z,
+    )
+
+
 def coverage_rows(kinds: list[str], noises: list[float], n_cases: int, n_points: int) -> list[Row]:
     """The stated 95% region's coverage per shape and noise, on ``n_cases`` clouds each
     (the clouds ``COVERAGE_CLOUDS`` on: not those ``judge.INFLATION`` was fitted on),
@@ -276,22 +302,12 @@ def coverage_rows(kinds: list[str], noises: list[float], n_cases: int, n_points:
     start reached it; the verdict is the judgement of that one solve)."""
     rows: list[Row] = []
     for kind in progress(kinds, "bench.pose_hard", label=lambda k: f"coverage, {k}"):
-        model = OBJECTS[kind]
-        est = PoseEstimator(
-            _solver("lm", model.field),
-            EstimatorParams(track=False, search=False),
-            symmetric_about_z=model.symmetric_about_z,
-        )
+        est = coverage_estimator(kind)
         for noise in noises:
-            results = []
-            for k in range(COVERAGE_CLOUDS, COVERAGE_CLOUDS + n_cases):
-                rng = np.random.default_rng(1000 * k + round(noise * 1e5))
-                truth = truth_pose(kind, rng)
-                pts, bub = synthetic.grasp_cloud(
-                    model, truth, n_points=n_points, noise_m=noise, rng=rng
-                )
-                seed = synthetic.tilted_seed(truth, 5.0, rng, offset_m=0.002)
-                results.append(_estimate_judged(est, kind, truth, pts, bub, seed))
+            results = [
+                _estimate_judged(est, kind, truth, pts, bub, seed)
+                for truth, pts, bub, seed in coverage_clouds(kind, noise, n_cases, n_points)
+            ]
             rows.append(
                 summary(
                     results,
