@@ -19,6 +19,7 @@ judgement):
   the spread stated too wide);
 - ``ok_at_{2,3,4}deg``: the share of the right answers whose probability within that
   rotation (and 2 mm) is at least ``judge.CONFIDENCE``: ``ok`` at that tolerance;
+- ``silent_wrong``: wrong answers ``ok`` or ``recovered``;
 - ``wrong_p_max``: the highest such probability (at 2 degrees) of a wrong answer, and
   ``right_above_wrong``: the share of the right answers at or above it, the most any
   threshold on that probability can call ``ok`` without calling a wrong one ``ok``.
@@ -89,6 +90,7 @@ def weak_rows(kinds: list[str], noises: list[float], n_cases: int, n_points: int
                 "cases": n_cases,
                 "right": int(hit.sum()),
                 "right_ok": int(np.sum(hit & np.array(ok))),
+                "silent_wrong": int(np.sum(miss & np.array(ok))),
                 "weak_sd_deg_median": median(list(sds)),
                 "weak_err_deg_rms": float(np.sqrt(np.mean(errs**2))),
                 "weak_z_rms": float(np.sqrt(np.mean((errs / np.maximum(sds, 1e-12)) ** 2))),
@@ -121,6 +123,7 @@ COLUMNS = [
     "cases",
     "right",
     "right_ok",
+    "silent_wrong",
     "weak_sd_deg_median",
     "weak_err_deg_rms",
     "weak_z_rms",

@@ -36,6 +36,7 @@ def test_pose_weak_quick(capsys: pytest.CaptureFixture[str]) -> None:
     assert json.loads(capsys.readouterr().out)["rows"]
     for r in rows:
         assert r["cases"] == 3 and 0 <= r["right_ok"] <= r["right"] <= r["cases"]
+        assert 0 <= r["silent_wrong"] <= r["cases"] - r["right"]
         assert r["weak_sd_deg_median"] > 0 and np.isfinite(r["weak_err_deg_rms"])
         assert np.isfinite(r["weak_z_rms"])
         assert r["ok_at_2deg"] <= r["ok_at_3deg"] <= r["ok_at_4deg"]

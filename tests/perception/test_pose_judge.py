@@ -299,3 +299,21 @@ def test_a_box_corner_at_2_mm_is_not_held_to_the_allowance_fitted_at_3_mm() -> N
         assert metrics.right(model.field, result, truth, points_in_tool=pts), k
         ok += result.status in GOOD
     assert ok >= 18, ok
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="not fixed: the bias correction (judge.unbiased) at a box's corner at 3 mm "
+    "depends on where within 1e-11 of the fit's minimum the solver stopped (0.7 degree "
+    "apart from the seed and from the truth); from the seed the answer is 2.9 degrees "
+    "off with a stated 0.7, ok",
+)
+def test_a_box_corner_at_3_mm_with_10k_points_is_never_wrong_and_ok() -> None:
+    """``bench.pose_weak``'s row at 10k points (the node's ``max_points``): cloud 213,
+    one LM solve from 5 degrees off."""
+    *_, (truth, pts, bubble, seed) = pose_hard.coverage_clouds("box_corner", 0.003, 14, 10000)
+    result = pose_hard.coverage_estimator("box_corner").estimate(
+        pts, bubble, seed_tool_from_object=seed
+    )
+    right = metrics.right(pose_hard.OBJECTS["box_corner"].field, result, truth, points_in_tool=pts)
+    assert right or result.status not in GOOD, result.status
