@@ -270,12 +270,12 @@ def estimator_rows(
 
 
 def coverage_clouds(
-    kind: str, noise: float, n_cases: int, n_points: int
+    kind: str, noise: float, n_cases: int, n_points: int, first: int = COVERAGE_CLOUDS
 ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
-    """The coverage rows' clouds (``COVERAGE_CLOUDS`` on) of ``OBJECTS[kind]``: the
-    truth (``tool_from_object``), the points, their bubbles and the seed (5 degrees and
-    2 mm off the truth)."""
-    for k in range(COVERAGE_CLOUDS, COVERAGE_CLOUDS + n_cases):
+    """The coverage rows' clouds (``first`` on) of ``OBJECTS[kind]``: the truth
+    (``tool_from_object``), the points, their bubbles and the seed (5 degrees and 2 mm
+    off the truth)."""
+    for k in range(first, first + n_cases):
         rng = np.random.default_rng(1000 * k + round(noise * 1e5))
         truth = truth_pose(kind, rng)
         pts, bub = synthetic.grasp_cloud(

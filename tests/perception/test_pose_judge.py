@@ -283,14 +283,14 @@ def test_a_box_corner_at_2_mm_is_not_held_to_the_allowance_fitted_at_3_mm() -> N
     at 2 mm the same share made the region too wide along the weak rotation (errors
     0.76 of the stated spread there over 100 clouds, 98 of 100 regions holding the truth)
     and a third of the right answers ``suspect``. In proportion to the ray noise: these
-    24 clouds at 2 mm, each one LM solve from 5 degrees off, are all right, and 18 or
-    more ``ok`` (16 with the share fixed)."""
+    12 clouds at 2 mm, each one LM solve from 5 degrees off, are all right, and 11 or
+    more ``ok`` (9 with the share fixed)."""
     model = pose_hard.OBJECTS["box_corner"]
     est = PoseEstimator(
         LMSolver(model.field), EstimatorParams(track=False, search=False), symmetric_about_z=False
     )
     ok = 0
-    for k in range(900, 924):
+    for k in range(900, 912):
         rng = np.random.default_rng(k)
         truth = pose_hard.truth_pose("box_corner", rng)
         pts, bubble = synthetic.grasp_cloud(model, truth, n_points=3000, noise_m=0.002, rng=rng)
@@ -298,7 +298,7 @@ def test_a_box_corner_at_2_mm_is_not_held_to_the_allowance_fitted_at_3_mm() -> N
         result = est.estimate(pts, bubble, seed_tool_from_object=seed)
         assert metrics.right(model.field, result, truth, points_in_tool=pts), k
         ok += result.status in GOOD
-    assert ok >= 18, ok
+    assert ok >= 11, ok
 
 
 @pytest.mark.xfail(
@@ -311,7 +311,9 @@ def test_a_box_corner_at_2_mm_is_not_held_to_the_allowance_fitted_at_3_mm() -> N
 def test_a_box_corner_at_3_mm_with_10k_points_is_never_wrong_and_ok() -> None:
     """``bench.pose_weak``'s row at 10k points (the node's ``max_points``): cloud 213,
     one LM solve from 5 degrees off."""
-    *_, (truth, pts, bubble, seed) = pose_hard.coverage_clouds("box_corner", 0.003, 14, 10000)
+    ((truth, pts, bubble, seed),) = pose_hard.coverage_clouds(
+        "box_corner", 0.003, 1, 10000, first=213
+    )
     result = pose_hard.coverage_estimator("box_corner").estimate(
         pts, bubble, seed_tool_from_object=seed
     )
