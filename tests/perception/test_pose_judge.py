@@ -304,9 +304,9 @@ def test_a_box_corner_at_2_mm_is_not_held_to_the_allowance_fitted_at_3_mm() -> N
 @pytest.mark.xfail(
     strict=True,
     reason="not fixed: the bias correction (judge.unbiased) at a box's corner at 3 mm "
-    "depends on where within 1e-11 of the fit's minimum the solver stopped (0.7 degree "
-    "apart from the seed and from the truth); from the seed the answer is 2.9 degrees "
-    "off with a stated 0.7, ok",
+    "differs by 0.7 degree between two stops of LM at the fit's minimum whose costs "
+    "differ by 3e-11 of the cost (from the seed and from the truth); from the seed the "
+    "answer is 2.9 degrees off with a stated 0.7 (sd), ok",
 )
 def test_a_box_corner_at_3_mm_with_10k_points_is_never_wrong_and_ok() -> None:
     """``bench.pose_weak``'s row at 10k points (the node's ``max_points``): cloud 213,
