@@ -303,10 +303,10 @@ def test_a_box_corner_at_2_mm_is_not_held_to_the_allowance_fitted_at_3_mm() -> N
 
 @pytest.mark.xfail(
     strict=True,
-    reason="not fixed: the bias correction (judge.unbiased) at a box's corner at 3 mm "
-    "differs by 0.7 degree between two stops of LM at the fit's minimum whose costs "
-    "differ by 3e-11 of the cost (from the seed and from the truth); from the seed the "
-    "answer is 2.9 degrees off with a stated 0.7 (sd), ok",
+    reason="not fixed: the fit's minimum of this cloud is 2.9 degrees off along the weak "
+    "rotation (7.7 statistical standard deviations by the cost's profile; other noise "
+    "draws on the same pose at 10k points: 0.2-1.2 degrees), the bias correction 0.2 "
+    "degree, the stated sd 0.58-0.71 degree however the curvature's axes are chosen: ok",
 )
 def test_a_box_corner_at_3_mm_with_10k_points_is_never_wrong_and_ok() -> None:
     """``bench.pose_weak``'s row at 10k points (the node's ``max_points``): cloud 213,
@@ -319,3 +319,30 @@ def test_a_box_corner_at_3_mm_with_10k_points_is_never_wrong_and_ok() -> None:
     )
     right = metrics.right(pose_hard.OBJECTS["box_corner"].field, result, truth, points_in_tool=pts)
     assert right or result.status not in GOOD, result.status
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="not fixed: judge.curvature measures along the SVD's axes of the union of the "
+    "observed directions, which turn freely where both sets span the same space; "
+    "measured along the Gauss-Newton eigenvectors both agree (0.58 degree), but that "
+    "changes the calibration fitted on the old axes (FACE_ERROR, EDGE_ERROR)",
+)
+def test_the_judgement_does_not_depend_on_where_lm_stopped_at_the_minimum() -> None:
+    """Cloud 213 of the box's corner at 3 mm, 10k points: LM from the seed and from the
+    truth stops at the same minimum (costs 3e-11 of the cost apart, poses 1e-3 degree
+    apart); the stated spread along the weak rotation was 0.71 and 1.15 degrees, the
+    bias correction 0.2 and 0.7 degree."""
+    ((truth, pts, bubble, seed),) = pose_hard.coverage_clouds(
+        "box_corner", 0.003, 1, 10000, first=213
+    )
+    fld = pose_hard.OBJECTS["box_corner"].field
+    rays = cloud.camera_rays(pts, bubble)
+    judged = []
+    for start in (seed, truth):
+        fit = LMSolver(fld).solve(pts, se3.invert(start))
+        judged.append(judge.uncertainty(fld, fit.object_from_tool, pts, rays_in_tool=rays))
+    sd = [np.sqrt(np.linalg.eigvalsh(u.covariance[3:, 3:])[-1]) for u in judged]
+    assert sd[1] == pytest.approx(sd[0], rel=0.05), np.degrees(sd)
+    moved = np.degrees(np.linalg.norm(judged[0].correction[3:] - judged[1].correction[3:]))
+    assert moved < 0.05, moved
