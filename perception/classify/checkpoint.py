@@ -161,7 +161,7 @@ def load_checkpoint(path: str | Path) -> tuple[ResNet18, ModelMeta]:
             depth_center_m=float(payload["depth_center_m"]),
             depth_scale_m=float(payload["depth_scale_m"]),
             # Saved before invalid pixels had a depth of their own: they were the centre.
-            invalid_depth_m=float(payload.get("invalid_depth_m", payload["depth_center_m"])),
+            invalid_depth_m=float(payload.get("invalid_depth_m") or payload["depth_center_m"]),
             training=payload.get("training", {}),
         )
     except (KeyError, ValueError) as err:
