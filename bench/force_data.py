@@ -68,13 +68,19 @@ class GraspSpec:
     doc: dict[str, object]  # the scene as a document (``sim.scene_from_dict``'s input)
 
 
-def draw(seed: int, *, duration_secs: float = 3.0, load: str | None = None) -> GraspSpec:
-    """The grasp of ``seed``: object, grip, load (``fill``, ``pull``, ``still``)."""
+def draw(
+    seed: int, *, duration_secs: float = 3.0, load: str | None = None, bounded: bool = False
+) -> GraspSpec:
+    """The grasp of ``seed``: object, grip, load (``fill``, ``pull``, ``still``). With
+    ``bounded``, the grip is at most the object's bound (the reflex's runs: a controller
+    does not grasp a wine glass harder than the reflex may squeeze it); the other draws
+    are the same either way."""
     rng = np.random.default_rng([seed, 31])
     name = list(OBJECTS)[(seed // len(LOADS)) % len(OBJECTS)]
-    xyz, width, mass, _ = OBJECTS[name]
+    xyz, width, mass, bound = OBJECTS[name]
     kind = load or LOADS[seed % len(LOADS)]
-    grip = float(rng.uniform(5.0, 12.0))
+    grip = float(rng.uniform(5.0, 12.0))  # the loads scale with the drawn grip
+    command = min(grip, bound) if bounded else grip
     angle = float(rng.uniform(0, 2 * np.pi))
     gravity = [0.0, float(np.cos(angle)), float(np.sin(angle))]
     t_load = 1.0
@@ -93,7 +99,7 @@ def draw(seed: int, *, duration_secs: float = 3.0, load: str | None = None) -> G
                     "command": "grasp",
                     "width_m": width,
                     "speed_m_per_s": 0.08,
-                    "force_n": grip,
+                    "force_n": command,
                 }
             ]
         },  # fmt: skip
@@ -116,7 +122,7 @@ def draw(seed: int, *, duration_secs: float = 3.0, load: str | None = None) -> G
         ]
     data["load"] = load_spec
     scene = sim.scene_from_dict(data, path=f"<force grasp {seed}>")
-    return GraspSpec(seed, name, kind, grip, scene, data)
+    return GraspSpec(seed, name, kind, command, scene, data)
 
 
 @dataclass

@@ -42,7 +42,7 @@ def closed_loop(
 ) -> dict:
     """One grasp whose load outgrows its grip, with or without the reflex; on MuJoCo
     (live, a free object) with a ``mujoco_mesh_m`` membrane mesh, else on ``world.sim``."""
-    spec = draw(seed, duration_secs=duration_secs, load="fill")
+    spec = draw(seed, duration_secs=duration_secs, load="fill", bounded=True)
     scene = spec.scene
     simulator = (
         force_mujoco.simulator(scene, mujoco_mesh_m) if mujoco_mesh_m else sim.Simulator(scene)

@@ -32,6 +32,8 @@ throughput phase, a figure that a loaded machine disturbs far less than wall tim
 from __future__ import annotations
 
 import json
+import os
+import threading
 import time
 from typing import Annotated, Any
 
@@ -58,6 +60,43 @@ def bench_images(rows: int, cols: int) -> tuple[np.ndarray, np.ndarray]:
     return depth_m, ir
 
 
+THREAD_GROUPS = ("main", "zmq_io", "other")
+
+
+def thread_cpu_nanos() -> dict[int, tuple[str, int]]:
+    """Each thread of this process: its name and CPU time so far in nanoseconds (the first
+    field of Linux's ``/proc/self/task/<tid>/schedstat``); empty where there is none."""
+    out: dict[int, tuple[str, int]] = {}
+    try:
+        tids = os.listdir("/proc/self/task")
+    except OSError:
+        return out
+    for tid in tids:
+        try:
+            with open(f"/proc/self/task/{tid}/schedstat") as f:
+                nanos = int(f.read().split()[0])
+            with open(f"/proc/self/task/{tid}/comm") as f:
+                name = f.read().strip()
+        except (OSError, ValueError, IndexError):
+            continue  # a thread that ended meanwhile
+        out[int(tid)] = (name, nanos)
+    return out
+
+
+def thread_split(
+    start: dict[int, tuple[str, int]], end: dict[int, tuple[str, int]], main: int
+) -> dict[str, int]:
+    """CPU nanoseconds between two :func:`thread_cpu_nanos` snapshots, summed per group:
+    ``main`` (the thread ``main``, which runs the sending or receiving loop), ``zmq_io``
+    (ZeroMQ's I/O threads) and ``other`` (pyzmq's zero-copy garbage collector, a node's
+    heartbeat, ...)."""
+    split = dict.fromkeys(THREAD_GROUPS, 0)
+    for tid, (name, nanos) in end.items():
+        group = "main" if tid == main else "zmq_io" if name.startswith("ZMQbg/IO") else "other"
+        split[group] += nanos - start.get(tid, (name, 0))[1]
+    return split
+
+
 class WindowPlan:
     """Which frames a source sends when: the latency phase by timer, then by window.
 
@@ -73,9 +112,13 @@ class WindowPlan:
         self.sent = 0
         self.acked = 0  # the publisher's count through the newest acknowledged frame
         self.throughput_sent = 0
-        # Process CPU time (every thread) from the first throughput frame to the last ack.
+        # Process CPU time (every thread) from the first throughput frame to the last ack,
+        # and each thread's (thread_split).
         self.cpu_start_nanos = 0
         self.cpu_end_nanos = 0
+        self.threads_start: dict[int, tuple[str, int]] = {}
+        self.threads_end: dict[int, tuple[str, int]] = {}
+        self.loop_thread = 0  # the thread running the loop (the split's ``main``)
 
     @property
     def done(self) -> bool:
@@ -98,6 +141,8 @@ class WindowPlan:
         if self.phase != THROUGHPUT:
             return ids
         if not self.throughput_sent:
+            self.threads_start = thread_cpu_nanos()
+            self.loop_thread = threading.get_native_id()
             self.cpu_start_nanos = time.process_time_ns()
         while (
             self.sent - self.acked < self.window and self.throughput_sent < self.throughput_frames
@@ -115,6 +160,7 @@ class WindowPlan:
             self.phase = THROUGHPUT
         if self.done and not self.cpu_end_nanos:
             self.cpu_end_nanos = time.process_time_ns()
+            self.threads_end = thread_cpu_nanos()
         return self.fill()
 
     def result(self) -> dict[str, Any]:
@@ -124,6 +170,9 @@ class WindowPlan:
             "acked": self.acked,
             "throughput_frames": self.throughput_sent,
             "throughput_cpu_nanos": self.cpu_end_nanos - self.cpu_start_nanos,
+            "throughput_thread_cpu_nanos": thread_split(
+                self.threads_start, self.threads_end, self.loop_thread
+            ),
         }
 
 
@@ -141,6 +190,9 @@ class SinkRecord:
         self.throughput_last_nanos = 0
         self.cpu_start_nanos = 0
         self.cpu_end_nanos = 0
+        self.threads_start: dict[int, tuple[str, int]] = {}
+        self.threads_end: dict[int, tuple[str, int]] = {}
+        self.loop_thread = 0  # the thread running the loop (the split's ``main``)
 
     def take(self, stamp_nanos: int, seq: int, frame_id: str) -> bool:
         """Record one frame at its arrival; True when it is to be acknowledged."""
@@ -151,9 +203,12 @@ class SinkRecord:
             mono = time.monotonic_ns()
             if not self.throughput_frames:
                 self.throughput_first_nanos = mono
+                self.threads_start = thread_cpu_nanos()
+                self.loop_thread = threading.get_native_id()
                 self.cpu_start_nanos = time.process_time_ns()
             elif frame_id.endswith(LAST):
                 self.cpu_end_nanos = time.process_time_ns()
+                self.threads_end = thread_cpu_nanos()
             self.throughput_last_nanos = mono
             self.throughput_frames += 1
         if self.last_seq is not None and seq > self.last_seq + 1:
@@ -177,6 +232,9 @@ class SinkRecord:
             "throughput_frames": self.throughput_frames,
             "throughput_receive_nanos": [self.throughput_first_nanos, self.throughput_last_nanos],
             "throughput_cpu_nanos": self.cpu_end_nanos - self.cpu_start_nanos,
+            "throughput_thread_cpu_nanos": thread_split(
+                self.threads_start, self.threads_end, self.loop_thread
+            ),
         }
 
 

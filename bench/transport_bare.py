@@ -13,7 +13,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import struct
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
@@ -70,6 +70,9 @@ class Measured:
     source_cpu_us_per_frame: float
     sink_cpu_us_per_frame: float
     drops: int
+    # Each side's CPU per frame by thread (bench.nodes.thread_split): the loop's own
+    # thread, ZeroMQ's I/O thread, the rest (pyzmq's zero-copy collector, a heartbeat).
+    threads_us_per_frame: dict[str, float] = field(default_factory=dict)
 
 
 def _summarise(sink: dict[str, Any], source: dict[str, Any]) -> Measured:
@@ -88,6 +91,14 @@ def _summarise(sink: dict[str, Any], source: dict[str, Any]) -> Measured:
         source_cpu_us_per_frame=source["throughput_cpu_nanos"] / 1e3 / source["throughput_frames"],
         sink_cpu_us_per_frame=sink["throughput_cpu_nanos"] / 1e3 / frames,
         drops=int(sink["dropped"]),
+        threads_us_per_frame={
+            f"{side}_{group}_us_per_frame": nanos / 1e3 / count
+            for side, record, count in (
+                ("source", source, source["throughput_frames"]),
+                ("sink", sink, frames),
+            )
+            for group, nanos in record.get("throughput_thread_cpu_nanos", {}).items()
+        },
     )
 
 
@@ -281,6 +292,7 @@ def figures(m: Measured, sizes: Sizes, repeats: int) -> Row:
         "source_cpu_us_per_frame": m.source_cpu_us_per_frame,
         "sink_cpu_us_per_frame": m.sink_cpu_us_per_frame,
         "drops": m.drops,
+        **m.threads_us_per_frame,
         "repeats": repeats,
         "latency_frames": sizes.latency_frames,
         "throughput_frames": sizes.throughput_frames,
@@ -297,6 +309,11 @@ def medians(measured: list[Measured]) -> Measured:
         source_cpu_us_per_frame=median([m.source_cpu_us_per_frame for m in measured]),
         sink_cpu_us_per_frame=median([m.sink_cpu_us_per_frame for m in measured]),
         drops=sum(m.drops for m in measured),
+        threads_us_per_frame={
+            key: median([m.threads_us_per_frame[key] for m in measured])
+            for key in measured[0].threads_us_per_frame
+            if all(key in m.threads_us_per_frame for m in measured)
+        },
     )
 
 

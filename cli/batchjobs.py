@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -27,9 +28,38 @@ DONE_SUFFIX = ".json"  # a replay's row, written once its output is complete
 PASSES = 3  # runs of one world's auto-labelling graph to make all its grasps
 
 
-def _last_line(text: str) -> str:
-    lines = [line for line in text.strip().splitlines() if line.strip()]
-    return lines[-1] if lines else "(no output)"
+# The launcher's own lines that say why a run failed (runtime.launcher): a node that failed
+# or died, a start-up that timed out. Its end-of-run table follows them, so the last line
+# of the output says nothing of the cause.
+WHY = ("failed", "died", "timed out", "refused", "error")
+
+
+def failure_reason(output: str, log: Path | None = None) -> str:
+    """Why a child ``launch.py`` failed, from its output: the launcher's lines that say so
+    (else the output's last line), and where the whole output was kept."""
+    lines = [line.strip() for line in output.splitlines() if line.strip()]
+    said = [
+        ln
+        for ln in lines
+        if ln.startswith("[launch] ")
+        and not ln.startswith("[launch] stopping:")
+        and any(w in ln for w in WHY)
+    ]
+    # A failed node's own last line (its error) follows what the launcher said of it.
+    named = {m.group(1) for ln in said if (m := re.search(r"node '([\w.-]+)'", ln))}
+    own = [next((ln for ln in reversed(lines) if ln.startswith(f"[{n}] ")), "") for n in named]
+    reason = "; ".join([*said[:3], *sorted(filter(None, own))]) or (
+        lines[-1] if lines else "(no output)"
+    )
+    return f"{reason} (output: {log})" if log is not None else reason
+
+
+def _keep_output(child: subprocess.CompletedProcess[str], log: Path) -> str:
+    """Append a child's output to ``log`` (a failure is inspected there); return it."""
+    output = child.stdout + child.stderr
+    with log.open("a") as f:
+        f.write(f"$ {' '.join(map(str, child.args))}\n# exit {child.returncode}\n{output}\n")
+    return output
 
 
 def _write_atomically(path: Path, text: str) -> None:
@@ -118,7 +148,8 @@ def replay_job(
     row["secs"] = round(time.monotonic() - start, 3)
     if child.returncode != 0 or not partial.is_file():
         partial.unlink(missing_ok=True)
-        reason = _last_line(child.stderr or child.stdout)
+        log = out.with_suffix(".log")
+        reason = failure_reason(_keep_output(child, log), log)
         return {**row, "status": "failed", "exit": child.returncode, "reason": reason}
     os.replace(partial, out)
     try:
@@ -173,7 +204,9 @@ def autolabel_job(graph: str, seed: int, grasps: int, part_dir: str) -> dict[str
         except DatasetError as err:
             row["reason"] = str(err)
         if child.returncode != 0:
-            row["reason"] = _last_line(child.stderr or child.stdout)
+            part.mkdir(parents=True, exist_ok=True)
+            log = part / "launch.log"
+            row["reason"] = failure_reason(_keep_output(child, log), log)
             break
     row["secs"] = round(time.monotonic() - start, 3)
     row["grasps"] = kept

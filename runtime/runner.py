@@ -60,6 +60,7 @@ launcher dies, and the heartbeat thread checks the parent pid as a fallback.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import os
@@ -128,6 +129,8 @@ class Runner:
         self.sources: list[Source] = []
         self.stopping = threading.Event()
         self._hb_thread = threading.Thread(target=self._heartbeat, daemon=True)
+        # Each input's handler, looked up at its first message (see _handler).
+        self.handlers: dict[str, Callable[[Any], None]] = {}
 
     # -- lifecycle -------------------------------------------------------------
     def run(self) -> int:
@@ -304,8 +307,8 @@ class Runner:
         if self.order is not None and port in self.order:
             self.order.add(port, msg, time.monotonic_ns())
             self._pass(self.order.ready())
-        else:
-            self._pass([(port, msg)])
+        elif not self.io.stop_requested:
+            self._handle(port, msg)
 
     def _pass(self, messages: list[tuple[str, Any]]) -> None:
         for port, msg in messages:
@@ -324,7 +327,7 @@ class Runner:
                 self._call(timer.callback)
 
     def _service(self, source: Source) -> bool:
-        got = self._recv(source)
+        got = self._recv(source, waiting=True)  # the poll has just said it has one
         if got is None:
             return False
         inputs, frames = got
@@ -347,12 +350,16 @@ class Runner:
                 return True
             inputs, frames = got
 
-    def _recv(self, source: Source) -> tuple[list[Input], list[Any]] | None:
-        """The next message of an input of ``source`` and those inputs, or None."""
-        while (frames := recv_parts(source.socket)) is not None:
+    def _recv(
+        self, source: Source, *, waiting: bool = False
+    ) -> tuple[list[Input], list[Any]] | None:
+        """The next message of an input of ``source`` and those inputs, or None
+        (``waiting``: a poll has just said a message waits, see ``recv_parts``)."""
+        while (frames := recv_parts(source.socket, waiting=waiting)) is not None:
             inputs = source.inputs.get(frames[0].bytes)
             if inputs:  # else another topic that merely starts with a subscribed one
                 return inputs, frames
+            waiting = False
         return None
 
     def _deliver(self, inp: Input, frames: list[Any], skipped: int = 0) -> None:
@@ -379,11 +386,28 @@ class Runner:
             self._admit(inp.port, msg)
 
     def _handle(self, port: str, msg: Any) -> None:
-        self._call(self.node.handle, port, msg)
+        handler = self.handlers.get(port) or self._handler(port)
+        # As _call does, without its call and argument tuple: this runs for every message.
+        self.busy_since = time.monotonic()
+        try:
+            handler(msg)
+        finally:
+            self.busy_since = 0.0
         if self.bag_driven:
             for timer in self.io.timers:
                 if not self.io.stop_requested and timer in self.io.timers:
                     self._call(timer.callback)
+
+    def _handler(self, port: str) -> Callable[[Any], None]:
+        """``port``'s handler: ``on_<port>``, bound once (what ``Node.handle`` looks up for
+        every message), or the node's own ``handle`` where it overrides that dispatch."""
+        node = self.node
+        if type(node).handle is Node.handle:
+            handler: Callable[[Any], None] = getattr(node, f"on_{port}")
+        else:
+            handler = functools.partial(node.handle, port)
+        self.handlers[port] = handler
+        return handler
 
     def _call(self, fn: Callable[..., None], *args: Any) -> None:
         """``fn(*args)``, timed as busy for the heartbeat (no closure per message)."""

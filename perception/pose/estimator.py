@@ -9,7 +9,8 @@ asks for around it:
   judged ``ok`` (below), its residual RMS is within ``warm_accept_ratio`` times the
   noise (and, tracking, within ``track_rise_ratio`` times the last one), and the answer
   lies within ``warm_deg`` of the prior. Otherwise (the residual says the track is
-  lost, or the seed was far or wrong), and on a cold start, the search below runs.
+  lost, or the seed was far or wrong), and on a cold start, the search below runs
+  (with ``search`` off, a prior's one solve is judged and returned whatever the verdict).
 - Search: the prior (if any), the data seeds (``seeds.seed_poses``: the axis along
   each patch's principal directions and the cardinal axes) and then the best
   minimum's turns (``seeds.turns``: 90 degrees about its x and y axes, over, and about
@@ -176,11 +177,11 @@ class PoseEstimator:
         noise = prm.noise_m or kept or max(estimate_noise_m(pts, rays), prm.min_noise_m)
         if prior is not None:
             first = self._solve(pts, prior)
-            if self._warm_stands(first, prior, tracking, noise):
+            if not prm.search or self._warm_stands(first, prior, tracking, noise):
                 judged = self._judge(
                     pts, rays, [_Minimum(first, 0)], first.iterations, 1, True, noise, start
                 )
-                if judged.status == "ok":
+                if judged.status == "ok" or not prm.search:
                     return judged
         minima, iterations, tried = self._search(pts, sides, prior, noise)
         return self._judge(pts, rays, minima, iterations, tried, prior is not None, noise, start)

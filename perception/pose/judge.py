@@ -40,9 +40,10 @@ Uncertainty (:func:`uncertainty`), from the fit at the estimate whatever solver 
   bias, along the observed directions with the others held where the solver left them
   (:func:`unbiased`: Newton steps on the data's gradient), is returned as
   ``correction`` (the estimator applies it), and what the prediction misses is added
-  to the covariance: ``BIAS_ERROR`` of that move, and ``FACE_ERROR`` of each face's
-  share of it on its own (at a box's corner the prediction was 10-35% off per
-  component, not along the move). Without rays (no bubble labels) a cruder term stands in: a
+  to the covariance: ``BIAS_ERROR`` of that move, and a share of each face's part of
+  it on its own (at a box's corner the prediction was 10-35% off per component, not
+  along the move), ``FACE_ERROR`` at the ray noise ``FACE_NOISE_M`` and in proportion
+  to the ray noise (the misprediction grows with it). Without rays (no bubble labels) a cruder term stands in: a
   coherent bias of ``b = MODEL_ERROR * noise^2 / length`` per point, ``b^2 n H^-1``,
   with ``length`` the object's half diagonal; it does not know the rays' direction and
   is not calibrated.
@@ -60,7 +61,14 @@ Uncertainty (:func:`uncertainty`), from the fit at the estimate whatever solver 
   6, 0.1: 7; at 2 mm, and on the other shapes at 2-3 mm, it changed no case);
   ``FACE_ERROR`` the lesser of 0.1 and 0.2 that brought the box's corner at 3 mm near
   95% (60 of 64 regions: 8 poses, those of clouds 900-907, times 8 noise draws; 47
-  without it, 40 the round before), changing no case on the other shapes.
+  without it, 40 the round before), changing no case on the other shapes; the ray
+  noise measured there is 2.84-2.90 mm (``FACE_NOISE_M``). The same share at 2 mm
+  made the region too wide along the weak rotation about the box's body diagonal (the
+  errors along it 0.76 of the stated spread, 98 of 100 regions holding the truth, 39
+  of 100 right answers ``suspect``; clouds 200-299, one LM solve from 5 degrees off);
+  a share of 0.1 there: 0.87, 97 of 100, 17; at 3 mm 0.1 was too narrow (62 of 80
+  regions, a wrong answer ``ok``). Hence the share in proportion to the ray noise
+  (0.13 at 2 mm: 0.84, 98 of 100, 25).
 - Short of the minimum: ``step`` is the Gauss-Newton step from the estimate to the
   minimum of the fit, ``step_sigma`` its size in 95% regions; the estimator takes a
   solver that stopped short one such step further before it judges.
@@ -113,8 +121,10 @@ BIAS_POINTS = 2000
 UNBIAS_STEPS = 4
 UNBIAS_TOL = 0.1
 #: The share by which the rays' bias from each face's points may be mispredicted, each
-#: face on its own (module docstring).
+#: face on its own, at the ray noise ``FACE_NOISE_M`` (that of a box's corner at 3 mm
+#: noise), in proportion to the ray noise (module docstring).
 FACE_ERROR = 0.2
+FACE_NOISE_M = 0.00285
 #: Newton steps along the ray back onto the surface (``ray_bias``).
 SURFACE_STEPS = 3
 #: The unpredicted coherent residual, as a share of the residual RMS, of each point that
@@ -228,13 +238,13 @@ def ray_bias(
     rays_in_tool: np.ndarray,
     r: np.ndarray,
     jac: np.ndarray,
-) -> tuple[np.ndarray, float, np.ndarray]:
+) -> tuple[np.ndarray, float, np.ndarray, float]:
     """The expected gradient of the half cost, ``E[sum_i r_i J_i]`` (6,), that noise along
     the camera rays leaves at the true pose (module docstring), the mean residual it
     leaves there (at a box's corner at 3 mm noise about +0.2 mm: a point pushed inside
     near an edge is nearer the other face), and the gradient's parts (6, 6) from the
     points on each face (their surface's normal nearest each of the object's axes, -x,
-    +x, -y, ...; they sum to it). Each point is moved back
+    +x, -y, ...; they sum to it), and the ray noise. Each point is moved back
     along its ray onto the surface (Newton steps ``r / (g . d)``), and the product of
     its residual and Jacobian row is averaged over Gaussian noise along the ray there
     (Gauss-Hermite, ``NODES`` nodes), less that product without noise: no expansion in
@@ -276,7 +286,7 @@ def ray_bias(
     parts = np.stack([each[face == f].sum(axis=0) for f in range(6)])
     parts *= len(points_in_tool) / len(q)
     bias: np.ndarray = parts.sum(axis=0)
-    return bias, mean, parts
+    return bias, mean, parts, sigma
 
 
 def unbiased(
@@ -287,20 +297,22 @@ def unbiased(
     twist: np.ndarray,
     h_inv: np.ndarray,
     cov: np.ndarray,
-) -> tuple[np.ndarray, float, np.ndarray]:
+) -> tuple[np.ndarray, float, np.ndarray, float]:
     """The shift from the fit's minimum ``object_from_tool`` to the pose where the fit's
     gradient equals the bias the rays predict (:func:`ray_bias`): at the truth the
     gradient is that bias on average, so this is the estimate with the bias undone.
     Returns the shift and each face's share of it (``(k,)`` and ``(6, k)``, in the
-    coordinates of ``twist``, (6, k): coordinates to left twist), and the mean residual
-    the noise leaves at the truth. Newton steps with ``h_inv`` (the inverse measured
+    coordinates of ``twist``, (6, k): coordinates to left twist), the mean residual
+    the noise leaves at the truth, and the noise along the rays. Newton steps with ``h_inv`` (the inverse measured
     curvature along those coordinates) and the data's gradient at the pose reached, at
     most ``UNBIAS_STEPS`` and until a step is under ``UNBIAS_TOL`` standard deviations
     (``cov``): the one step from the minimum of the round before was off where the
     offset spans several standard deviations and the cost is not quadratic across it (a
     box's corner at 3 mm noise: 0.4 mm, five of them)."""
     r, jac = residuals_and_jacobian(fld, object_from_tool, points_in_tool)
-    bias, noise_mean, parts = ray_bias(fld, object_from_tool, points_in_tool, rays_in_tool, r, jac)
+    bias, noise_mean, parts, sigma = ray_bias(
+        fld, object_from_tool, points_in_tool, rays_in_tool, r, jac
+    )
     pose = object_from_tool
     for _ in range(UNBIAS_STEPS):
         step = h_inv @ (twist.T @ (bias - jac.T @ r))
@@ -311,7 +323,7 @@ def unbiased(
     shift: np.ndarray = np.linalg.lstsq(
         twist, se3.log_se3(pose @ se3.invert(object_from_tool)), rcond=None
     )[0]
-    return shift, noise_mean, (h_inv @ (twist.T @ parts.T)).T
+    return shift, noise_mean, (h_inv @ (twist.T @ parts.T)).T, sigma
 
 
 def curvature(
@@ -441,7 +453,7 @@ def uncertainty(
         # The fit's minimum sits off the truth where the gradient equals its bias; the
         # pose where it does is solved for along the observed directions, the others
         # held (``unbiased``); what the prediction misses is taken as a share of it.
-        shift, noise_mean, parts = unbiased(
+        shift, noise_mean, parts, ray_noise = unbiased(
             fld,
             object_from_tool,
             points_in_tool,
@@ -450,7 +462,8 @@ def uncertainty(
             np.linalg.inv(onto @ h_joint @ onto.T),
             cov,
         )
-        cov = cov + bias_error**2 * np.outer(shift, shift) + FACE_ERROR**2 * (parts.T @ parts)
+        face = FACE_ERROR * ray_noise / FACE_NOISE_M
+        cov = cov + bias_error**2 * np.outer(shift, shift) + face**2 * (parts.T @ parts)
     else:
         shift, noise_mean = np.zeros(k), 0.0
     cov = 0.5 * (cov + cov.T)

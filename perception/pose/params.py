@@ -100,6 +100,18 @@ class EstimatorParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
         int, Meta(ge=1, description="at most this many screening solves per estimate.")
     ] = 16
     track: Annotated[bool, Meta(description="warm-start from the last accepted estimate.")] = True
+    search: Annotated[
+        bool,
+        Meta(
+            description=(
+                "with a prior (a seed or the tracked pose), search the other seeds when "
+                "its one solve does not stand (default). False: the prior's one solve is "
+                "judged and returned whatever the verdict (``suspect`` stays so, with "
+                "its reasons): one solve per estimate, for a fixed cost per frame or "
+                "for scoring the judgement of one minimum. A cold start searches always."
+            )
+        ),
+    ] = True
     track_rise_ratio: Annotated[
         float,
         Meta(

@@ -143,3 +143,23 @@ def test_recorded_frames_carry_the_default_settings_features() -> None:
     assert len(rec.by_setting) == 3 and rec.frames
     for frame, feats in zip(rec.frames, rec.by_setting[DEFAULT_SETTING], strict=True):
         assert frame.features is feats
+
+
+def test_reflex_runs_grasp_within_the_objects_bound() -> None:
+    # The draws' grips (5-12 N) ignore the object's bound: the reflex sweep grasped a
+    # wine glass at 11-11.6 N with its bound at 10 N (MuJoCo's seed 621, world.sim's
+    # seed 22), so the reflex, which never commands past the bound, had nothing to
+    # raise, and the drop was counted as the bound's. A reflex run grasps at most at
+    # the bound; its load (scaled by the drawn grip) and every other draw are the same.
+    from bench.force_data import OBJECTS, draw
+
+    bound = OBJECTS["wine_glass"][3]
+    for seed in (22, 621):
+        free, bounded = draw(seed, load="fill"), draw(seed, load="fill", bounded=True)
+        assert free.object == bounded.object == "wine_glass"
+        assert free.grip_n > bound
+        assert bounded.grip_n == bound
+        assert bounded.scene.gripper.commands[0].force_n == bound
+        assert bounded.doc["load"] == free.doc["load"]
+    light = draw(21, load="fill")  # a wine glass drawn under its bound: unchanged
+    assert light.grip_n < bound and draw(21, load="fill", bounded=True).doc == light.doc

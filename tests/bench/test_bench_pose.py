@@ -1,13 +1,15 @@
-"""``python -m bench.pose_hard --quick`` and ``python -m bench.pose --quick`` run and
-print their rows; the estimator is never silently wrong on them."""
+"""``python -m bench.pose_hard --quick``, ``python -m bench.pose --quick`` and
+``python -m bench.pose_weak --quick`` run and print their rows; the estimator is never
+silently wrong on them."""
 
 from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
-from bench import pose, pose_hard
+from bench import pose, pose_hard, pose_weak
 from bench.common import main
 
 
@@ -27,6 +29,17 @@ def test_pose_hard_quick(capsys: pytest.CaptureFixture[str]) -> None:
     assert all(r["coverage95_lo"] <= r["coverage95"] <= r["coverage95_hi"] for r in coverage)
     fitted = [r for r in rows if r["kind"] == "size" and r["fit_dims"] == "radius"]
     assert fitted and fitted[0]["radius_err_mm_median"] < 0.5
+
+
+def test_pose_weak_quick(capsys: pytest.CaptureFixture[str]) -> None:
+    rows = main("pose_weak", pose_weak.run, columns=pose_weak.COLUMNS, argv=["--quick", "--json"])
+    assert json.loads(capsys.readouterr().out)["rows"]
+    for r in rows:
+        assert r["cases"] == 3 and 0 <= r["right_ok"] <= r["right"] <= r["cases"]
+        assert 0 <= r["silent_wrong"] <= r["cases"] - r["right"]
+        assert r["weak_sd_deg_median"] > 0 and np.isfinite(r["weak_err_deg_rms"])
+        assert np.isfinite(r["weak_z_rms"])
+        assert r["ok_at_2deg"] <= r["ok_at_3deg"] <= r["ok_at_4deg"]
 
 
 def test_pose_quick_plot(tmp_path, capsys: pytest.CaptureFixture[str]) -> None:  # noqa: ANN001

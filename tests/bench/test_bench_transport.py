@@ -10,6 +10,7 @@ import math
 
 import pytest
 
+from bench.nodes import THREAD_GROUPS
 from tests.bench import run_quick
 
 FIGURES = (
@@ -51,6 +52,14 @@ def test_quick_json_has_every_transport_and_impl_with_finite_positive_figures() 
             assert math.isfinite(value) and value > 0, (row["transport"], row["impl"], name, value)
         assert row["drops"] >= 0
         assert row["latency_ms_p99"] >= row["latency_ms_median"]
+        for side in ("source", "sink"):
+            # Each side's CPU by thread: the loop's thread works, and the three add up to
+            # about the process CPU of the same window (both are medians over repeats).
+            split = [row[f"{side}_{group}_us_per_frame"] for group in THREAD_GROUPS]
+            assert all(math.isfinite(v) and v >= 0 for v in split), (row["impl"], side, split)
+            assert split[0] > 0
+            total = row[f"{side}_cpu_us_per_frame"]
+            assert 0.5 * total <= sum(split) <= 1.5 * total, (row["impl"], side, split, total)
         if row["impl"] == "raw":
             assert row["throughput_vs_raw"] == 1.0
 

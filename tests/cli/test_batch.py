@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from cli.batch import parse_seeds, replay_table
+from cli.batchjobs import autolabel_job
 from perception.classify.dataset import DatasetError, load_samples, merge_datasets, read_manifest
 from perception.classify.preprocess import InputSpec
 from perception.classify.synthetic import write_toy_dataset
@@ -98,6 +99,20 @@ def test_batch_autolabel_is_the_same_dataset_from_one_process_or_many(tmp_path: 
     ]
     assert len(one["grasps"]) == 4 and all(g["frames"] > 0 for g in many["grasps"])
     assert [g["source"]["seeds"] for g in one["grasps"]] == [{"autolabel": s} for s in (3, 3, 4, 4)]
+
+
+def test_a_world_that_fails_says_why_and_keeps_its_output(tmp_path: Path) -> None:
+    # A part left by another run (other classes): the writer cannot resume it and fails.
+    # The launcher's end-of-run table comes last in its output; the reason must be the
+    # launcher's line and the failed node's own, not the table's last row.
+    part = write_toy_dataset(tmp_path / "part", classes=("mug", "bowl"), grasps_per_class=1)
+    row = autolabel_job(str(ROOT / "graphs" / "autolabel.yaml"), 5, 3, str(part))
+    assert row["status"] == "failed" and row["passes"] == 1, row
+    assert "required node 'writer' failed" in row["reason"], row["reason"]
+    assert "cannot resume, manifest classes" in row["reason"], row["reason"]
+    log = part / "launch.log"
+    assert str(log) in row["reason"]
+    assert "# exit 1" in log.read_text() and "[launch] node " in log.read_text()
 
 
 def test_merge_numbers_grasps_part_after_part_and_refuses_mixed_classes(tmp_path: Path) -> None:

@@ -494,6 +494,14 @@ def _with_array_row(
     return frames
 
 
+def _with_header_bytes(old: bytes, new: bytes) -> list[bytes]:
+    """A good frame with ``old`` replaced by ``new`` (the same length) in frame 1's bytes:
+    a corruption plain msgpack cannot write, such as a key that is not UTF-8."""
+    frames = _tof_frames()
+    assert len(old) == len(new) and frames[1].count(old) == 1
+    return [frames[0], frames[1].replace(old, new), *frames[2:]]
+
+
 def _set(path: tuple[str, ...], value: Any) -> Callable[[dict[str, Any]], None]:
     def edit(header: dict[str, Any]) -> None:
         target = header
@@ -607,10 +615,17 @@ BAD_FRAMES: dict[str, Callable[[], list[Any]]] = {
         + _tof_frames()[3:]
     ),
     "scalar field wrong type": lambda: _with_header(_set(("fields", "sensor"), 5)),
+    "field outside its declared choices": lambda: _with_header(
+        _set(("fields", "sensor"), "middle")
+    ),
     "float field given a string": lambda: _with_header(_set(("fields", "fx_px"), "x")),
     "nested struct not a map": lambda: _with_header(_set(("fields", "header"), "h")),
     "nested field wrong type": lambda: _with_header(_set(("fields", "header", "seq"), "1")),
     "required field missing": lambda: _with_header(_drop(("fields", "sensor"))),
+    # A key that is not UTF-8 is a corrupted frame, not an unknown field to skip: skipped,
+    # the field it named would silently take its default.
+    "field key not UTF-8": lambda: _with_header_bytes(b"\xa5fx_px", b"\xa5f\x9e_px"),
+    "nested key not UTF-8": lambda: _with_header_bytes(b"\xa3seq", b"\xa3s\x9eq"),
     "field is an ext type": lambda: _with_header(
         _set(("fields", "sensor"), msgpack.ExtType(5, b"xx"))
     ),

@@ -275,3 +275,47 @@ def test_a_box_corner_at_2_mm_is_ok_when_within_the_tolerance() -> None:
         assert (result.status in GOOD) == (inside >= judge.CONFIDENCE), (inside, result.message)
         wide_ok += result.status in GOOD and result.region95_deg > 2.0
     assert wide_ok >= 1
+
+
+def test_a_box_corner_at_2_mm_is_not_held_to_the_allowance_fitted_at_3_mm() -> None:
+    """The allowance for the rays' bias each face mispredicts (``judge.FACE_ERROR``) was
+    fitted at a box's corner at 3 mm noise; the misprediction grows with the noise, so
+    at 2 mm the same share made the region too wide along the weak rotation (errors
+    0.76 of the stated spread there over 100 clouds, 98 of 100 regions holding the truth)
+    and a third of the right answers ``suspect``. In proportion to the ray noise: these
+    12 clouds at 2 mm, each one LM solve from 5 degrees off, are all right, and 11 or
+    more ``ok`` (9 with the share fixed)."""
+    model = pose_hard.OBJECTS["box_corner"]
+    est = PoseEstimator(
+        LMSolver(model.field), EstimatorParams(track=False, search=False), symmetric_about_z=False
+    )
+    ok = 0
+    for k in range(900, 912):
+        rng = np.random.default_rng(k)
+        truth = pose_hard.truth_pose("box_corner", rng)
+        pts, bubble = synthetic.grasp_cloud(model, truth, n_points=3000, noise_m=0.002, rng=rng)
+        seed = synthetic.tilted_seed(truth, 5.0, rng, offset_m=0.002)
+        result = est.estimate(pts, bubble, seed_tool_from_object=seed)
+        assert metrics.right(model.field, result, truth, points_in_tool=pts), k
+        ok += result.status in GOOD
+    assert ok >= 11, ok
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="not fixed: the bias correction (judge.unbiased) at a box's corner at 3 mm "
+    "differs by 0.7 degree between two stops of LM at the fit's minimum whose costs "
+    "differ by 3e-11 of the cost (from the seed and from the truth); from the seed the "
+    "answer is 2.9 degrees off with a stated 0.7 (sd), ok",
+)
+def test_a_box_corner_at_3_mm_with_10k_points_is_never_wrong_and_ok() -> None:
+    """``bench.pose_weak``'s row at 10k points (the node's ``max_points``): cloud 213,
+    one LM solve from 5 degrees off."""
+    ((truth, pts, bubble, seed),) = pose_hard.coverage_clouds(
+        "box_corner", 0.003, 1, 10000, first=213
+    )
+    result = pose_hard.coverage_estimator("box_corner").estimate(
+        pts, bubble, seed_tool_from_object=seed
+    )
+    right = metrics.right(pose_hard.OBJECTS["box_corner"].field, result, truth, points_in_tool=pts)
+    assert right or result.status not in GOOD, result.status

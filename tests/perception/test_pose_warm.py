@@ -96,3 +96,23 @@ def test_a_lost_track_runs_the_search_to_the_right_answer() -> None:
     assert len(solver.calls) > 2 and moved.seeds_tried > 1
     assert moved.status in GOOD, moved.message
     assert metrics.right(field, moved, turned)
+
+
+def test_without_search_a_seed_costs_one_solve_whatever_the_verdict() -> None:
+    """``search: false``: the seed's one solve is judged and returned, a wrong one too
+    (``suspect``, with its reasons), never searched: a fixed cost per estimate, and
+    what ``bench.pose_hard``'s coverage rows score the judgement with."""
+    truth, pts, bubble = _cloud(0)
+    solver = CountingSolver(pose_hard.OBJECTS[KIND].field)
+    est = PoseEstimator(solver, EstimatorParams(track=False, search=False))
+    near = synthetic.tilted_seed(truth, 3.0, np.random.default_rng(0), offset_m=0.002)
+    result = est.estimate(pts, bubble, seed_tool_from_object=near)
+    assert solver.calls == [N] and result.status == "ok", result.message
+    solver.calls.clear()
+    # A seed from which LM alone ends at a wrong minimum (most 80-degree seeds here
+    # reach the answer: the basin rows of bench.pose).
+    far = synthetic.tilted_seed(truth, 80.0, np.random.default_rng(2), offset_m=0.005)
+    result = est.estimate(pts, bubble, seed_tool_from_object=far)
+    assert solver.calls == [N] and result.seeds_tried == 1
+    assert result.status == "suspect" and result.message
+    assert not metrics.right(pose_hard.OBJECTS[KIND].field, result, truth)

@@ -9,6 +9,7 @@ import msgspec
 from msgspec import Meta
 
 from messages import Header, Pressure, Tick, encode
+from messages.base import Message
 from runtime.node import Node
 from runtime.params import ExistingFile
 
@@ -88,3 +89,28 @@ class NestedNode(Node):
 
     def on_tick(self, msg: Tick) -> None:
         self.io.publish("tick", msg)
+
+
+class TickRecorder(Node):
+    """Records each Tick it handles, and whether the runner marked it busy meanwhile."""
+
+    inputs = {"tick": Tick}
+
+    def setup(self) -> None:
+        self.seen: list[tuple[float, bool]] = []
+        self.runner_busy = lambda: False  # the test points this at its runner
+
+    def on_tick(self, msg: Tick) -> None:
+        self.seen.append((msg.value, self.runner_busy()))
+
+
+class TickDispatcher(TickRecorder):
+    """Overrides ``handle`` (as the supervisors do): every message must pass through it."""
+
+    def setup(self) -> None:
+        super().setup()
+        self.dispatched: list[str] = []
+
+    def handle(self, port: str, msg: Message) -> None:
+        self.dispatched.append(port)
+        super().handle(port, msg)

@@ -65,3 +65,17 @@ def test_recv_parts_keeps_messages_apart(pair: tuple[zmq.Socket[Any], zmq.Socket
     got = [[f.bytes for f in _wait(rx)] for _ in range(3)]
     assert got == [[b"one"], [b"two", b"2a", b"2b"], [b"three", b""]]
     assert recv_parts(rx) is None
+
+
+def test_recv_parts_told_a_message_waits_reads_it_and_never_blocks(
+    pair: tuple[zmq.Socket[Any], zmq.Socket[Any]],
+) -> None:
+    # The runner's first read after a poll skips the EVENTS question (waiting=True): the
+    # read is still non-blocking, so a socket with nothing after all answers None.
+    tx, rx = pair
+    assert recv_parts(rx, waiting=True) is None
+    send_parts(tx, [b"topic", b"one", b"two"])
+    assert rx.poll(2000)
+    frames = recv_parts(rx, waiting=True)
+    assert frames is not None and [f.bytes for f in frames] == [b"topic", b"one", b"two"]
+    assert recv_parts(rx, waiting=True) is None
