@@ -4,7 +4,9 @@ A checkpoint is a plain dictionary of tensors, strings and numbers, saved with
 ``torch.save`` and read back with ``torch.load(..., weights_only=True)`` (no pickle of
 project classes, so a checkpoint cannot run code). Besides the weights it carries what
 a user of the model must agree with: the class names in label order, the modality, the
-input size, the width multiplier and the depth normalisation, plus a free ``training``
+input size, the width multiplier and the depth normalisation (with the depth an invalid
+pixel stands for; a checkpoint saved before that was stored reads it as the centre, as
+its model was trained), plus a free ``training``
 record (command, seed, dataset manifest digest, accuracy).
 
 Weights may be stored in half precision (``half=True``) to halve the file; they are
@@ -28,6 +30,18 @@ FORMAT = "softbubble-classifier"
 VERSION = 1
 
 
+# What two models must share to be averaged: classes and everything about their inputs.
+INPUT_FIELDS = (
+    "classes",
+    "modality",
+    "input_px",
+    "width",
+    "depth_center_m",
+    "depth_scale_m",
+    "invalid_depth_m",
+)
+
+
 class CheckpointError(ValueError):
     """A checkpoint file is not a classifier of this format, or does not fit its use."""
 
@@ -42,6 +56,7 @@ class ModelMeta:
     width: float
     depth_center_m: float
     depth_scale_m: float
+    invalid_depth_m: float
     training: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -58,6 +73,7 @@ class ModelMeta:
             input_px=self.input_px,
             depth_center_m=self.depth_center_m,
             depth_scale_m=self.depth_scale_m,
+            invalid_depth_m=self.invalid_depth_m,
         )
 
     @classmethod
@@ -76,6 +92,7 @@ class ModelMeta:
             width=width,
             depth_center_m=spec.depth_center_m,
             depth_scale_m=spec.depth_scale_m,
+            invalid_depth_m=spec.invalid_depth_m,
             training=dict(training or {}),
         )
 
@@ -106,6 +123,7 @@ def save_checkpoint(
         "width": float(meta.width),
         "depth_center_m": float(meta.depth_center_m),
         "depth_scale_m": float(meta.depth_scale_m),
+        "invalid_depth_m": float(meta.invalid_depth_m),
         "training": dict(meta.training),
         "state_dict": state,
     }
@@ -142,6 +160,8 @@ def load_checkpoint(path: str | Path) -> tuple[ResNet18, ModelMeta]:
             width=float(payload["width"]),
             depth_center_m=float(payload["depth_center_m"]),
             depth_scale_m=float(payload["depth_scale_m"]),
+            # Saved before invalid pixels had a depth of their own: they were the centre.
+            invalid_depth_m=float(payload.get("invalid_depth_m") or payload["depth_center_m"]),
             training=payload.get("training", {}),
         )
     except (KeyError, ValueError) as err:
@@ -183,7 +203,7 @@ def average(
         raise CheckpointError(f"weights must be >= 0 and not all zero, got {w}")
     first = models[0][1]
     for _, meta in models[1:]:
-        for name in ("classes", "modality", "input_px", "width", "depth_center_m", "depth_scale_m"):
+        for name in INPUT_FIELDS:
             a, b = getattr(first, name), getattr(meta, name)
             if a != b:
                 raise CheckpointError(f"the models differ in {name}: {a!r} and {b!r}")

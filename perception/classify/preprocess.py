@@ -9,8 +9,14 @@ Normalisation, per channel:
 
 * depth: metres mapped with a fixed centre and scale (55 mm and 10 mm: the simulated
   camera sees the membrane at 3-8 cm, the real one works at 4-11 cm, docs/facts.md), so an
-  indentation means the same value in every frame; invalid (NaN) pixels become the
-  centre, i.e. 0, and values are clipped to +-4. A checkpoint stores both figures.
+  indentation means the same value in every frame; values are clipped to +-4. An invalid
+  (NaN) pixel becomes ``invalid_depth_m``: the ToF's 40 mm minimum range. Inside the
+  bubble a pixel is lost mostly where an object pushes the membrane nearer than that
+  (a deep imprint's hole); read as "at the minimum range", a hole looks like the dent it
+  is, and a shallower imprint that stays readable looks nearly the same
+  (docs/classifier.md, "Invalid pixels"). Checkpoints from before that read a hole as
+  the centre (55 mm, input 0); a checkpoint stores all three figures and one without
+  ``invalid_depth_m`` loads with the centre.
 * IR: amplitude standardised per frame over the valid pixels of both bubbles (mean and
   standard deviation), clipped to +-4: amplitude scales with exposure and distance, a
   viewer stretches it the same way (mean +- 2 sigma, docs/facts.md).
@@ -26,6 +32,8 @@ import numpy as np
 MODALITIES = ("depth", "ir", "both")
 DEPTH_CENTER_M = 0.055
 DEPTH_SCALE_M = 0.01
+# The ToF's minimum range (``sim.rig``'s camera ``min_range_m``): what an invalid pixel is.
+INVALID_DEPTH_M = 0.04
 CLIP = 4.0
 
 
@@ -53,6 +61,7 @@ class InputSpec:
     input_px: int
     depth_center_m: float = DEPTH_CENTER_M
     depth_scale_m: float = DEPTH_SCALE_M
+    invalid_depth_m: float = INVALID_DEPTH_M
 
     def __post_init__(self) -> None:
         check_modality(self.modality)
@@ -60,6 +69,8 @@ class InputSpec:
             raise ValueError(f"input_px must be >= 32, got {self.input_px}")
         if not self.depth_scale_m > 0:
             raise ValueError(f"depth_scale_m must be > 0, got {self.depth_scale_m}")
+        if not self.invalid_depth_m > 0:
+            raise ValueError(f"invalid_depth_m must be > 0, got {self.invalid_depth_m}")
 
     @property
     def channels(self) -> int:
@@ -75,9 +86,10 @@ def _side_by_side(left: np.ndarray, right: np.ndarray, input_px: int) -> np.ndar
 
 
 def normalise_depth(depth_m: np.ndarray, spec: InputSpec) -> np.ndarray:
-    """Depth in metres (NaN invalid) to the network's scale; NaN becomes 0."""
+    """Depth in metres (NaN invalid) to the network's scale; NaN is ``invalid_depth_m``."""
     out = (depth_m.astype(np.float32) - spec.depth_center_m) / spec.depth_scale_m
-    out = np.nan_to_num(out, nan=0.0, posinf=CLIP, neginf=-CLIP)
+    invalid = (spec.invalid_depth_m - spec.depth_center_m) / spec.depth_scale_m
+    out = np.nan_to_num(out, nan=invalid, posinf=CLIP, neginf=-CLIP)
     clipped: np.ndarray = np.clip(out, -CLIP, CLIP, out=out)
     return clipped
 

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from perception.classify.checkpoint import ModelMeta, build_model
+from perception.classify.checkpoint import INPUT_FIELDS, ModelMeta, build_model
 from perception.classify.dataset import Samples
 from perception.classify.distributed import Group
 from perception.classify.model import ResNet18
@@ -357,10 +357,13 @@ def train(
 def check_init(init: ModelMeta, wanted: ModelMeta) -> None:
     """Refuse to fine-tune a model (``init``) whose classes or inputs differ from ``wanted``.
 
+    The depth an invalid pixel stands for may differ: a fine-tune may move a model to
+    another reading of its holes (the saved model carries the new one).
+
     Raises:
         ValueError: naming the first field that differs.
     """
-    for name in ("classes", "modality", "input_px", "width", "depth_center_m", "depth_scale_m"):
+    for name in (n for n in INPUT_FIELDS if n != "invalid_depth_m"):
         have, need = getattr(init, name), getattr(wanted, name)
         if have != need:
             raise ValueError(f"init model has {name} {have!r}, the training needs {need!r}")

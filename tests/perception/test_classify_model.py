@@ -10,6 +10,7 @@ from perception.classify.model import ResNet18, parameter_count, stage_channels
 from perception.classify.preprocess import (
     DEPTH_CENTER_M,
     DEPTH_SCALE_M,
+    INVALID_DEPTH_M,
     InputSpec,
     channels,
     frame_input,
@@ -85,6 +86,21 @@ def test_nan_depth_and_dark_ir_stay_finite() -> None:
     assert np.all(x[1] == 0)  # no valid IR: no information, zeros
     left, right = normalise_ir(np.full((4, 4), 7, np.uint16), np.full((4, 4), 7, np.uint16))
     assert np.all(left == 0) and np.all(right == 0)  # constant image: zero variance guarded
+
+
+def test_invalid_depth_reads_as_the_minimum_range() -> None:
+    # A hole (membrane nearer than the ToF's minimum range) reads as that range, as a
+    # dent at 40 mm would; a spec of an older model reads it as the centre (input 0).
+    pair = _pair()
+    pair["depth_left_m"][:] = np.nan
+    pair["depth_right_m"][:] = INVALID_DEPTH_M
+    x = frame_input(InputSpec(modality="depth", input_px=32), **pair)[0]
+    assert INVALID_DEPTH_M == 0.04
+    assert np.allclose(x, (INVALID_DEPTH_M - DEPTH_CENTER_M) / DEPTH_SCALE_M)
+    old = InputSpec(modality="depth", input_px=32, invalid_depth_m=DEPTH_CENTER_M)
+    assert np.all(frame_input(old, **pair)[0][:, :14] == 0)
+    with pytest.raises(ValueError, match="invalid_depth_m"):
+        InputSpec(modality="depth", input_px=32, invalid_depth_m=0.0)
 
 
 def test_missing_channel_is_an_error() -> None:

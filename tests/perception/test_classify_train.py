@@ -23,7 +23,7 @@ from perception.classify.checkpoint import (
     save_checkpoint,
 )
 from perception.classify.dataset import load_samples
-from perception.classify.preprocess import InputSpec
+from perception.classify.preprocess import DEPTH_CENTER_M, INVALID_DEPTH_M, InputSpec
 from perception.classify.synthetic import toy_frame, write_toy_dataset
 from perception.classify.train import TrainConfig, confusion_matrix, format_confusion, train
 
@@ -107,6 +107,33 @@ def test_bad_checkpoints_are_refused(tmp_path: Path) -> None:
     torch.save(payload, tmp_path / "bad.pt")
     with pytest.raises(CheckpointError, match="do not fit"):
         load_checkpoint(tmp_path / "bad.pt")
+
+
+def test_a_checkpoint_without_invalid_depth_reads_holes_as_the_centre(
+    trained, toy: Path, tmp_path: Path
+) -> None:
+    # Checkpoints saved before the invalid depth was stored were trained with holes at
+    # the centre: they load that way, and a fine-tune of one may take the new reading.
+    save_checkpoint(tmp_path / "new.pt", trained.model, trained.meta, half=True)
+    assert load_checkpoint(tmp_path / "new.pt")[1].invalid_depth_m == INVALID_DEPTH_M
+    payload = torch.load(tmp_path / "new.pt", weights_only=True)
+    del payload["invalid_depth_m"]
+    torch.save(payload, tmp_path / "old.pt")
+    old = Classifier.load(tmp_path / "old.pt")
+    assert old.spec.invalid_depth_m == DEPTH_CENTER_M
+    hole = np.full((24, 32), np.nan, np.float32)
+    flat = np.full((24, 32), DEPTH_CENTER_M, np.float32)
+    assert np.allclose(
+        old.classify(depth_left_m=hole, depth_right_m=hole),
+        old.classify(depth_left_m=flat, depth_right_m=flat),
+    )
+    samples = load_samples(toy, InputSpec(modality="depth", input_px=32))
+    config = TrainConfig(epochs=1, modality="depth", seed=1, **TINY)
+    tuned = train(samples, config, progress_stream=io.StringIO(), init=(old.model, old.meta))
+    assert tuned.meta.invalid_depth_m == INVALID_DEPTH_M
+    # Models that read holes differently are not one model's fine-tunes: no average.
+    with pytest.raises(CheckpointError, match="invalid_depth_m"):
+        average([(old.model, old.meta), (tuned.model, tuned.meta)])
 
 
 def test_fine_tuning_starts_from_the_init_model(
