@@ -373,7 +373,11 @@ class HostLink:
                 peer.ping_t1 = time.time_ns()
                 peer.ping_sent_at = now
                 self._send(peer, self._pack(LinkPing, t1=peer.ping_t1))
-        if peer.last_seen and not peer.lost and now - peer.last_seen > self.timeout:
+        # A peer that sent its final counts has stopped its nodes and may exit: its silence
+        # then is its orderly end, not a loss (a host still stopping, its recorder writing,
+        # must not call the other lost and fail the run).
+        silent = now - peer.last_seen > self.timeout
+        if peer.last_seen and not peer.lost and peer.final is None and silent:
             peer.lost = True
             self._event(("lost", peer.spec.name, now - peer.last_seen))
 
