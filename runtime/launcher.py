@@ -51,7 +51,8 @@ from messages.control import (
 from runtime import child, nodeprocs, protocol, status
 from runtime.counters import balanced, delivered
 from runtime.graph import Graph, ipc_path
-from runtime.hostlink import HostLink, judge, wait_for_finals
+from runtime.hostlink import HostLink, wait_for_finals
+from runtime.hostpolicy import judge
 from runtime.isolation import make_rundir
 from runtime.nodeprocs import (
     Proc,

@@ -14,7 +14,7 @@ import pytest
 
 from messages.control import LinkCounts
 from runtime import protocol
-from runtime.hostlink import Act, judge
+from runtime.hostpolicy import Act, judge
 from runtime.hosts import Hosts
 from runtime.protocol import ControlError
 from tests.hosts.conftest import ROOT, host_table, write_graph
