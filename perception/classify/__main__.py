@@ -45,7 +45,7 @@ from perception.classify.dataset import (
     read_manifest,
 )
 from perception.classify.distributed import join_from_env, leave
-from perception.classify.preprocess import MODALITIES, InputSpec
+from perception.classify.preprocess import MODALITIES, FreeBubble, InputSpec
 from perception.classify.train import (
     TrainConfig,
     append_log,
@@ -59,6 +59,28 @@ from perception.classify.train import (
 
 def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _imprint(args: argparse.Namespace) -> dict[str, Any]:
+    """The imprint scale's fields of the input spec from ``--free-bubble`` and its two
+    sizes (all three or none).
+
+    Raises:
+        ValueError: some given without the others, or a free-bubble file without the
+            frames (naming the file).
+    """
+    given = [args.free_bubble, args.imprint_depth_mm, args.imprint_ir]
+    if all(v is None for v in given):
+        return {}
+    if any(v is None for v in given):
+        raise ValueError("--free-bubble, --imprint-depth-mm and --imprint-ir go together")
+    with np.load(args.free_bubble, allow_pickle=False) as arrays:
+        free = FreeBubble.from_arrays(dict(arrays), args.free_bubble)
+    return {
+        "imprint_depth_m": args.imprint_depth_mm / 1000.0,
+        "imprint_ir": float(args.imprint_ir),
+        "free": free,
+    }
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
@@ -80,7 +102,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         max_frames_per_grasp=args.max_frames_per_grasp,
         subtract_mean=not args.no_mean,
     )
-    spec = InputSpec(modality=config.modality, input_px=config.input_px)
+    spec = InputSpec(modality=config.modality, input_px=config.input_px, **_imprint(args))
     init = load_checkpoint(args.init) if args.init else None
     if init is not None:  # before the datasets load (minutes): its inputs must fit
         check_init(init[1], ModelMeta.for_spec(spec, init[1].classes, config.width))
@@ -149,6 +171,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
             training_record=record,
             init=init,
             group=group,
+            spec=spec,
         )
     finally:
         leave(group)
@@ -303,6 +326,18 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--full-precision", action="store_true", help="store float32 weights")
     p.add_argument(
         "--init", default=None, help="start from this checkpoint's weights (fine-tuning)"
+    )
+    p.add_argument(
+        "--free-bubble",
+        default=None,
+        help="each bubble's no-contact frames (.npz of python -m sim.free_bubble): scale "
+        "each imprint against them (with --imprint-depth-mm and --imprint-ir)",
+    )
+    p.add_argument(
+        "--imprint-depth-mm", type=float, default=None, help="the depth each dent is scaled to"
+    )
+    p.add_argument(
+        "--imprint-ir", type=float, default=None, help="the IR change each imprint is scaled to"
     )
     p.set_defaults(func=_cmd_train)
     e = sub.add_parser("evaluate", help="score a model on a held-out dataset")

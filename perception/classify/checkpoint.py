@@ -6,8 +6,10 @@ project classes, so a checkpoint cannot run code). Besides the weights it carrie
 a user of the model must agree with: the class names in label order, the modality, the
 input size, the width multiplier and the depth normalisation (with the depth an invalid
 pixel stands for; a checkpoint saved before that was stored reads it as the centre, as
-its model was trained), plus a free ``training``
-record (command, seed, dataset manifest digest, accuracy).
+its model was trained), the imprint scale and the free bubble's frames it is measured
+against, if the model was trained so (``preprocess``; a checkpoint without them reads
+frames unscaled), plus a free ``training`` record (command, seed, dataset manifest
+digest, accuracy).
 
 Weights may be stored in half precision (``half=True``) to halve the file; they are
 turned back to float32 on load, where inference runs.
@@ -24,7 +26,7 @@ import numpy as np
 import torch
 
 from perception.classify.model import ResNet18
-from perception.classify.preprocess import InputSpec, frame_input
+from perception.classify.preprocess import FREE_FIELDS, FreeBubble, InputSpec, frame_input
 
 FORMAT = "softbubble-classifier"
 VERSION = 1
@@ -39,6 +41,8 @@ INPUT_FIELDS = (
     "depth_center_m",
     "depth_scale_m",
     "invalid_depth_m",
+    "imprint_depth_m",
+    "imprint_ir",
 )
 
 
@@ -57,6 +61,9 @@ class ModelMeta:
     depth_center_m: float
     depth_scale_m: float
     invalid_depth_m: float
+    imprint_depth_m: float = 0.0
+    imprint_ir: float = 0.0
+    free: FreeBubble | None = field(default=None, compare=False, repr=False)
     training: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -74,6 +81,9 @@ class ModelMeta:
             depth_center_m=self.depth_center_m,
             depth_scale_m=self.depth_scale_m,
             invalid_depth_m=self.invalid_depth_m,
+            imprint_depth_m=self.imprint_depth_m,
+            imprint_ir=self.imprint_ir,
+            free=self.free,
         )
 
     @classmethod
@@ -93,6 +103,9 @@ class ModelMeta:
             depth_center_m=spec.depth_center_m,
             depth_scale_m=spec.depth_scale_m,
             invalid_depth_m=spec.invalid_depth_m,
+            imprint_depth_m=spec.imprint_depth_m,
+            imprint_ir=spec.imprint_ir,
+            free=spec.free,
             training=dict(training or {}),
         )
 
@@ -127,11 +140,32 @@ def save_checkpoint(
         "training": dict(meta.training),
         "state_dict": state,
     }
+    if meta.imprint_depth_m > 0 and meta.free is not None:
+        payload["imprint_depth_m"] = float(meta.imprint_depth_m)
+        payload["imprint_ir"] = float(meta.imprint_ir)
+        payload["free_bubble"] = {
+            n: torch.from_numpy(getattr(meta.free, n).astype(np.float16)) for n in FREE_FIELDS
+        }
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     torch.save(payload, tmp)
     tmp.replace(path)
+
+
+def free_bubble(tensors: Mapping[str, torch.Tensor] | None, where: str) -> FreeBubble | None:
+    """A checkpoint's free-bubble frames (None if it has none).
+
+    Raises:
+        ValueError: a missing frame or one not a tensor, naming ``where``.
+    """
+    if tensors is None:
+        return None
+    if not isinstance(tensors, Mapping) or not all(
+        isinstance(tensors.get(n), torch.Tensor) for n in FREE_FIELDS
+    ):
+        raise ValueError(f"{where}: free_bubble must hold the tensors {list(FREE_FIELDS)}")
+    return FreeBubble.from_arrays({n: tensors[n].float().numpy() for n in FREE_FIELDS}, where)
 
 
 def load_checkpoint(path: str | Path) -> tuple[ResNet18, ModelMeta]:
@@ -162,6 +196,10 @@ def load_checkpoint(path: str | Path) -> tuple[ResNet18, ModelMeta]:
             depth_scale_m=float(payload["depth_scale_m"]),
             # Saved before invalid pixels had a depth of their own: they were the centre.
             invalid_depth_m=float(payload.get("invalid_depth_m") or payload["depth_center_m"]),
+            # Saved before imprints were scaled: frames unscaled, as the model was trained.
+            imprint_depth_m=float(payload.get("imprint_depth_m", 0.0)),
+            imprint_ir=float(payload.get("imprint_ir", 0.0)),
+            free=free_bubble(payload.get("free_bubble"), str(path)),
             training=payload.get("training", {}),
         )
     except (KeyError, ValueError) as err:
@@ -207,6 +245,8 @@ def average(
             a, b = getattr(first, name), getattr(meta, name)
             if a != b:
                 raise CheckpointError(f"the models differ in {name}: {a!r} and {b!r}")
+        if first.free is not None and not first.free.same(meta.free):
+            raise CheckpointError("the models differ in their free-bubble frames")
     states = [m.state_dict() for m, _ in models]
     share = [v / sum(w) for v in w]
     mixed = {

@@ -27,7 +27,7 @@ from perception.classify.checkpoint import INPUT_FIELDS, ModelMeta, build_model
 from perception.classify.dataset import Samples
 from perception.classify.distributed import Group
 from perception.classify.model import ResNet18
-from perception.classify.preprocess import check_modality
+from perception.classify.preprocess import InputSpec, check_modality
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -201,6 +201,7 @@ def train(
     training_record: dict[str, Any] | None = None,
     init: tuple[ResNet18, ModelMeta] | None = None,
     group: Group | None = None,
+    spec: InputSpec | None = None,
 ) -> TrainResult:
     """Train a ResNet18 on ``samples`` (inputs already of ``config``'s modality and size).
 
@@ -218,14 +219,19 @@ def train(
             samples' classes.
         group: the training processes this one is part of (``distributed``): each
             computes its share of every batch; default alone.
+        spec: the input the samples were made with (saved with the model); default
+            ``config``'s modality and size with the default normalisation.
 
     Raises:
         ValueError: inputs whose channel count or size does not fit ``config``, or an
             ``init`` model that does not fit ``config`` or the samples' classes.
     """
-    from perception.classify.preprocess import InputSpec
-
-    spec = InputSpec(modality=config.modality, input_px=config.input_px)
+    spec = spec or InputSpec(modality=config.modality, input_px=config.input_px)
+    if (spec.modality, spec.input_px) != (config.modality, config.input_px):
+        raise ValueError(
+            f"spec is {spec.modality!r} at {spec.input_px} px, config "
+            f"{config.modality!r} at {config.input_px} px"
+        )
     expected = (spec.channels, spec.input_px, spec.input_px)
     if samples.x.shape[1:] != expected:
         raise ValueError(f"samples have shape {samples.x.shape[1:]}, config needs {expected}")
@@ -357,13 +363,15 @@ def train(
 def check_init(init: ModelMeta, wanted: ModelMeta) -> None:
     """Refuse to fine-tune a model (``init``) whose classes or inputs differ from ``wanted``.
 
-    The depth an invalid pixel stands for may differ: a fine-tune may move a model to
-    another reading of its holes (the saved model carries the new one).
+    The depth an invalid pixel stands for and the imprint scale may differ: a fine-tune
+    may move a model to another reading of its frames (the saved model carries the new
+    one).
 
     Raises:
         ValueError: naming the first field that differs.
     """
-    for name in (n for n in INPUT_FIELDS if n != "invalid_depth_m"):
+    movable = ("invalid_depth_m", "imprint_depth_m", "imprint_ir")
+    for name in (n for n in INPUT_FIELDS if n not in movable):
         have, need = getattr(init, name), getattr(wanted, name)
         if have != need:
             raise ValueError(f"init model has {name} {have!r}, the training needs {need!r}")
