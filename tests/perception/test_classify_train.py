@@ -290,3 +290,30 @@ def test_side_swap_exchanges_the_bubble_halves_of_about_half_the_batch() -> None
             assert torch.equal(out[i, :, :, 3:], batch[i, :, :, :3])
     with pytest.raises(ValueError, match="even input_px"):
         TrainConfig(epochs=1, input_px=33)
+
+
+def test_cli_trains_with_the_imprint_scale(toy: Path, tmp_path: Path, capsys) -> None:
+    # --free-bubble and the two sizes train a model on scaled imprints; the checkpoint
+    # carries them, and evaluate reads frames as the model was trained.
+    h, w = json.loads((toy / "manifest.json").read_text())["image_shape"]
+    free = np.full((h, w), 0.06, np.float32)
+    np.savez(
+        tmp_path / "free.npz",
+        depth_left_m=free,
+        depth_right_m=free,
+        ir_left=np.full((h, w), 4000, np.float32),
+        ir_right=np.full((h, w), 4000, np.float32),
+    )
+    out = tmp_path / "imprint.pt"
+    args = ["train", str(toy), "--epochs", "1", "--out", str(out), "--modality", "both"]
+    args += ["--input-px", "32", "--width", "0.125", "--batch-size", "16", "--threads", "1"]
+    imprint = ["--free-bubble", str(tmp_path / "free.npz"), "--imprint-depth-mm", "25"]
+    assert main([*args, *imprint, "--imprint-ir", "2500"]) == 0
+    meta = load_checkpoint(out)[1]
+    assert (meta.imprint_depth_m, meta.imprint_ir) == (0.025, 2500.0)
+    assert meta.free is not None and np.allclose(meta.free.depth_left_m, 0.06, atol=1e-4)
+    capsys.readouterr()
+    assert main(["evaluate", str(out), str(toy), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["frames"] == 4 * 8 * 4
+    assert main([*args, *imprint]) == 2  # one of the three missing
+    assert "go together" in capsys.readouterr().err
