@@ -43,13 +43,14 @@ on each, side by side:
   membrane mesh (12, 8, 5 and 3 mm edges; 12 mm only with ``--quick``) while the jaws
   hold the mug.
 
-    python -m bench.worlds [--quick] [--json] [--variants held_out]
+    python -m bench.worlds [--quick] [--json] [--variants held_out] [--grasps N] [--model PATH]
 
 ``--quick``: one grasp of each kind, a 12 mm membrane mesh, in a temporary folder. The
 full run: 8 grasps of each kind, an 8 mm mesh, recordings in ``out/worlds``
 (``WORLDS_DIR`` overrides). ``--variants train|held_out``: the classifier's drawn grasps
 hold variants of their class from that split (``geometry.variants``; the auto-labeller's
-``variants`` option) instead of the reference shapes, and ``--grasps N`` sets how many;
+``variants`` option) instead of the reference shapes, and ``--grasps N`` sets how many
+(``--model PATH`` scores another classifier checkpoint than the committed one);
 only those are run and scored (the bench's own grasps hold the reference shapes the pose
 is fitted to, and the cost rows do not depend on the object: neither changes), and the
 rows say which split (``variants``).
@@ -523,7 +524,9 @@ def _vertices(spacing_m: float) -> int:
     return len(membrane_mesh(BubbleGeometry(), spacing_m).rest_m)
 
 
-def run(quick: bool, variants: str = "none", drawn_grasps: int | None = None) -> list[Row]:
+def run(
+    quick: bool, variants: str = "none", drawn_grasps: int | None = None, model: Path = MODEL
+) -> list[Row]:
     grasps = 1 if quick else 8
     drawn_grasps = grasps if drawn_grasps is None else drawn_grasps
     if variants != "none":
@@ -532,7 +535,7 @@ def run(quick: bool, variants: str = "none", drawn_grasps: int | None = None) ->
     tmp = tempfile.TemporaryDirectory() if quick else None
     workdir = Path(tmp.name) if tmp else Path(os.environ.get("WORLDS_DIR", "out/worlds"))
     workdir.mkdir(parents=True, exist_ok=True)
-    classifier = Classifier.load(MODEL)
+    classifier = Classifier.load(model)
     rng = np.random.default_rng(SEED)
     results: dict[str, tuple[list[dict[str, Any]], list[float]]] = {
         "sim": ([], []),
@@ -573,16 +576,17 @@ def run(quick: bool, variants: str = "none", drawn_grasps: int | None = None) ->
 
 
 def cli(argv: list[str] | None = None) -> list[Row]:
-    """``main`` with this bench's own options (``--variants``, ``--grasps``)."""
+    """``main`` with this bench's own options (``--variants``, ``--grasps``, ``--model``)."""
     parser = argparse.ArgumentParser(add_help=False)
     parser.add_argument("--variants", choices=("none", "train", "held_out"), default="none")
     parser.add_argument("--grasps", type=int, default=None, help="drawn grasps (default: 8, 1)")
+    parser.add_argument("--model", type=Path, default=MODEL, help="the classifier scored")
     args, rest = parser.parse_known_args(argv)
     if args.grasps is not None and args.grasps < 1:
         parser.error(f"--grasps must be >= 1, got {args.grasps}")
     return main(
         "worlds",
-        functools.partial(run, variants=args.variants, drawn_grasps=args.grasps),
+        functools.partial(run, variants=args.variants, drawn_grasps=args.grasps, model=args.model),
         argv=rest,
     )
 
