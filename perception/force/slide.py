@@ -59,18 +59,23 @@ def departing_share(
     """
     if len(positions_m) == 0:
         return 0.0
-    key = np.floor(positions_m / cell_m).astype(np.int64)
-    _, cell, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    grid = np.floor(positions_m / cell_m).astype(np.int64)
+    grid -= grid.min(axis=0)
+    _, cell, count = np.unique(
+        grid[:, 0] * (int(grid[:, 1].max()) + 1) + grid[:, 1],
+        return_inverse=True,
+        return_counts=True,
+    )
     if len(count) < MIN_CELLS:
         return 0.0
-    cell = cell.reshape(-1)
-    velocity = np.zeros((len(count), 2))
-    where = np.zeros((len(count), 2))
-    np.add.at(velocity, cell, velocity_m_per_s)
-    np.add.at(where, cell, positions_m)
-    velocity /= count[:, None]
-    where /= count[:, None]
     dots = count.astype(np.float64)
+
+    def mean(values: np.ndarray) -> np.ndarray:
+        return np.stack(
+            [np.bincount(cell, values[:, i], len(count)) / dots for i in range(2)], axis=1
+        )
+
+    velocity, where = mean(velocity_m_per_s), mean(positions_m)
     weight = dots.copy()
     for _ in range(iterations):
         off = np.linalg.norm(velocity - rigid_fit(where, velocity, weight), axis=1)
