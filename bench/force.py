@@ -30,7 +30,11 @@ every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` e
   is not scored (``cut_at_end``); false alarms per minute of still holding (any onset
   while the truth is stuck and stays so for ``MAX_EARLY_FRAMES``). The detector is
   referenced at the grasp monitor's stable grasp (``Frame.stable``), as the ``slip``
-  node is; the truth's onsets are scored from there. On both worlds: ``world.sim``'s held-out grasps and
+  node is; the truth's onsets are scored from there. Each edge cue
+  (``SlipParams.edge_cue``) side by side: ``onset_edge``, ``onset_patch`` with the
+  stick limit's, ``onset_edge_dots``, ``onset_patch_dots`` with the share of the dots
+  leaving the patch's rigid motion (the whole patch's cue is the same; its onsets
+  differ by the episodes the edge opens). On both worlds: ``world.sim``'s held-out grasps and
   long still holds (the detector's limits from its calibration grasps); MuJoCo's
   loaded grasps (``bench.force_mujoco``: a free object under the engine's gravity,
   filled or pulled past the stick limit; its truth of slip; the limits fitted on the
@@ -103,6 +107,7 @@ MAX_LATE_FRAMES = 15
 MAX_EARLY_FRAMES = 15
 MIN_SCORED_FRAMES = 5  # a true onset this near the recording's end is not scored
 GOAL_FRACTION, GOAL_N = 0.10, 0.3
+EDGE_CUES = ("limit", "dots")  # SlipParams.edge_cue, both scored
 
 
 def record_all(
@@ -267,6 +272,7 @@ def slip_rows(
                 else:
                     missed[phase] += 1
     rows: list[Row] = []
+    cue = (params or SlipParams()).edge_cue
     for phase in ("edge", "patch"):
         lags = found[phase]
         total = len(lags) + missed[phase]
@@ -275,7 +281,7 @@ def slip_rows(
                 "sweep": "slip",
                 "world": world,
                 "setting": DEFAULT_SETTING,
-                "method": f"onset_{phase}",
+                "method": f"onset_{phase}" + ("" if cue == "limit" else f"_{cue}"),
                 "samples": total,
                 "cut_at_end": cut[phase],
                 "detected_fraction": len(lags) / total if total else float("nan"),
@@ -384,8 +390,13 @@ def run(quick: bool, sizes: Sizes | None = None, sweeps: tuple[str, ...] = SWEEP
             record_all(100 + i, z.still_secs, load="still", settings=(DEFAULT_SETTING,))
             for i in progress(range(z.still), "bench.force still holds")
         ]
-        rows += slip_rows("sim", test_recs + still, cal, period)
-        rows += slip_rows("mujoco", (slides[cut:] or slides) + mujoco_still, mujoco_cal, period)
+        # Both edge cues side by side: the stick limit, the dots leaving the rigid motion.
+        for cue in EDGE_CUES:
+            params = SlipParams(edge_cue=cue)
+            rows += slip_rows("sim", test_recs + still, cal, period, params)
+            rows += slip_rows(
+                "mujoco", (slides[cut:] or slides) + mujoco_still, mujoco_cal, period, params
+            )
     if "reflex" in sweeps:
         reflex_seeds = [n * 2 + i for i in range(z.reflex)]
         rows += reflex_rows(reflex_seeds, 2.5 if quick else 4.0, cal)

@@ -176,6 +176,7 @@ def record(spec: GraspSpec) -> list[Frame]:
                 snap.pressure_pa[side],
                 PinholeCamera.from_frame(img),
                 img.tool_from_sensor,
+                snap.time_secs,
             )
         elapsed = time.perf_counter() - start
         none = sim.friction.BubbleWrench.none()
@@ -228,8 +229,9 @@ class Bubbles:
             elif snap.gripper_state == "holding" and not ext.tared:
                 ext.tare(img.ir, img.depth_m, camera, img.tool_from_sensor)
             out[side] = ext.update(
-                img.ir, img.depth_m, snap.pressure_pa[side], camera, img.tool_from_sensor
-            )
+                img.ir, img.depth_m, snap.pressure_pa[side], camera, img.tool_from_sensor,
+                snap.time_secs,
+            )  # fmt: skip
         return out
 
 

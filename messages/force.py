@@ -78,7 +78,9 @@ class BubbleContact(Message):
 
     Areas are projected on the plate; shifts are the dots' mean tangential displacement
     since the tare (the jaws closing on the object), tool (y, z), over the patch, its
-    core and its edge; ``force_n`` is the bubble's estimated force (tool frame).
+    core and its edge; ``force_n`` is the bubble's estimated force (tool frame);
+    ``departing_share`` the share of the patch's dots whose recent motion left its rigid
+    motion (``perception.force.slide``).
     """
 
     header: Header
@@ -97,6 +99,7 @@ class BubbleContact(Message):
     torsion_rad: float
     patch_px: int
     force_n: _Vec3
+    departing_share: float = 0.0
 
 
 class SlipState(Message):

@@ -9,7 +9,8 @@ Ports:
         began).
 
 The logic (the dots' shift against the pressure's limit, the edge's lag behind the
-core, the imprint running ahead of the dots, the episode's hysteresis) is :class:`perception.force.slip.SlipDetector`; the
+core, or the dots leaving the patch's rigid motion; the imprint running ahead of the
+dots, the episode's hysteresis) is :class:`perception.force.slip.SlipDetector`; the
 friction coefficient and the slip limits are the rig's, from the same ``calibration``
 file the ``wrench`` node reads.
 Times are the messages' stamps, so a replayed bag gives the same onsets.
@@ -98,5 +99,5 @@ def features_of(msg: BubbleContact) -> ContactFeatures:
     return ContactFeatures(
         msg.in_contact, msg.tracked, msg.pressure_pa, msg.pressure_rise_pa, msg.area_m2,
         msg.volume_m3, msg.centroid_in_tool, msg.normal_in_tool, msg.shift_m,
-        msg.core_shift_m, msg.edge_shift_m, msg.torsion_rad, msg.patch_px,
+        msg.core_shift_m, msg.edge_shift_m, msg.torsion_rad, msg.patch_px, msg.departing_share,
     )  # fmt: skip

@@ -167,7 +167,7 @@ class WrenchNode(Node):
         elif state == "holding" and not extractor.tared:
             extractor.tare(msg.ir, msg.depth_m, camera, msg.tool_from_sensor)
         features = extractor.update(
-            msg.ir, msg.depth_m, self.pressure_pa[side], camera, msg.tool_from_sensor
+            msg.ir, msg.depth_m, self.pressure_pa[side], camera, msg.tool_from_sensor, stamp / 1e9
         )
         wrench = estimate(features, side, self.calibration, self.params.method)
         self.latest[side] = (stamp, features, wrench)
@@ -253,4 +253,5 @@ def _contact(side: str, header: Header, f: ContactFeatures, w: BubbleWrench) -> 
         torsion_rad=float(f.torsion_rad),
         patch_px=int(f.patch_px),
         force_n=np.asarray(w.force_n, np.float64),
+        departing_share=float(f.departing_share),
     )

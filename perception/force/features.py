@@ -27,6 +27,7 @@ pose that each frame carries.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Annotated
 
@@ -38,6 +39,7 @@ from msgspec import Meta
 from geometry.camera import PinholeCamera
 from geometry.planar import rotation_about_centroid
 from perception.contact import ContactParams, ContactPatcher, contact_mask
+from perception.force.slide import departing_share
 from perception.shear import ShearParams, ShearTracker, resize_for_flow, tool_basis
 
 
@@ -77,6 +79,33 @@ class FeatureParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
             ),
         ),
     ] = 3
+    slide_frames: Annotated[
+        int,
+        Meta(
+            ge=1,
+            description=(
+                "frames over which each dot's velocity is taken for the share of the patch"
+                " leaving its rigid motion (``departing_share``; the dots' flow is noisy"
+                " from one frame to the next)."
+            ),
+        ),
+    ] = 4
+    slide_cell_m: Annotated[
+        float,
+        Meta(gt=0, description="the cells (m) over which those velocities are averaged."),
+    ] = 0.003
+    slide_m_per_s: Annotated[
+        float,
+        Meta(
+            gt=0,
+            description=(
+                "a cell departs from the patch's rigid motion when its speed off it passes"
+                " this (1.5 mm/s: 0.05 mm a frame at 30 Hz, half the speed from which"
+                " world.mujoco's truth counts a point sliding; the flow blurs a sliding"
+                " point with its stuck neighbours)."
+            ),
+        ),
+    ] = 0.0015
     min_patch_px: Annotated[
         int,
         Meta(
@@ -94,7 +123,9 @@ class ContactFeatures:
     """One bubble's contact at one frame (see the module docstring); SI units, tool frame.
 
     ``tracked`` is False while the dots cannot be followed (no free reference yet, or a
-    patch under ``min_patch_px``): the shifts are then zero.
+    patch under ``min_patch_px``): the shifts are then zero. ``departing_share`` is the
+    share of the patch's dots whose motion over the last frames left the patch's rigid
+    motion (``perception.force.slide``; 0 without stamps or history).
     """
 
     in_contact: bool
@@ -110,6 +141,7 @@ class ContactFeatures:
     edge_shift_m: np.ndarray  # (2,)
     torsion_rad: float  # about tool +x
     patch_px: int
+    departing_share: float = 0.0
 
     @classmethod
     def empty(cls, pressure_pa: float, normal_in_tool: np.ndarray) -> ContactFeatures:
@@ -190,6 +222,11 @@ class BubbleFeatures:
         self._tracker = ShearTracker(self.params.flow)
         self._free_pressure_pa = 0.0
         self._free: np.ndarray | None = None  # the free reference's mean depth (cached)
+        # The patch's dots of the last frames (stamp, reference pixels, positions,
+        # displacements), for the share leaving the rigid motion.
+        self._dots: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = deque(
+            maxlen=self.params.slide_frames + 1
+        )
 
     @property
     def has_reference(self) -> bool:
@@ -221,10 +258,12 @@ class BubbleFeatures:
     ) -> None:
         """Take this frame as the dots' zero tangential load (the jaws just closed)."""
         self._tracker.set_reference(ir, depth_m, camera, tool_basis(tool_from_sensor))
+        self._dots.clear()
 
     def untare(self) -> None:
         """The jaws opened: no tangential reference until the next :meth:`tare`."""
         self._tracker.drop_reference()
+        self._dots.clear()
 
     def update(
         self,
@@ -233,8 +272,11 @@ class BubbleFeatures:
         pressure_pa: float,
         camera: PinholeCamera,
         tool_from_sensor: np.ndarray,
+        stamp_secs: float | None = None,
     ) -> ContactFeatures:
-        """The features of one frame (finite always; see :class:`ContactFeatures`)."""
+        """The features of one frame (finite always; see :class:`ContactFeatures`);
+        ``stamp_secs``, the frame's time, dates the dots' velocities (without it no
+        ``departing_share``)."""
         normal = inward_normal_in_tool(tool_from_sensor)
         if self._free is None:
             self._free = self._patcher.reference("bubble")
@@ -257,23 +299,25 @@ class BubbleFeatures:
         good = np.isfinite(points).all(axis=1) & np.isfinite(weights)
         centroid_s = (points[good] * weights[good, None]).sum(0) / max(weights[good].sum(), 1e-12)
         centroid = rot @ centroid_s + tool_from_sensor[:3, 3]
-        shifts = self._shifts(ir, depth_m, mask) if self.tared else None
+        shifts = self._shifts(ir, depth_m, mask, stamp_secs) if self.tared else None
         if shifts is None:
+            self._dots.clear()
             zero2 = np.zeros(2)
             return ContactFeatures(
                 True, False, pressure_pa, rise, area, volume, centroid, normal, zero2, zero2,
                 zero2, 0.0, int(mask.sum()),
             )  # fmt: skip
-        mean, core, edge, torsion, count = shifts
+        mean, core, edge, torsion, count, departing = shifts
         return ContactFeatures(
             True, True, pressure_pa, rise, area, volume, centroid, normal, mean, core, edge,
-            torsion, count,
+            torsion, count, departing,
         )  # fmt: skip
 
     def _shifts(
-        self, ir: np.ndarray, depth_m: np.ndarray, mask: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, int] | None:
-        """Mean, core and edge tangential shift of the patch's dots, their torsion."""
+        self, ir: np.ndarray, depth_m: np.ndarray, mask: np.ndarray, stamp_secs: float | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, int, float] | None:
+        """Mean, core and edge tangential shift of the patch's dots, their torsion, and
+        the share of them leaving the patch's rigid motion."""
         geometry = self._tracker.reference_geometry
         if geometry is None:
             return None
@@ -297,4 +341,28 @@ class BubbleFeatures:
         core = disp[~edge].mean(axis=0) if (~edge).sum() >= 3 else mean
         rim = disp[edge].mean(axis=0) if edge.sum() >= 3 else mean
         torsion, _ = rotation_about_centroid(s1, s2, d1, d2)
-        return mean, core, rim, float(torsion), int(s1.size)
+        departing = self._departing(stamp_secs, kept, np.stack([s1, s2], axis=1), disp)
+        return mean, core, rim, float(torsion), int(s1.size), departing
+
+    def _departing(
+        self, stamp_secs: float | None, pixels: np.ndarray, at: np.ndarray, disp: np.ndarray
+    ) -> float:
+        """The share of the patch's dots whose velocity over the window left the rigid
+        motion (``perception.force.slide``): the dots are the reference's pixels, the
+        same material points frame after frame."""
+        if stamp_secs is None:
+            return 0.0
+        self._dots.append((stamp_secs, pixels, at, disp))
+        if len(self._dots) <= self.params.slide_frames:
+            return 0.0
+        t0, pixels0, _, disp0 = self._dots[0]
+        if stamp_secs <= t0:
+            return 0.0
+        _, now, then = np.intersect1d(pixels, pixels0, return_indices=True)
+        p = self.params
+        return departing_share(
+            at[now],
+            (disp[now] - disp0[then]) / (stamp_secs - t0),
+            cell_m=p.slide_cell_m,
+            speed_m_per_s=p.slide_m_per_s,
+        )

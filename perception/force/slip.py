@@ -27,6 +27,13 @@ Two observations, both from what the bubble measures (docs/force.md):
   core's, divided by the core's (``edge_follow``), drops. A confirmation near the edge's
   limit (``edge_min_strain``), not a cue alone (small increments are noisy).
 
+* **The dots leave the patch's rigid motion** (the edge, with ``edge_cue: dots``). The
+  stuck part of the patch moves with the object, as one; a point sliding over it lags.
+  The share of the patch's dots whose recent motion leaves that rigid motion
+  (``ContactFeatures.departing_share``, ``perception.force.slide``) is the share that
+  slides, with no stick limit: on a shell whose limit spreads with the object and the
+  load's direction (world.mujoco), the edge slips from ``dots_share`` of it.
+
 ``state`` is ``stick``, ``edge`` (incipient: the edge slips, the core holds) or
 ``patch`` (the whole patch slides). Onsets are reported once per episode; an episode
 ends when ``strain`` falls back under ``release_strain`` for ``settle_frames`` (a firmer
@@ -74,6 +81,29 @@ class SlipParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     limit as a backstop.
     """
 
+    edge_cue: Annotated[
+        Literal["limit", "dots"],
+        Meta(
+            description=(
+                "what tells the edge's slip: ``limit``, the core's shift near the rig's"
+                " stick limit (``edge_strain``, ``edge_follow``); ``dots``, the share of"
+                " the patch's dots leaving its rigid motion (``dots_share``), which needs"
+                " no limit (a shell whose limit spreads with the object: world.mujoco)."
+            )
+        ),
+    ] = "limit"
+    dots_share: Annotated[
+        float,
+        Meta(
+            gt=0,
+            le=1,
+            description=(
+                "with ``edge_cue: dots``, the share of the patch's dots off its rigid"
+                " motion (``ContactFeatures.departing_share``) from which the edge slips;"
+                " the episode ends when it stays under half of it."
+            ),
+        ),
+    ] = 0.25
     edge_strain: Annotated[
         float, Meta(description="``strain`` from which the patch's edge counts as slipping.")
     ] = 0.92
@@ -260,15 +290,23 @@ class SlipDetector:
         shift_per_pa = shift_per_pressure(features, p.min_pressure_pa)
         strain = shift_per_pa / self.edge_m_per_pa
         lead = self._imprint_lead()
+        if p.edge_cue == "dots":
+            edge = features.departing_share >= p.dots_share
+            calm = features.departing_share < 0.5 * p.dots_share
+        else:
+            edge = strain >= p.edge_strain or (
+                follow < p.edge_follow and strain >= p.edge_min_strain
+            )
+            calm = strain < p.release_strain
         phase: SlipPhase = "stick"
         if lead >= p.patch_lead_m or shift_per_pa >= p.patch_strain * self.patch_m_per_pa:
             phase = "patch"
-        elif strain >= p.edge_strain or (follow < p.edge_follow and strain >= p.edge_min_strain):
+        elif edge:
             phase = "edge"
         onset = ""
         if phase == "stick" and self.phase != "stick":
-            # Hold the episode until the shift has settled back inside the limit.
-            self._calm = self._calm + 1 if strain < p.release_strain else 0
+            # Hold the episode until the shift (or the dots' departure) has settled.
+            self._calm = self._calm + 1 if calm else 0
             phase = self.phase if self._calm < p.settle_frames else "stick"
         else:
             self._calm = 0

@@ -47,7 +47,9 @@ def test_quick_json_has_every_sweep() -> None:
     assert all(0.0 <= r["false_release_rate"] <= 1.0 for r in handover.values())
     slip = [r for r in rows if r["sweep"] == "slip"]
     assert {(r["world"], r["method"]) for r in slip} == {
-        (w, m) for w in ("sim", "mujoco") for m in ("onset_edge", "onset_patch")
+        (w, m)
+        for w in ("sim", "mujoco")
+        for m in ("onset_edge", "onset_patch", "onset_edge_dots", "onset_patch_dots")
     }
     assert all(r["still_secs"] > 0 for r in slip)
 

@@ -353,3 +353,58 @@ def test_dots_follow_the_object_and_the_edge_slip_is_seen_on_the_square_bottle()
         assert -6 <= onset.get(side, frame) - truth_onset[side] <= 2, (side, onset, truth_onset)
         whole = f"{side} patch"
         assert abs(onset.get(whole, frame) - truth_onset[whole]) <= 2, (onset, truth_onset)
+
+
+def test_departing_share_is_the_share_of_the_patch_leaving_its_rigid_motion() -> None:
+    from perception.force.slide import departing_share
+
+    # A 30 mm patch of dots every 0.5 mm, moving with the object: 3 mm/s along y and a
+    # turn of 0.1 rad/s about the plate's normal, with 0.5 mm/s of flow noise per dot.
+    rng = np.random.default_rng(4)
+    g = np.arange(-0.015, 0.015, 0.0005)
+    at = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)
+    rigid = np.array([0.003, 0.0]) + 0.1 * np.stack([-at[:, 1], at[:, 0]], axis=1)
+    noisy = rigid + rng.normal(0, 0.0005, at.shape)
+
+    def share(v: np.ndarray) -> float:
+        return departing_share(at, v, cell_m=0.003, speed_m_per_s=0.0015)
+
+    assert share(noisy) < 0.05  # stuck: it moves as one, however fast
+    # The rim slides: its dots stop (the object moves on over them). A band 9 mm wide
+    # along one side is 30% of the patch; the rest still moves as one.
+    rim = at[:, 0] > 0.0058
+    slid = noisy.copy()
+    slid[rim] = rng.normal(0, 0.0005, (int(rim.sum()), 2))
+    assert rim.mean() == pytest.approx(0.3, abs=0.01)
+    assert share(slid) == pytest.approx(rim.mean(), abs=0.05)
+    # Under the speed that counts (1.5 mm/s off the rigid motion): no departure.
+    crept = rigid.copy()
+    crept[rim] -= np.array([0.001, 0.0])
+    assert share(crept) == 0.0
+    # Too few dots to tell: nothing.
+    assert departing_share(at[:3], rigid[:3], cell_m=0.003, speed_m_per_s=0.0015) == 0.0
+
+
+def test_slip_detector_by_the_dots_needs_no_stick_limit() -> None:
+    """world.mujoco's shell: the core's shift per pascal at which the latex begins to
+    slide spreads 0.83-2.29 um/Pa over objects and load directions, so a rig's limit
+    fires on a firm hold whose limit is high (a mug pulled: 22 frames before its latex
+    slid) and late on a low one. With ``edge_cue: dots`` the edge slips when a quarter
+    of the patch's dots leave its rigid motion, whatever the shift."""
+    from perception.force.slip import SlipParams
+
+    cal = Calibration(slip_edge_m_per_pa=1.5e-6, slip_patch_m_per_pa=1.9e-6, friction=0.8)
+    # The core's shift at 1.3 of the edge's limit (2 kPa: 3.9 mm) and still: the limit's
+    # cue calls it an edge slip from the first frame; the dots say the patch sticks.
+    shares = [0.05] * 10 + [0.12, 0.2, 0.3, 0.35, 0.3] + [0.08] * 8
+    for cue, first in (("limit", 0), ("dots", 12)):
+        detector = SlipDetector.for_rig(cal, SlipParams(edge_cue=cue))
+        detector.reference()
+        onsets = []
+        for i, s in enumerate(shares):
+            f = dataclasses.replace(features(core=(0.0039, 0.0)), departing_share=s)
+            onsets.append(detector.update(f, np.array([4.0, 0.5, 0.0]), i / 30).onset)
+        assert onsets.index("edge") == first and onsets.count("edge") == 1, (cue, onsets)
+        assert "patch" not in onsets
+        # The dots' episode ends once they move as one again (5 frames under half).
+        assert detector.phase == ("edge" if cue == "limit" else "stick"), cue
