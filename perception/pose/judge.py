@@ -110,7 +110,7 @@ CONFIDENCE = 0.995
 DRAWS = np.random.default_rng(0).standard_normal((4000, 6))
 #: Fitted calibration (module docstring; measured by ``bench.pose_hard``).
 INFLATION = 1.0
-BIAS_ERROR = 0.6
+BIAS_ERROR = 0.4
 #: The share by which the rays' bias from each face's points may be mispredicted, each
 #: face on its own, at the ray noise ``FACE_NOISE_M`` (that of a box's corner at 3 mm
 #: noise), in proportion to the ray noise (module docstring).
@@ -118,7 +118,7 @@ FACE_ERROR = 0.2
 FACE_NOISE_M = 0.00285
 #: The unpredicted coherent residual, as a share of the residual RMS, of each point that
 #: is not smooth across the noise (past an edge or a corner; module docstring).
-EDGE_ERROR = 0.2
+EDGE_ERROR = 0.15
 #: The stand-in for the rays' bias when the rays are not known (module docstring).
 MODEL_ERROR = 1.0
 #: How far along its gradient (in residual RMS) the field must stay smooth at a point for

@@ -48,7 +48,7 @@ def test_pose_calib_quick(capsys: pytest.CaptureFixture[str]) -> None:
     grid = [r for r in rows if r["kind"] == "grid"]
     # The quick grid's two sets, today's among them, scored best first.
     assert len(grid) == 2 and sum(r["current"] == "*" for r in grid) == 1
-    keys = [(r["wrong_ok"] > 0, r["z2"]) for r in grid]
+    keys = [(r["wrong_ok"], r["shapes_suspect"], r["z2"]) for r in grid]
     assert keys == sorted(keys)
     for chosen in ("chosen", "current"):
         (cell,) = [r for r in rows if r.get("set") == chosen]
