@@ -114,7 +114,7 @@ BIAS_ERROR = 0.4
 #: The share by which the rays' bias from each face's points may be mispredicted, each
 #: face on its own, at the ray noise ``FACE_NOISE_M`` (that of a box's corner at 3 mm
 #: noise), in proportion to the ray noise (module docstring).
-FACE_ERROR = 0.2
+FACE_ERROR = 0.25
 FACE_NOISE_M = 0.00285
 #: The unpredicted coherent residual, as a share of the residual RMS, of each point that
 #: is not smooth across the noise (past an edge or a corner; module docstring).
