@@ -188,7 +188,7 @@ def run(quick: bool) -> list[Row]:
     one_core()
     if quick:
         now = current()  # today's set and the same without the faces' allowance
-        small = {name: (value,) for name, value in now.items()}
+        small: dict[str, tuple[float, ...]] = {name: (value,) for name, value in now.items()}
         small["face_error"] = (0.0, now["face_error"])
         return fit(collect(["box_corner"], [0.003], 3, 1000), small)
     return fit(collect(list(OBJECTS), list(NOISES_M), 100, 3000))
