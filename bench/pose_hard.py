@@ -64,7 +64,8 @@ from perception.pose.estimator import EstimatorParams, PoseEstimator
 from perception.pose.ipopt import IpoptParams, IpoptSolver, jit_available
 from perception.pose.lm import LMSolver
 
-#: The first cloud of the coverage rows: ``judge.INFLATION`` was fitted on clouds 100-111.
+#: The first cloud of the coverage rows: ``judge.INFLATION`` was fitted on clouds 100-111,
+#: the judgement's shares on 600-699 (``bench.pose_calib``).
 COVERAGE_CLOUDS = 200
 AXIS_OK_DEG = 2.0
 OFFSET_OK_M = 0.002

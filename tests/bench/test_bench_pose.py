@@ -1,6 +1,6 @@
-"""``python -m bench.pose_hard --quick``, ``python -m bench.pose --quick`` and
-``python -m bench.pose_weak --quick`` run and print their rows; the estimator is never
-silently wrong on them."""
+"""``python -m bench.pose_hard --quick``, ``python -m bench.pose --quick``,
+``python -m bench.pose_weak --quick`` and ``python -m bench.pose_calib --quick`` run and
+print their rows; the estimator is never silently wrong on them."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from bench import pose, pose_hard, pose_weak
+from bench import pose, pose_calib, pose_hard, pose_weak
 from bench.common import main
 
 
@@ -40,6 +40,26 @@ def test_pose_weak_quick(capsys: pytest.CaptureFixture[str]) -> None:
         assert r["weak_sd_deg_median"] > 0 and np.isfinite(r["weak_err_deg_rms"])
         assert np.isfinite(r["weak_z_rms"])
         assert r["ok_at_2deg"] <= r["ok_at_3deg"] <= r["ok_at_4deg"]
+
+
+def test_pose_calib_quick(capsys: pytest.CaptureFixture[str]) -> None:
+    rows = main("pose_calib", pose_calib.run, columns=pose_calib.COLUMNS, argv=["--quick"])
+    assert "z2" in capsys.readouterr().out
+    grid = [r for r in rows if r["kind"] == "grid"]
+    # The quick grid's two sets, today's among them, scored best first.
+    assert len(grid) == 2 and sum(r["current"] == "*" for r in grid) == 1
+    keys = [(r["wrong_ok"], r["shapes_suspect"], r["z2"]) for r in grid]
+    assert keys == sorted(keys)
+    for chosen in ("chosen", "current"):
+        (cell,) = [r for r in rows if r.get("set") == chosen]
+        assert cell["cases"] == 3 and 0 <= cell["covered"] <= 3
+        assert 0 <= cell["right_suspect"] <= cell["right"] <= 3
+    # Fewer regions hold the truth when every share is smaller.
+    wide, narrow = pose_calib.current(), {**pose_calib.current(), "face_error": 0.0}
+    judged = pose_calib.collect(["box_corner"], [0.003], 2, 1000)
+    assert judged and all(np.isfinite(j.differences).all() for j in judged)
+    held = [pose_calib.score(judged, s)[0]["covered"] for s in (wide, narrow)]
+    assert held[0] >= held[1]
 
 
 def test_pose_quick_plot(tmp_path, capsys: pytest.CaptureFixture[str]) -> None:  # noqa: ANN001
