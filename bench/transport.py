@@ -202,6 +202,9 @@ COLUMNS = [
     "source_cpu_vs_raw",
     "sink_cpu_us_per_frame",
     "sink_cpu_vs_raw",
+    # The node's own loop (each side's main thread): where the runtime's Python shows.
+    "source_main_us_per_frame",
+    "sink_main_us_per_frame",
     "drops",
     "repeats",
     "throughput_vs_plain",

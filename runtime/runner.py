@@ -370,7 +370,8 @@ class Runner:
             self._call(self.node.on_raw, inp.topic, frames)
             return
         try:
-            _, msg = decode(frames, expect=inp.kind)
+            # Frame 0 is the input's topic: _recv found the input by it.
+            _, msg = decode(frames, expect=inp.kind, topic=inp.topic)
         except FrameDecodeError as err:
             counters.bad_frames += 1
             counters.unseq += 1 + skipped

@@ -108,3 +108,33 @@ def test_one_infinite_pixel_among_nan_ones_is_found() -> None:
     assert frame.nonfinite_fields() == []
     depth[171, 223] = -np.inf
     assert frame.nonfinite_fields() == ["depth_m"]
+
+
+def _frame(**numbers: float) -> ToFImage:
+    values = {"fx_px": 200.0, "fy_px": 200.0, "cx_px": 112.0, "cy_px": 86.0, **numbers}
+    return ToFImage(
+        header=Header(), sensor="left", depth_m=np.full((4, 5), 0.05, np.float32),
+        ir=np.zeros((4, 5), np.uint16), **values,
+    )  # fmt: skip
+
+
+def test_numbers_whose_sum_overflows_are_finite() -> None:
+    """The numbers are checked by their sum first: finite numbers whose sum overflows to
+    infinity send the message to the field-by-field pass, which finds nothing."""
+    assert math.isinf(sum([1.7e308, 1.7e308]))
+    assert _frame(fx_px=1.7e308, fy_px=1.7e308).nonfinite_fields() == []
+    assert _frame(fx_px=-1.7e308, cy_px=-1.7e308).nonfinite_fields() == []
+
+
+def test_infinities_that_cancel_in_a_sum_are_each_named() -> None:
+    """inf + -inf is NaN (math.fsum raises): both fields are named, in declaration order."""
+    frame = _frame(cy_px=-math.inf, fx_px=math.inf)
+    assert frame.nonfinite_fields() == ["fx_px", "cy_px"]
+    assert _frame(fy_px=math.nan).nonfinite_fields() == ["fy_px"]
+
+
+def test_a_number_field_holding_an_array_is_checked_as_an_array() -> None:
+    """A field declared a number is checked by what it holds (as before the sum)."""
+    assert _frame(cx_px=np.array([1.0, 2.0])).nonfinite_fields() == []  # type: ignore[arg-type]
+    bad = _frame(cx_px=np.array([1.0, math.inf]))  # type: ignore[arg-type]
+    assert bad.nonfinite_fields() == ["cx_px"]
