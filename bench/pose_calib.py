@@ -17,7 +17,7 @@ residual past an edge), ``FACE_ERROR`` (each face's mispredicted ray bias) and
    many wrong answers are within the tolerance with ``judge.CONFIDENCE`` (wrong and
    ``ok``, from the tolerance alone) and how many right ones are not (right but
    ``suspect`` for it).
-3. The chosen set, by the issue's goals in their order: the fewest wrong answers within
+3. The chosen set, by the goals (docs/pose.md) in their order: the fewest wrong answers within
    the tolerance; then the fewest shapes whose right answers are 5% or more ``suspect``
    for it; then the least sum over the cells of ``z^2``, ``z = (covered - 0.95 n) /
    sqrt(0.95 * 0.05 * n)``: the cells' coverage as near 95% as one set of shares

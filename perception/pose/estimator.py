@@ -1,8 +1,8 @@
 """The robust pose estimator: seeding, tracking, wrong-minimum detection and recovery.
 
 Wraps any local solver (``LMSolver``, ``IpoptSolver``, ``IcpSolver``: each has
-``solve(points_in_tool, object_from_tool_seed) -> FitResult``) with what the issue
-asks for around it:
+``solve(points_in_tool, object_from_tool_seed) -> FitResult``) with what a user needs
+around it:
 
 - A prior, solved once: the last accepted estimate (tracking) or a given seed (vision,
   the node's parameter) is solved from alone, and that one solve stands when it is

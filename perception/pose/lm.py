@@ -7,7 +7,7 @@ rotations are in metres at the object's lever arm, an eigen-split of them, and a
 step in the observable subspace only. Directions whose information is under
 ``observability_floor`` (yaw of a body of revolution, translation along a cylinder
 seen only on its side) receive no step: they stay at the seed, which is the gauge
-fixing the issue asks for, and the result reports them.
+fixing, and the result reports them.
 
 Stops when the relative cost decrease falls under ``cost_tol`` (after an accepted
 step), when the scaled step falls under ``step_tol_m`` or no damped step decreases the
