@@ -435,6 +435,10 @@ class Launcher:
         while self.stop_reason is None:
             self._serve(100)
             self._reap()
+            if self._signals:
+                # A signal while serving (a third Ctrl-C kills every node at once): the
+                # nodes' deaths are the user's stop, not a failed start-up.
+                break
             if any(p.state in ("failed", "waiting_restart", "exited") for p in self.procs.values()):
                 bad = [
                     n
