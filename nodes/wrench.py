@@ -6,16 +6,16 @@ Ports:
         (GripperState).
     outputs: ``wrench`` (messages.force.WrenchEstimate: per bubble and on the object,
         tool frame, N and N m, with one-sigma uncertainties), once per pair of frames
-        of one instant (stamps within ``max_skew_secs``: a frame waits for its partner
-        among the other bubble's last few; when none came for ``max_wait_secs``, the
-        other bubble's frame was dropped and a frame pairs with its newest result, up
-        to ``max_stale_secs`` old), or per frame with one bubble (from its third frame
-        with none of the other's);
+        of one instant (stamps within ``max_skew_secs``: a frame waits for its partner,
+        however late; an instant whose other frame was dropped gets no estimate, since
+        a pair of two instants is wrong by the load's change between them), or per
+        frame with one bubble (from its third frame with none of the other's);
         ``contact`` (messages.force.BubbleContact: what each bubble measured, for the
         ``slip`` node), one per frame.
 
-What each frame is judged by is the gripper's state at the frame's stamp
-(``perception.contact.StampedHistory``): frames taken with the gripper open and still
+What each frame is judged by is the gripper's state and the bubble's pressure at the
+frame's stamp (``perception.contact.StampedHistory``), so the order in which the four
+inputs of an instant arrive does not change the estimate: frames taken with the gripper open and still
 (``reference_min_width_m``, ``reference_max_speed_m_per_s``) build the free bubble's
 reference; the first frame taken with the gripper ``holding`` tares the dots (the jaws
 just closed: zero tangential load); opening the gripper drops the tare. The estimator
@@ -74,19 +74,6 @@ class WrenchParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
         float,
         Meta(ge=0, description="the most two bubbles' frames may differ to make one estimate."),
     ] = 0.011
-    max_wait_secs: Annotated[
-        float,
-        Meta(
-            ge=0,
-            description=(
-                "with no estimate for longer than this (data time), a frame is paired "
-                "with the other bubble's newest result (its partner was dropped) ..."
-            ),
-        ),
-    ] = 0.05
-    max_stale_secs: Annotated[
-        float, Meta(ge=0, description="... when that result is at most this much older.")
-    ] = 0.1
 
 
 @register("wrench")
@@ -110,23 +97,21 @@ class WrenchNode(Node):
         except ValueError as err:
             raise NodeError(f"{self.name}: {err}") from err
         self.extractors = {s: BubbleFeatures(self.params.features) for s in SIDES}
-        self.pressure_pa = dict.fromkeys(SIDES, 0.0)
+        self.pressure_pa = {s: StampedHistory(0.0, 64) for s in SIDES}
         # The gripper at each stamp: "free" (open and still), "holding", or "" (else).
         self.gripper = StampedHistory("", 64)
-        self.latest: dict[str, tuple[int, ContactFeatures, BubbleWrench]] = {}
         # Each bubble's results waiting for the other's of the same instant.
         self.recent: dict[str, deque[tuple[int, ContactFeatures, BubbleWrench]]] = {
             s: deque(maxlen=PAIR_HISTORY) for s in SIDES
         }
         self.frames = dict.fromkeys(SIDES, 0)
-        self.published_nanos = 0
         self.warned: set[str] = set()
 
     def on_left_pressure(self, msg: Pressure) -> None:
-        self.pressure_pa["left"] = msg.pressure_pa
+        self.pressure_pa["left"].record(msg.header.stamp_nanos, msg.pressure_pa)
 
     def on_right_pressure(self, msg: Pressure) -> None:
-        self.pressure_pa["right"] = msg.pressure_pa
+        self.pressure_pa["right"].record(msg.header.stamp_nanos, msg.pressure_pa)
 
     def on_gripper(self, msg: GripperState) -> None:
         prm = self.params
@@ -161,49 +146,38 @@ class WrenchNode(Node):
         stamp = msg.header.stamp_nanos
         camera = PinholeCamera.from_frame(msg)
         state = self.gripper.at(stamp)
+        pressure_pa = self.pressure_pa[side].at(stamp)
         if state == "free":
-            extractor.free_frame(msg.depth_m, self.pressure_pa[side])
+            extractor.free_frame(msg.depth_m, pressure_pa)
             extractor.untare()
         elif state == "holding" and not extractor.tared:
             extractor.tare(msg.ir, msg.depth_m, camera, msg.tool_from_sensor)
         features = extractor.update(
-            msg.ir, msg.depth_m, self.pressure_pa[side], camera, msg.tool_from_sensor, stamp / 1e9
+            msg.ir, msg.depth_m, pressure_pa, camera, msg.tool_from_sensor, stamp / 1e9
         )
         wrench = estimate(features, side, self.calibration, self.params.method)
-        self.latest[side] = (stamp, features, wrench)
         self.io.publish("contact", _contact(side, msg.header, features, wrench))
         self.frames[side] += 1
+        self._pair(side, (stamp, features, wrench))
+
+    def _pair(self, side: str, result: tuple[int, ContactFeatures, BubbleWrench]) -> None:
+        """Publish the estimate of ``result``'s instant once both bubbles' frames are in."""
+        stamp = result[0]
         other = "right" if side == "left" else "left"
-        partners = [
-            r for r in self.recent[other]
-            if abs(r[0] - stamp) / 1e9 <= self.params.max_skew_secs
-        ]  # fmt: skip
-        self.recent[side].append((stamp, features, wrench))
+        skew = self.params.max_skew_secs * 1e9
+        partners = [r for r in self.recent[other] if abs(r[0] - stamp) <= skew]
         if partners:
             partner = min(partners, key=lambda r: abs(r[0] - stamp))
+            # Results older than this pair lost their partners (dropped frames).
             self.recent[other] = deque(
                 (r for r in self.recent[other] if r[0] > partner[0]), maxlen=PAIR_HISTORY
             )
             self.recent[side].clear()
-            self.io.publish(
-                "wrench", self._estimate(stamp, {side: self.latest[side], other: partner})
-            )
-            self.published_nanos = stamp
+            self.io.publish("wrench", self._estimate(stamp, {side: result, other: partner}))
         elif self.frames[other] == 0 and self.frames[side] >= SINGLE_AFTER_FRAMES:
-            self.io.publish("wrench", self._estimate(stamp, {side: self.latest[side]}))
-            self.published_nanos = stamp
-        elif (
-            other in self.latest
-            and (stamp - self.published_nanos) / 1e9 > self.params.max_wait_secs
-            and 0 <= (stamp - self.latest[other][0]) / 1e9 <= self.params.max_stale_secs
-        ):
-            # The other bubble's frame of this instant was dropped (a loaded machine,
-            # ``latest`` inputs): pair with its newest result rather than go silent.
-            self.io.publish(
-                "wrench",
-                self._estimate(stamp, {side: self.latest[side], other: self.latest[other]}),
-            )
-            self.published_nanos = stamp
+            self.io.publish("wrench", self._estimate(stamp, {side: result}))
+        else:
+            self.recent[side].append(result)
 
     def _estimate(
         self, stamp: int, pair: dict[str, tuple[int, ContactFeatures, BubbleWrench]]

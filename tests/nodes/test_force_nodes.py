@@ -228,22 +228,49 @@ def test_handover_with_the_shear_rule_ignores_the_force() -> None:
         make_node(HandoverSupervisor, {"release_on": "vibes"})
 
 
-def test_wrench_node_pairs_with_a_stale_partner_when_one_was_dropped(
+def test_wrench_node_estimates_only_instants_both_bubbles_saw_when_one_was_dropped(
     fill_frames: list[sim.Instant],
 ) -> None:
     node, io = make_node(WrenchNode, {})
-    for k, inst in enumerate(fill_frames[:8]):
+    for k, inst in enumerate(fill_frames[:10]):
         feed(node, "gripper", inst.gripper)
         for side in ("left", "right"):
             feed(node, f"{side}_pressure", inst.pressures[side])
-        sides = ("left", "right") if k < 5 else ("left",)  # right's frames 5-7 dropped
+        sides = ("left",) if 5 <= k <= 7 else ("left", "right")  # right's frames 5-7 dropped
         for side in sides:
             feed(node, side, inst.images[side])
     stamps = [e.header.stamp_nanos for e in io.published["wrench"]]
-    # One per instant while both came; then silence while within max_wait_secs (50 ms)
-    # of the last estimate: frame 6 pairs with the right's newest (frame 4, 67 ms old),
-    # frame 7 comes within 50 ms of it.
-    assert stamps == [fill_frames[k].stamp_nanos for k in (0, 1, 2, 3, 4, 6)]
+    # An estimate mixing two instants is wrong by the load's change between them: the
+    # instants whose right frame was lost get none, and pairing resumes with frame 8.
+    assert stamps == [fill_frames[k].stamp_nanos for k in (0, 1, 2, 3, 4, 8, 9)]
+    assert len(io.published["contact"]) == 17  # every frame measured
+
+
+def test_wrench_node_estimates_do_not_depend_on_the_order_inputs_arrive_in(
+    fill_frames: list[sim.Instant],
+) -> None:
+    # Live the inputs of one instant come from four processes in any order: here the
+    # images one instant behind the pressures and the gripper, and the left camera a
+    # further frame behind the right (a slower ray-cast). Each estimate must be the one
+    # of its instant as if everything had come in order (a late partner is waited for,
+    # the pressure taken at the frame's stamp), not a pair of two instants.
+    frames = fill_frames[:40]
+    _, in_order = drive_wrench(frames)
+    node, io = make_node(WrenchNode, {})
+    for k in range(len(frames) + 2):
+        if k < len(frames):
+            feed(node, "gripper", frames[k].gripper)
+            for side in ("left", "right"):
+                feed(node, f"{side}_pressure", frames[k].pressures[side])
+        if 1 <= k <= len(frames):
+            feed(node, "right", frames[k - 1].images["right"])
+        if 2 <= k:
+            feed(node, "left", frames[k - 2].images["left"])
+    got = io.published["wrench"]
+    want = in_order.published["wrench"]
+    assert [e.header.stamp_nanos for e in got] == [e.header.stamp_nanos for e in want]
+    for a, b in zip(got, want, strict=True):
+        np.testing.assert_allclose(a.bubble_force_n, b.bubble_force_n, rtol=1e-9, atol=1e-12)
 
 
 def test_handover_stamps_the_release_with_the_estimate_that_decided() -> None:
