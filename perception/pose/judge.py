@@ -125,6 +125,9 @@ CURVATURE_FLOOR = 0.5
 #: The least share of the points through which a direction the smooth points do not
 #: observe must be observed to count (``_widely_observed``).
 SPREAD = 0.1
+#: The least share of the points through which a direction the smooth points observe
+#: must be observed to count (``_spread``): the floor alone lets one outlier decide.
+FEW = 0.01
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -287,23 +290,29 @@ def curvature(
     return kept
 
 
+def _spread(js: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """Through how many of the points (rows of ``js``, scaled Jacobian rows) each of
+    ``directions`` (6, m) is observed: the effective count ``(sum c_i)^2 / sum c_i^2``
+    of the points' shares ``c_i`` of its information."""
+    shares = (js @ directions) ** 2
+    count: np.ndarray = shares.sum(axis=0) ** 2 / np.maximum((shares**2).sum(axis=0), 1e-300)
+    return count
+
+
 def _widely_observed(
-    basis: np.ndarray, info: np.ndarray, jac: np.ndarray, length: float, floor: float
+    basis: np.ndarray, info: np.ndarray, js: np.ndarray, floor: float
 ) -> np.ndarray:
     """``basis`` (6, k), the directions the smooth points observe, with the directions
-    orthogonal to it that the whole cloud observes (``info``, from every row of ``jac``)
-    through at least ``SPREAD`` of its points (the effective count ``(sum c_i)^2 /
-    sum c_i^2`` of the points' shares ``c_i``): a box's corner at 3 mm noise, where the
-    noise crosses an edge almost everywhere, still sees its three faces through a third
-    of its points each, while a slide seen through the noise past a rim rests on a few
-    points (under 5%)."""
+    orthogonal to it that the whole cloud observes (``info``, from every row of ``js``)
+    through at least ``SPREAD`` of its points (``_spread``): a box's corner at 3 mm noise,
+    where the noise crosses an edge almost everywhere, still sees its three faces through
+    a third of its points each, while a slide seen through the noise past a rim rests on
+    a few points (under 5%)."""
     rest = np.linalg.svd(basis, full_matrices=True)[0][:, basis.shape[1] :]
     if rest.shape[1] == 0:
         return basis
     vals, vecs = np.linalg.eigh(rest.T @ info @ rest)
-    shares = (jac * np.array([1.0] * 3 + [1.0 / length] * 3) @ (rest @ vecs)) ** 2
-    count = shares.sum(axis=0) ** 2 / np.maximum((shares**2).sum(axis=0), 1e-300)
-    wide = (vals >= floor) & (count >= SPREAD * len(jac))
+    wide = (vals >= floor) & (_spread(js, rest @ vecs) >= SPREAD * len(js))
     return np.hstack([basis, rest @ vecs[:, wide]])
 
 
@@ -334,13 +343,18 @@ def uncertainty(
         smooth &= np.sum(moved * grad, axis=1) > 0.99
     info = scaled_information(jac[smooth], length) * (int(smooth.sum()) / max(n, 1))
     _, basis, _ = observability(info, floor)
-    basis = _widely_observed(basis, scaled_information(jac, length), jac, length, floor)
+    # The floor is per point: 1e-4 of 3000 points is a third of one point. A direction
+    # the smooth points observe through fewer than FEW of the cloud's points rests on an
+    # outlier the noise threw far past a rim (a 30 mm cylinder at 3 mm: its slide, seen
+    # through one point at the truth and through none a few millimetres away).
+    scale = np.array([1.0] * 3 + [1.0 / length] * 3)
+    js = jac * scale
+    basis = basis[:, _spread(js[smooth], basis) >= FEW * n]
+    basis = _widely_observed(basis, scaled_information(jac, length), js, floor)
     flags = tuple(bool(s > 0.5) for s in np.sum(basis**2, axis=1))
     k = basis.shape[1]
     if k == 0 or n <= k:
         return _nothing(length)
-    scale = np.array([1.0] * 3 + [1.0 / length] * 3)
-    js = jac * scale
     # The solver moves along every direction the whole cloud constrains (the points
     # past an edge or a rim too), so the error along the observed directions is its
     # marginal over all of those, not the spread with the others held at the truth.
