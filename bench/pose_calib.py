@@ -53,9 +53,9 @@ NOISES_M = (0.0005, 0.001, 0.002, 0.003)
 #: The candidate shares.
 GRID: dict[str, tuple[float, ...]] = {
     "inflation": (1.0,),
-    "edge_error": (0.0, 0.1, 0.15, 0.2, 0.3),
-    "face_error": (0.0, 0.1, 0.15, 0.2, 0.25, 0.3),
-    "bias_error": (0.4, 0.6, 0.8),
+    "edge_error": (0.0, 0.05, 0.1, 0.15, 0.2, 0.3),
+    "face_error": (0.2, 0.25, 0.3, 0.35),
+    "bias_error": (0.0, 0.1, 0.2, 0.4),
 }
 SHARES = tuple(GRID)
 
@@ -176,7 +176,15 @@ def fit(judged: list[Judged], grid: dict[str, tuple[float, ...]] = GRID) -> list
                 cells,
             )
         )
-    scored.sort(key=lambda s: (s[0]["wrong_ok"], s[0]["shapes_suspect"], s[0]["z2"]))
+    # On a tie, the larger allowance: the fit set cannot tell the two apart.
+    scored.sort(
+        key=lambda s: (
+            s[0]["wrong_ok"],
+            s[0]["shapes_suspect"],
+            round(s[0]["z2"], 6),
+            -sum(s[0][name] for name in SHARES),
+        )
+    )
     best = scored[0][1]
     today = next(cells for row, cells in scored if row["current"])
     return [row for row, _ in scored] + [

@@ -104,7 +104,7 @@ DRAWS = np.random.default_rng(0).standard_normal((4000, 6))
 #: Fitted calibration (module docstring; refitted by ``bench.pose_calib``, scored by
 #: ``bench.pose_hard``'s coverage rows).
 INFLATION = 1.0
-BIAS_ERROR = 0.4
+BIAS_ERROR = 0.1
 #: The share by which the rays' bias from each face's points may be mispredicted, each
 #: face on its own, at the ray noise ``FACE_NOISE_M`` (that of a box's corner at 3 mm
 #: noise), in proportion to the ray noise (module docstring).
@@ -112,9 +112,10 @@ FACE_ERROR = 0.25
 FACE_NOISE_M = 0.00285
 #: The unpredicted coherent residual, as a share of the residual RMS, of each point that
 #: is not smooth across the noise (past an edge or a corner; module docstring).
-EDGE_ERROR = 0.15
+EDGE_ERROR = 0.2
 #: The stand-in for the rays' bias when the rays are not known (module docstring).
 MODEL_ERROR = 1.0
+EDGE_REACH = 3.0
 #: How far along its gradient (in residual RMS) the field must stay smooth at a point for
 #: the point to count toward what the patch observes.
 REACH = 6.0
@@ -316,6 +317,16 @@ def _widely_observed(
     return np.hstack([basis, rest @ vecs[:, wide]])
 
 
+def _smooth(fld: Field, q: np.ndarray, grad: np.ndarray, reach: float) -> np.ndarray:
+    """Whether the field's gradient at each point ``q`` (object frame; ``grad`` there)
+    stays the same ``reach`` either way along it."""
+    smooth = np.ones(len(q), dtype=bool)
+    for sign in (-1.0, 1.0):
+        _, moved = fld.value_and_grad(q + sign * reach * grad)
+        smooth &= np.sum(moved * grad, axis=1) > 0.99
+    return smooth
+
+
 def uncertainty(
     fld: Field,
     object_from_tool: np.ndarray,
@@ -335,12 +346,8 @@ def uncertainty(
     # smooth across the noise; a point that noise pushed past a rim or an edge (its
     # gradient turns within REACH residual RMS along itself) would make a slide "observed".
     q = points_in_tool @ object_from_tool[:3, :3].T + object_from_tool[:3, 3]
-    reach = REACH * float(np.sqrt(r @ r / max(n, 1)))
-    grad = jac[:, :3]
-    smooth = np.ones(n, dtype=bool)
-    for sign in (-1.0, 1.0):
-        _, moved = fld.value_and_grad(q + sign * reach * grad)
-        smooth &= np.sum(moved * grad, axis=1) > 0.99
+    rms = float(np.sqrt(r @ r / max(n, 1)))
+    smooth = _smooth(fld, q, jac[:, :3], REACH * rms)
     info = scaled_information(jac[smooth], length) * (int(smooth.sum()) / max(n, 1))
     _, basis, _ = observability(info, floor)
     # The floor is per point: 1e-4 of 3000 points is a third of one point. A direction
@@ -372,7 +379,8 @@ def uncertainty(
     # Past an edge or a corner the noise leaves a residual whose mean the rays' bias does
     # not fully predict: each point that is not smooth across the noise may carry a
     # coherent share of the residual RMS, all in one sense.
-    edge = onto @ h_inv @ a[~smooth].sum(axis=0) * float(np.sqrt(r @ r / n))
+    crossed = ~_smooth(fld, q, jac[:, :3], EDGE_REACH * rms)
+    edge = onto @ h_inv @ a[crossed].sum(axis=0) * rms
     twist = basis * scale[:, None]  # basis coordinates -> twist
     if rays_in_tool is None:
         stand_in = (float(r @ r) / n / length) ** 2 * n * (onto @ h_inv @ onto.T)
