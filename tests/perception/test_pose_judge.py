@@ -366,3 +366,26 @@ def test_the_judgement_does_not_depend_on_where_lm_stopped_at_the_minimum() -> N
     assert sd[1] == pytest.approx(sd[0], rel=0.05), np.degrees(sd)
     moved = np.degrees(np.linalg.norm(judged[0].correction[3:] - judged[1].correction[3:]))
     assert moved < 0.05, moved
+
+
+def test_the_edges_term_counts_only_points_the_noise_carries_across_an_edge() -> None:
+    # A 30 mm cylinder's side seen from both jaws, 15 mm short of either rim, 2 mm of
+    # noise across the surface: no point's noise reaches a rim, but the points near the
+    # patch's ends pushed inward are within 6 residual RMS of a cap, the reach the
+    # observability test keeps clear of. On the code before, those points carried the
+    # edges' coherent residual too (a 30 mm cylinder at 3 mm: 30% of its points), and
+    # cylinders' 95% regions at 3 mm were half again too wide.
+    rng = np.random.default_rng(5)
+    fld = fields.CappedCylinder(0.03, 0.08)
+    n = 2000
+    angle = rng.uniform(-0.6, 0.6, n) + np.pi * (np.arange(n) % 2)
+    radius = 0.03 + rng.normal(scale=0.002, size=n)
+    z = rng.uniform(-0.025, 0.025, n)
+    pts = np.stack([radius * np.cos(angle), radius * np.sin(angle), z], axis=1)
+    terms = judge.uncertainty(fld, np.eye(4), pts).terms
+    assert terms is not None
+    np.testing.assert_array_equal(terms.edge, 0.0)
+    # Where the noise does reach a rim, the term is there.
+    pts[:, 2] += 0.012
+    terms = judge.uncertainty(fld, np.eye(4), pts).terms
+    assert terms is not None and np.linalg.norm(terms.edge) > 0.0
