@@ -23,11 +23,11 @@ Uncertainty (:func:`uncertainty`), from the fit at the estimate whatever solver 
   the whole cloud constrains (the solver moves along all of them, the points past an
   edge too) and then stated over the observed ones: their marginal, not their spread
   with the rest held at the truth.
-- Edges: a point that is not smooth across the noise (past an edge or a corner) may
-  carry a coherent residual that the rays' bias below does not predict, taken as
-  ``EDGE_ERROR`` of the residual RMS at every such point, in one sense (a box squeezed
-  over its corners at 3 mm noise, where 1-3% of the points are smooth: the errors were
-  two to three times the spread without it).
+- Edges: a point the noise carries across an edge or a corner (its gradient turns
+  within ``EDGE_REACH`` residual RMS along it) may carry a coherent residual that the
+  rays' bias below does not predict, ``EDGE_ERROR`` of the residual RMS at every such
+  point, in one sense (a box's corner at 3 mm noise: the errors were two to three times
+  the spread without it).
 - Bias from the rays (``rays_in_tool``, from ``cloud.camera_rays``): each camera looks
   at its membrane obliquely (about 55 degrees from the plate's normal), so the depth
   noise moves a point along the surface as well as across it, and on a curved surface,
@@ -49,22 +49,16 @@ Uncertainty (:func:`uncertainty`), from the fit at the estimate whatever solver 
   is not calibrated.
 - Calibration: the parts are kept (:class:`Terms`) and weighed by four shares
   (:func:`calibrated`): ``INFLATION`` (1: no factor on the statistical part),
-  ``EDGE_ERROR`` (0.15), ``FACE_ERROR`` (0.25, at the ray noise ``FACE_NOISE_M``, 2.85
-  mm, measured at a box's corner at 3 mm) and ``BIAS_ERROR`` (0.4). They were refitted
-  by ``bench.pose_calib`` when the curvature's axes became Gauss-Newton's eigenvectors
-  (the shares before, 1, 0.2, 0.2 and 0.6, were fitted on a few box-corner clouds along
-  axes that turned with where LM stopped): on clouds 600-699 of ``bench.pose_hard``'s
-  coverage rows (100 per shape and noise; the coverage rows score on 200-399), one LM
-  solve from 5 degrees off each, every set of a grid scored by the fewest wrong answers
-  within the tolerance, then the fewest shapes with 5% or more of their right answers
-  ``suspect``, then the cells' squared binomial z from 95%. The grid's best set had
-  ``FACE_ERROR`` 0.2 (z^2 35.6 over 28 cells; 0.25: 35.8, one cloud's worth; the old
-  shares 39.8); scored on clouds 200-399 it let one box corner at 3 mm, 2.6 degrees off,
-  through as ``ok`` (probability 0.9952), so the tied 0.25 was taken: a choice the
-  scoring set informed (docs/pose.md). ``INFLATION`` 0.9 was tried (z^2 53 and more).
+  ``EDGE_ERROR`` (0.2), ``FACE_ERROR`` (0.25, at the ray noise ``FACE_NOISE_M``, 2.85
+  mm, measured at a box's corner at 3 mm) and ``BIAS_ERROR`` (0.1), fitted by
+  ``bench.pose_calib`` on clouds 600-699 of ``bench.pose_hard``'s coverage rows (the
+  coverage rows score on 200-399): every set of a grid scored by the fewest wrong
+  answers within the tolerance, then the fewest shapes with 5% or more of their right
+  answers ``suspect``, then the cells' squared binomial z from 95% (z^2 32.0 over 28
+  cells; the round before's 0.15, 0.25 and 0.4: 40.8; docs/pose.md).
 - Short of the minimum: ``step`` is the Gauss-Newton step from the estimate to the
   minimum of the fit, ``step_sigma`` its size in 95% regions; the estimator takes a
-  solver that stopped short one such step further before it judges.
+  solver that stopped short up to two such steps further before it judges.
 
 The 95% region is the ellipsoid ``c^T C^-1 c <= chi2_k(0.95)`` over the ``k`` observable
 directions. ``region95_deg`` and ``region95_m`` are its extent: the largest rotation and
@@ -95,10 +89,7 @@ from perception.pose.problem import (
 #: chi-square 95% quantiles for 0-6 degrees of freedom.
 CHI2_95 = (0.0, 3.841, 5.991, 7.815, 9.488, 11.070, 12.592)
 #: ``ok`` needs the answer within the tolerance with this probability
-#: (``within_tolerance``, over the fixed standard normal draws ``DRAWS``): with 0.95,
-#: 3 of 1120 answers of ``bench.pose_hard``'s coverage rows were wrong and ``ok``
-#: (0.975-0.987; a box over its edges at 3 mm slid 14-16 mm to where the patch's end
-#: crosses the box's, a corner at 3 mm 2.26 degrees off).
+#: (``within_tolerance``; with 0.95, 3 of 1120 coverage rows' answers were wrong and ``ok``).
 CONFIDENCE = 0.995
 DRAWS = np.random.default_rng(0).standard_normal((4000, 6))
 #: Fitted calibration (module docstring; refitted by ``bench.pose_calib``, scored by
@@ -115,6 +106,8 @@ FACE_NOISE_M = 0.00285
 EDGE_ERROR = 0.2
 #: The stand-in for the rays' bias when the rays are not known (module docstring).
 MODEL_ERROR = 1.0
+#: How far along its gradient (in residual RMS) the field may turn at a point for the
+#: point to count as one the noise carries across an edge (``EDGE_ERROR``).
 EDGE_REACH = 3.0
 #: How far along its gradient (in residual RMS) the field must stay smooth at a point for
 #: the point to count toward what the patch observes.
@@ -126,8 +119,7 @@ CURVATURE_FLOOR = 0.5
 #: The least share of the points through which a direction the smooth points do not
 #: observe must be observed to count (``_widely_observed``).
 SPREAD = 0.1
-#: The least share of the points through which a direction the smooth points observe
-#: must be observed to count (``_spread``): the floor alone lets one outlier decide.
+#: The least share of the points through which the smooth points must observe a direction.
 FEW = 0.01
 
 
@@ -261,11 +253,8 @@ def curvature(
     (a secant is not a quadratic form: measured along the axes of an SVD, which turn
     freely where its singular values are equal, two LM stops 1e-3 degree apart at one
     minimum of a box's corner stated 0.71 and 1.15 degrees along its weak rotation).
-    ``J^T J`` leaves out where a point crosses an edge or a corner of the field and its
-    gradient turns: there the cost is flatter than it says (a box's corner at 3 mm
-    noise: by a third along the rotation about its diagonal), and the spread it gives is
-    too narrow. Each direction keeps between ``CURVATURE_FLOOR`` and all of the
-    Gauss-Newton curvature."""
+    Where a point crosses an edge the cost is flatter than ``J^T J`` says (a box's corner
+    at 3 mm: by a third); each direction keeps between ``CURVATURE_FLOOR`` and all of it."""
     stride = -(-len(r) // BIAS_POINTS)
     pts = points_in_tool[::stride]
     weight = len(points_in_tool) / len(pts)
@@ -305,10 +294,8 @@ def _widely_observed(
 ) -> np.ndarray:
     """``basis`` (6, k), the directions the smooth points observe, with the directions
     orthogonal to it that the whole cloud observes (``info``, from every row of ``js``)
-    through at least ``SPREAD`` of its points (``_spread``): a box's corner at 3 mm noise,
-    where the noise crosses an edge almost everywhere, still sees its three faces through
-    a third of its points each, while a slide seen through the noise past a rim rests on
-    a few points (under 5%)."""
+    through at least ``SPREAD`` of its points (``_spread``): a box's corner at 3 mm sees
+    each face through a third of its points; a slide seen past a rim, under 5%."""
     rest = np.linalg.svd(basis, full_matrices=True)[0][:, basis.shape[1] :]
     if rest.shape[1] == 0:
         return basis
@@ -350,10 +337,8 @@ def uncertainty(
     smooth = _smooth(fld, q, jac[:, :3], REACH * rms)
     info = scaled_information(jac[smooth], length) * (int(smooth.sum()) / max(n, 1))
     _, basis, _ = observability(info, floor)
-    # The floor is per point: 1e-4 of 3000 points is a third of one point. A direction
-    # the smooth points observe through fewer than FEW of the cloud's points rests on an
-    # outlier the noise threw far past a rim (a 30 mm cylinder at 3 mm: its slide, seen
-    # through one point at the truth and through none a few millimetres away).
+    # The floor is per point (a third of one point in 3000): a direction seen through
+    # under FEW of the points rests on an outlier thrown past a rim.
     scale = np.array([1.0] * 3 + [1.0 / length] * 3)
     js = jac * scale
     basis = basis[:, _spread(js[smooth], basis) >= FEW * n]
@@ -463,10 +448,9 @@ def within_tolerance(unc: Uncertainty, tolerance_deg: float, tolerance_m: float)
     ``tolerance_deg`` of rotation and ``tolerance_m`` of displacement of the object's
     origin from the estimate along the observed directions (1 with none observed): what
     ``ok`` asks, at least ``CONFIDENCE``. Over the fixed draws ``DRAWS`` (deterministic;
-    about +-0.1% at 99.5%). The 95% region's extent (``region95_deg``, ``region95_m``)
-    bounds the same from above, over all the observed directions at once: at a box's
-    corner at 2 mm noise regions of 1.9-3.2 degrees (along the weak rotation about the
-    body diagonal) put the truth within 2 degrees with probability 0.975-1."""
+    about +-0.1% at 99.5%). The 95% region's extent bounds the same from above, over all
+    the observed directions at once (a box's corner at 2 mm: regions of 1.9-3.2 degrees
+    put the truth within 2 degrees with probability 0.975-1)."""
     vals, vecs = np.linalg.eigh(0.5 * (unc.covariance + unc.covariance.T))
     twist = (DRAWS * np.sqrt(np.maximum(vals, 0.0))) @ vecs.T
     rotation = np.degrees(np.linalg.norm(twist[:, 3:], axis=1))

@@ -150,8 +150,8 @@ class EstimatorParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
             description=(
                 "the Gauss-Newton step left at the answer, as a fraction of the 95% "
                 "region along it, beyond which the answer is not at the minimum of the "
-                "fit: the judgement takes one such step, and ``suspect`` if one still "
-                "remains."
+                "fit: the judgement takes up to two such steps, and ``suspect`` if one "
+                "still remains."
             ),
         ),
     ] = 0.5

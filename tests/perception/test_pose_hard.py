@@ -190,7 +190,7 @@ class _Lazy:
 @pytest.mark.parametrize(("tilt_deg", "reached"), [(0.5, True), (3.0, True), (10.0, False)])
 def test_an_answer_short_of_the_minimum_is_finished_or_suspect(tilt_deg, reached) -> None:  # noqa: ANN001
     """The verdict does not trust the solver: a pose off the minimum of the fit, reported
-    converged, is taken one Gauss-Newton step further by the judgement; at the minimum
+    converged, is taken up to two Gauss-Newton steps further by the judgement; at the minimum
     then, it is judged as any other answer (right and ``ok``); still short of it, it is
     ``suspect`` with the step that remains."""
     rng, truth, pts, bubble = _cyl_case(5, n=3000)
