@@ -91,7 +91,7 @@ class SlipParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
                 " no limit; ``both``, the earlier of the two, the limit's only where the"
                 " rig's calibration knows it (its onsets' spread at most"
                 " ``limit_max_spread``: world.sim's 3-5%, not world.mujoco's shell's"
-                " 19-22%)."
+                " 16-22%)."
             )
         ),
     ] = "both"

@@ -413,7 +413,7 @@ def test_slip_detector_by_the_dots_needs_no_stick_limit() -> None:
 def test_slip_detector_by_default_takes_the_limit_only_where_the_calibration_knows_it() -> None:
     """The default edge cue (``both``): the earlier of the dots' and the limit's, the
     limit's only where the calibration's edge onsets spread little (world.sim: 3-5%
-    about their median; world.mujoco's shell: 19-22%, where a core shift at 1.3 of the
+    about their median; world.mujoco's shell: 16-22%, where a core shift at 1.3 of the
     median limit is a firm hold as often as a slip)."""
     from perception.force.slip import SlipParams
 
