@@ -205,3 +205,37 @@ class StampedHistory(Generic[T]):
                 break
             value = item
         return value
+
+
+class InstantPairs(Generic[T]):
+    """The two bubbles' items of one instant: each waits, however late, for its partner.
+
+    Items are keyed by their frame's stamp, each side's in stamp order. An item finds
+    its partner among the other side's waiting items within ``skew_nanos``; the pair
+    is returned, and the items older than it are dropped on both sides: their partners
+    were lost upstream (a dropped frame). Pairing each side's newest item instead would
+    put two instants into one estimate when one camera lags (a cloud where the object
+    never was, a load off by its change between the frames).
+    """
+
+    def __init__(self, history: int) -> None:
+        self.waiting: dict[str, deque[tuple[int, T]]] = {
+            s: deque(maxlen=history) for s in ("left", "right")
+        }
+
+    def wait(self, side: str, stamp_nanos: int, item: T) -> None:
+        """Keep ``item`` for a partner without looking for one now."""
+        self.waiting[side].append((stamp_nanos, item))
+
+    def match(self, side: str, stamp_nanos: int, item: T, skew_nanos: float) -> T | None:
+        """The other side's item of this instant, or None (``item`` then waits)."""
+        other = "right" if side == "left" else "left"
+        partners = [r for r in self.waiting[other] if abs(r[0] - stamp_nanos) <= skew_nanos]
+        if not partners:
+            self.wait(side, stamp_nanos, item)
+            return None
+        stamp, partner = min(partners, key=lambda r: abs(r[0] - stamp_nanos))
+        self.waiting[side].clear()
+        kept = [r for r in self.waiting[other] if r[0] > stamp]
+        self.waiting[other] = deque(kept, maxlen=self.waiting[other].maxlen)
+        return partner
