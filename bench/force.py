@@ -83,6 +83,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -110,7 +111,8 @@ MAX_LATE_FRAMES = 15
 MAX_EARLY_FRAMES = 15
 MIN_SCORED_FRAMES = 5  # a true onset this near the recording's end is not scored
 GOAL_FRACTION, GOAL_N = 0.10, 0.3
-EDGE_CUES = ("both", "limit", "dots")  # SlipParams.edge_cue, each scored (the default first)
+# SlipParams.edge_cue, each scored (the default first)
+EDGE_CUES: tuple[Literal["both", "limit", "dots"], ...] = ("both", "limit", "dots")
 
 
 def record_all(
