@@ -34,6 +34,13 @@ Two observations, both from what the bubble measures (docs/force.md):
   slides, with no stick limit: on a shell whose limit spreads with the object and the
   load's direction (world.mujoco), the edge slips from ``dots_share`` of it.
 
+* **Both** (the default, ``edge_cue: both``): the earlier of the two edge cues, the
+  limit's only where the rig's calibration knows it (its edge onsets' spread,
+  ``Calibration.slip_edge_spread``, at most ``limit_max_spread``): a limit dates an
+  onset as well as it is known. Where it is known, the dots count from
+  ``edge_min_strain`` of it (dots departing far below a known limit are the flow's
+  error).
+
 ``state`` is ``stick``, ``edge`` (incipient: the edge slips, the core holds) or
 ``patch`` (the whole patch slides). Onsets are reported once per episode; an episode
 ends when ``strain`` falls back under ``release_strain`` for ``settle_frames`` (a firmer
