@@ -415,7 +415,8 @@ def test_slip_detector_by_the_dots_needs_no_stick_limit() -> None:
     cal = Calibration(slip_edge_m_per_pa=1.5e-6, slip_patch_m_per_pa=1.9e-6, friction=0.8)
     # The core's shift at 1.3 of the edge's limit (2 kPa: 3.9 mm) and still: the limit's
     # cue calls it an edge slip from the first frame; the dots say the patch sticks.
-    for cue, first in (("limit", 0), ("dots", 12)):
+    cues: tuple[tuple[Literal["limit", "dots"], int], ...] = (("limit", 0), ("dots", 12))
+    for cue, first in cues:
         onsets, phase = dots_run(cal, 0.0039, cue)
         assert onsets.index("edge") == first and onsets.count("edge") == 1, (cue, onsets)
         assert "patch" not in onsets
@@ -443,9 +444,10 @@ def test_slip_detector_by_default_takes_the_limit_only_where_the_calibration_kno
     # dots departing there are the flow's error (the square bottle's face seen at
     # grazing angles read a quarter of its dots departing 7 frames before its edge slid).
     cal = Calibration(slip_edge_m_per_pa=1.5e-6, slip_patch_m_per_pa=1.9e-6, slip_edge_spread=0.05)
-    for core, first in ((0.00264, 12), (0.0015, None)):
+    cores: tuple[tuple[float, int | None], ...] = ((0.00264, 12), (0.0015, None))
+    for core, found in cores:
         onsets, _ = dots_run(cal, core)
-        assert (onsets.index("edge") if "edge" in onsets else None) == first, (core, onsets)
+        assert (onsets.index("edge") if "edge" in onsets else None) == found, (core, onsets)
 
 
 def test_calibration_measures_the_edge_limits_spread() -> None:
