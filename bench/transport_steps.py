@@ -247,9 +247,14 @@ class Bench:
         for sock in (self.raw_pub, self.raw_acks, self.sub, self.raw_sub):
             sock.close(linger=0)
         for runner in (self.source, self.sink):
-            runner.io.pub.close(linger=0)
-            runner.io.control.close(linger=0)
-            runner.ctx.term()
+            self.close_runner(runner)
+
+    @staticmethod
+    def close_runner(runner: Runner) -> None:
+        """Close what :meth:`_runner` opened."""
+        runner.io.pub.close(linger=0)
+        runner.io.control.close(linger=0)
+        runner.ctx.term()
 
 
 @contextmanager
