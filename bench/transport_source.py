@@ -42,7 +42,6 @@ from bench.common import Row, main, median
 from bench.nodes import LAST, THROUGHPUT, ImageSource
 from bench.transport_bare import ACK, PROBE, TIMEOUT_MS, Sizes, _sink_process
 from bench.transport_steps import Bench
-from messages import Header, ToFImage
 from messages.codec import encode
 from runtime.runner import Runner
 from runtime.zmqio import send_parts
@@ -68,17 +67,7 @@ def _publishers(runner: Runner) -> dict[str, Callable[[str], None]]:
     assert isinstance(node, ImageSource)
     io = runner.io
 
-    def message(frame_id: str) -> ToFImage:
-        return ToFImage(
-            header=Header(stamp_nanos=io.now_nanos(), frame_id=frame_id),
-            sensor="left",
-            depth_m=node.depth_m,
-            ir=node.ir,
-            fx_px=210.0,
-            fy_px=210.0,
-            cx_px=(node.params.cols - 1) / 2,
-            cy_px=(node.params.rows - 1) / 2,
-        )
+    message = node.frame
 
     def publish(frame_id: str) -> None:
         io.publish("image", message(frame_id))
