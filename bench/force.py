@@ -32,8 +32,11 @@ every sensor effect; the true wrench and slip from the ``wrench`` and ``slip`` e
   referenced at the grasp monitor's stable grasp (``Frame.stable``), as the ``slip``
   node is; the truth's onsets are scored from there. Each edge cue
   (``SlipParams.edge_cue``) side by side: ``onset_edge``, ``onset_patch`` with the
-  stick limit's, ``onset_edge_dots``, ``onset_patch_dots`` with the share of the dots
-  leaving the patch's rigid motion (the whole patch's cue is the same; its onsets
+  default (``both``: the earlier of the dots' and the stick limit's, the limit's only
+  where the calibration's edge onsets spread little), ``onset_edge_limit``,
+  ``onset_patch_limit`` with the stick limit's alone, ``onset_edge_dots``,
+  ``onset_patch_dots`` with the share of the dots leaving the patch's rigid motion
+  alone (the whole patch's cue is the same; its onsets
   differ by the episodes the edge opens). On both worlds: ``world.sim``'s held-out grasps and
   long still holds (the detector's limits from its calibration grasps); MuJoCo's
   loaded grasps (``bench.force_mujoco``: a free object under the engine's gravity,
@@ -80,6 +83,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -107,7 +111,8 @@ MAX_LATE_FRAMES = 15
 MAX_EARLY_FRAMES = 15
 MIN_SCORED_FRAMES = 5  # a true onset this near the recording's end is not scored
 GOAL_FRACTION, GOAL_N = 0.10, 0.3
-EDGE_CUES = ("limit", "dots")  # SlipParams.edge_cue, both scored
+# SlipParams.edge_cue, each scored (the default first)
+EDGE_CUES: tuple[Literal["both", "limit", "dots"], ...] = ("both", "limit", "dots")
 
 
 def record_all(
@@ -281,7 +286,7 @@ def slip_rows(
                 "sweep": "slip",
                 "world": world,
                 "setting": DEFAULT_SETTING,
-                "method": f"onset_{phase}" + ("" if cue == "limit" else f"_{cue}"),
+                "method": f"onset_{phase}" + ("" if cue == "both" else f"_{cue}"),
                 "samples": total,
                 "cut_at_end": cut[phase],
                 "detected_fraction": len(lags) / total if total else float("nan"),
@@ -390,7 +395,8 @@ def run(quick: bool, sizes: Sizes | None = None, sweeps: tuple[str, ...] = SWEEP
             record_all(100 + i, z.still_secs, load="still", settings=(DEFAULT_SETTING,))
             for i in progress(range(z.still), "bench.force still holds")
         ]
-        # Both edge cues side by side: the stick limit, the dots leaving the rigid motion.
+        # The edge cues side by side: both (the default), the stick limit, the dots
+        # leaving the rigid motion.
         for cue in EDGE_CUES:
             params = SlipParams(edge_cue=cue)
             rows += slip_rows("sim", test_recs + still, cal, period, params)

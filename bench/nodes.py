@@ -263,19 +263,22 @@ class ImageSource(Node):
         self.stop_asked = False
         self.io.add_timer(1.0 / p.rate_hz, self._tick)
 
+    def frame(self, frame_id: str) -> ToFImage:
+        """The message of one frame, stamped now."""
+        return ToFImage(
+            header=Header(stamp_nanos=self.io.now_nanos(), frame_id=frame_id),
+            sensor="left",
+            depth_m=self.depth_m,
+            ir=self.ir,
+            fx_px=210.0,
+            fy_px=210.0,
+            cx_px=(self.params.cols - 1) / 2,
+            cy_px=(self.params.rows - 1) / 2,
+        )
+
     def _publish(self, frame_ids: list[str]) -> None:
         for frame_id in frame_ids:
-            msg = ToFImage(
-                header=Header(stamp_nanos=self.io.now_nanos(), frame_id=frame_id),
-                sensor="left",
-                depth_m=self.depth_m,
-                ir=self.ir,
-                fx_px=210.0,
-                fy_px=210.0,
-                cx_px=(self.params.cols - 1) / 2,
-                cy_px=(self.params.rows - 1) / 2,
-            )
-            self.io.publish("image", msg)
+            self.io.publish("image", self.frame(frame_id))
 
     def _tick(self) -> None:
         if not self.plan.done:

@@ -50,7 +50,7 @@ import zmq
 from bench.common import Row, main, median
 from bench.nodes import THROUGHPUT, ImageSink, ImageSource, SinkRecord, bench_images
 from bench.transport_bare import ACK, COLS, RAW_HEADER, ROWS, TOPIC, _raw_frames
-from messages import Header, ToFImage, decode, encode
+from messages import ToFImage, decode, encode
 from runtime.node import Node
 from runtime.registry import class_path
 from runtime.runner import Runner
@@ -138,16 +138,9 @@ class Bench:
     # -- the frames -----------------------------------------------------------------
     def message(self) -> ToFImage:
         """What ``ImageSource._publish`` builds for one frame."""
-        return ToFImage(
-            header=Header(stamp_nanos=time.time_ns(), frame_id=THROUGHPUT),
-            sensor="left",
-            depth_m=self.depth_m,
-            ir=self.ir,
-            fx_px=210.0,
-            fy_px=210.0,
-            cx_px=(COLS - 1) / 2,
-            cy_px=(ROWS - 1) / 2,
-        )
+        node = self.source.node
+        assert isinstance(node, ImageSource)
+        return node.frame(THROUGHPUT)
 
     def raw_frames(self) -> list[Any]:
         return _raw_frames(THROUGHPUT, 0, self.depth_m, self.ir)
@@ -247,9 +240,14 @@ class Bench:
         for sock in (self.raw_pub, self.raw_acks, self.sub, self.raw_sub):
             sock.close(linger=0)
         for runner in (self.source, self.sink):
-            runner.io.pub.close(linger=0)
-            runner.io.control.close(linger=0)
-            runner.ctx.term()
+            self.close_runner(runner)
+
+    @staticmethod
+    def close_runner(runner: Runner) -> None:
+        """Close what :meth:`_runner` opened."""
+        runner.io.pub.close(linger=0)
+        runner.io.control.close(linger=0)
+        runner.ctx.term()
 
 
 @contextmanager

@@ -97,6 +97,15 @@ class Message(msgspec.Struct, kw_only=True):
         """The type's array declarations, fingerprint and description (cached)."""
         return _schema(cls)
 
+    @classmethod
+    def finite_check(cls) -> Callable[[Message], bool] | None:
+        """The question a publisher asks of every message of this class: whether each of
+        its ``finite_fields`` is finite (NaN allowed where ``nan_marks_invalid`` says), one
+        callable made once per class; None for a class without such fields.
+        :meth:`nonfinite_fields` names the fields of a message it says no to."""
+        checks = _finite_checks(cls)
+        return checks.all_finite if checks.fields else None
+
     def nonfinite_fields(self) -> list[str]:
         """The names of ``finite_fields`` that hold NaN or infinity (see above)."""
         # The publisher runs this on every message (runtime/zmqio.py): one question for
@@ -147,7 +156,14 @@ class _FiniteChecks:
         means every number is; an overflow only sends the message to the field-by-field
         pass, which then finds no field."""
         for name, nan_ok in self.arrays:
-            if not _finite(getattr(msg, name), nan_ok):
+            value = getattr(msg, name)
+            if type(value) is np.ndarray and nan_ok and value.dtype.kind == "f" and value.size:
+                # _finite's pass for a float image with NaN pixels (a depth image), without
+                # its call and type questions: this runs for every frame a camera publishes.
+                inf = np.isinf(value).ravel("K")
+                if inf[inf.argmax()]:
+                    return False
+            elif not _finite(value, nan_ok):
                 return False
         if self.numbers is None:
             return True

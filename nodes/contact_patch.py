@@ -28,7 +28,6 @@ Until a bubble has a reference it contributes no points. The logic lives in
 
 from __future__ import annotations
 
-from collections import deque
 from typing import Annotated
 
 import msgspec
@@ -38,7 +37,7 @@ from msgspec import Meta
 from geometry.camera import PinholeCamera
 from messages.base import Header
 from messages.types import ContactPatch, GripperState, MaskImage, Side, ToFImage, pose_is_known
-from perception.contact import ContactParams, ContactPatcher, StampedHistory
+from perception.contact import ContactParams, ContactPatcher, InstantPairs, StampedHistory
 from runtime.node import Node
 from runtime.registry import register
 
@@ -89,9 +88,7 @@ class ContactPatchNode(Node):
 
     def setup(self) -> None:
         self.patcher = ContactPatcher(self.params.contact)
-        self.waiting: dict[str, deque[ToFImage]] = {
-            s: deque(maxlen=PAIR_HISTORY) for s in ("left", "right")
-        }
+        self.pairs: InstantPairs[ToFImage] = InstantPairs(PAIR_HISTORY)
         self.last_stamp: dict[str, int] = {}
         self.period_nanos = {"left": 0, "right": 0}  # shortest interval seen; 0: none yet
         self.gripper_seen = False
@@ -143,16 +140,12 @@ class ContactPatchNode(Node):
             self.period_nanos[side] = step
         self.last_stamp[side] = stamp
         skew = self.params.max_skew_secs * 1e9 or 0.5 * max(self.period_nanos.values())
-        partners = [m for m in self.waiting[other] if abs(m.header.stamp_nanos - stamp) <= skew]
-        if not partners or not self.gripper_seen:
-            self.waiting[side].append(msg)
+        if not self.gripper_seen:
+            self.pairs.wait(side, stamp, msg)
             return
-        partner = min(partners, key=lambda m: abs(m.header.stamp_nanos - stamp))
-        self.waiting[side].clear()
-        pair_stamp = partner.header.stamp_nanos
-        kept = [m for m in self.waiting[other] if m.header.stamp_nanos > pair_stamp]
-        self.waiting[other] = deque(kept, maxlen=PAIR_HISTORY)
-        self._publish({side: msg, other: partner})
+        partner = self.pairs.match(side, stamp, msg, skew)
+        if partner is not None:
+            self._publish({side: msg, other: partner})
 
     def _publish(self, pair: dict[str, ToFImage]) -> None:
         frames = {

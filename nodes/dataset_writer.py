@@ -52,6 +52,7 @@ from messages.tasks import (
 from messages.types import GraspState, GroundTruth, TaskEvent, ToFImage
 from perception.classify.autolabel import DEFAULT_OBJECTS
 from perception.classify.dataset import DatasetError, DatasetWriter, GraspBuffer
+from perception.contact import InstantPairs
 from runtime.node import Node
 from runtime.registry import register
 
@@ -136,9 +137,8 @@ class DatasetWriterNode(Node):
         # The grasp state over time: stamps (increasing) and whether stable from then on.
         self.state_stamps: list[int] = []
         self.state_stable: list[bool] = []
-        # Each camera's frames not paired yet, in arrival (= stamp) order.
-        self.halves: dict[str, deque[ToFImage]] = {"left": deque(), "right": deque()}
-        self.unpaired = 0  # frames whose other half never came (lost upstream)
+        # Each camera's frames not paired yet; ``lost``: those whose other half never came.
+        self.halves: InstantPairs[ToFImage] = InstantPairs(self.params.max_unpaired)
         self.waiting: deque[tuple[ToFImage, ToFImage]] = deque()
         # The simulator's ground truth at recent stamps.
         self.truth: OrderedDict[int, GroundTruth] = OrderedDict()
@@ -195,7 +195,7 @@ class DatasetWriterNode(Node):
                 "(%d frames without their other half so far in this run)",
                 self.name,
                 grasp.grasp_id,
-                self.unpaired,
+                self.halves.lost,
             )
             self._progress("grasp_skipped", GraspSkipped(grasp_id=grasp.grasp_id), stamp)
             return
@@ -293,36 +293,16 @@ class DatasetWriterNode(Node):
         self._image("right", msg)
 
     def _image(self, port: str, msg: ToFImage) -> None:
-        stamp = msg.header.stamp_nanos
-        skew = self.params.max_skew_secs * 1e9
-        other = "right" if port == "left" else "left"
-        # Each camera's stamps increase, however far one camera trails the other: the
-        # other's frames older than this one lost their partner upstream (a dropped frame).
-        others = self.halves[other]
-        while others and others[0].header.stamp_nanos < stamp - skew:
-            others.popleft()
-            self._lost_half(other)
-        if not others or others[0].header.stamp_nanos > stamp + skew:
-            mine = self.halves[port]
-            mine.append(msg)
-            if len(mine) > self.params.max_unpaired:  # the other camera sends nothing
-                mine.popleft()
-                self._lost_half(port)
-            return
-        half = others.popleft()
-        pair = (msg, half) if port == "left" else (half, msg)
-        self.waiting.append(pair)
-        self._decide()
-
-    def _lost_half(self, port: str) -> None:
-        self.unpaired += 1
-        if self.unpaired == 1 or self.unpaired % 100 == 0:
+        lost = self.halves.lost
+        half = self.halves.match(port, msg.header.stamp_nanos, msg, self.params.max_skew_secs * 1e9)
+        if self.halves.lost > lost and (lost == 0 or self.halves.lost // 100 > lost // 100):
             self.io.log.warning(
-                "%s: %d frames without their other half so far (the latest: %s)",
-                self.name,
-                self.unpaired,
-                port,
+                "%s: %d frames without their other half so far", self.name, self.halves.lost
             )
+        if half is None:
+            return
+        self.waiting.append((msg, half) if port == "left" else (half, msg))
+        self._decide()
 
     def _decide(self) -> None:
         """Settle every waiting pair whose grasp state is known, in stamp order."""

@@ -9,10 +9,11 @@ Ports:
         began).
 
 The logic (the dots' shift against the pressure's limit, the edge's lag behind the
-core, or the dots leaving the patch's rigid motion; the imprint running ahead of the
+core, the dots leaving the patch's rigid motion, or by default the earlier of those,
+the limit's only where the calibration knows it; the imprint running ahead of the
 dots, the episode's hysteresis) is :class:`perception.force.slip.SlipDetector`; the
-friction coefficient and the slip limits are the rig's, from the same ``calibration``
-file the ``wrench`` node reads.
+friction coefficient, the slip limits and their spread are the rig's, from the same
+``calibration`` file the ``wrench`` node reads.
 Times are the messages' stamps, so a replayed bag gives the same onsets.
 """
 

@@ -25,7 +25,6 @@ file (``python -m bench.force_data`` writes the simulated rig's; docs/force.md).
 
 from __future__ import annotations
 
-from collections import deque
 from typing import Annotated, Literal
 
 import msgspec
@@ -38,7 +37,7 @@ from messages.base import Header
 from messages.errors import NodeError
 from messages.force import BubbleContact, WrenchEstimate
 from messages.types import GripperState, Pressure, ToFImage, pose_is_known
-from perception.contact import StampedHistory
+from perception.contact import InstantPairs, StampedHistory
 from perception.force.estimators import BubbleWrench, Calibration, estimate
 from perception.force.features import BubbleFeatures, ContactFeatures, FeatureParams
 from runtime.node import Node
@@ -101,9 +100,9 @@ class WrenchNode(Node):
         # The gripper at each stamp: "free" (open and still), "holding", or "" (else).
         self.gripper = StampedHistory("", 64)
         # Each bubble's results waiting for the other's of the same instant.
-        self.recent: dict[str, deque[tuple[int, ContactFeatures, BubbleWrench]]] = {
-            s: deque(maxlen=PAIR_HISTORY) for s in SIDES
-        }
+        self.pairs: InstantPairs[tuple[int, ContactFeatures, BubbleWrench]] = InstantPairs(
+            PAIR_HISTORY
+        )
         self.frames = dict.fromkeys(SIDES, 0)
         self.warned: set[str] = set()
 
@@ -164,20 +163,12 @@ class WrenchNode(Node):
         """Publish the estimate of ``result``'s instant once both bubbles' frames are in."""
         stamp = result[0]
         other = "right" if side == "left" else "left"
-        skew = self.params.max_skew_secs * 1e9
-        partners = [r for r in self.recent[other] if abs(r[0] - stamp) <= skew]
-        if partners:
-            partner = min(partners, key=lambda r: abs(r[0] - stamp))
-            # Results older than this pair lost their partners (dropped frames).
-            self.recent[other] = deque(
-                (r for r in self.recent[other] if r[0] > partner[0]), maxlen=PAIR_HISTORY
-            )
-            self.recent[side].clear()
-            self.io.publish("wrench", self._estimate(stamp, {side: result, other: partner}))
-        elif self.frames[other] == 0 and self.frames[side] >= SINGLE_AFTER_FRAMES:
+        if self.frames[other] == 0 and self.frames[side] >= SINGLE_AFTER_FRAMES:
             self.io.publish("wrench", self._estimate(stamp, {side: result}))
-        else:
-            self.recent[side].append(result)
+            return
+        partner = self.pairs.match(side, stamp, result, self.params.max_skew_secs * 1e9)
+        if partner is not None:
+            self.io.publish("wrench", self._estimate(stamp, {side: result, other: partner}))
 
     def _estimate(
         self, stamp: int, pair: dict[str, tuple[int, ContactFeatures, BubbleWrench]]

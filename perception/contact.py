@@ -205,3 +205,42 @@ class StampedHistory(Generic[T]):
                 break
             value = item
         return value
+
+
+class InstantPairs(Generic[T]):
+    """The two bubbles' items of one instant: each waits, however late, for its partner.
+
+    Items are keyed by their frame's stamp, each side's arriving in stamp order (one
+    publisher, one socket), however far one side trails the other. An item pairs with
+    the other side's oldest waiting item if that is within ``skew_nanos`` of it; the
+    other side's items older than that can never pair (this side has moved past them:
+    their partners were dropped upstream) and are counted in ``lost``, as is an item
+    pushed out when ``history`` items of one side wait (the other side sends nothing).
+    Pairing each side's newest item instead would put two instants into one estimate
+    when one camera lags: a cloud where the object never was, a load off by its change
+    between the frames.
+    """
+
+    def __init__(self, history: int) -> None:
+        self.history = history
+        self.waiting: dict[str, deque[tuple[int, T]]] = {"left": deque(), "right": deque()}
+        self.lost = 0
+
+    def wait(self, side: str, stamp_nanos: int, item: T) -> None:
+        """Keep ``item`` for a partner without looking for one now."""
+        mine = self.waiting[side]
+        mine.append((stamp_nanos, item))
+        if len(mine) > self.history:
+            mine.popleft()
+            self.lost += 1
+
+    def match(self, side: str, stamp_nanos: int, item: T, skew_nanos: float) -> T | None:
+        """The other side's item of this instant, or None (``item`` then waits)."""
+        others = self.waiting["right" if side == "left" else "left"]
+        while others and others[0][0] < stamp_nanos - skew_nanos:
+            others.popleft()
+            self.lost += 1
+        if not others or others[0][0] > stamp_nanos + skew_nanos:
+            self.wait(side, stamp_nanos, item)
+            return None
+        return others.popleft()[1]

@@ -103,6 +103,18 @@ class Source:
     latest: bool = False  # only a socket of one ``latest`` input, outside lockstep
 
 
+@dataclass(frozen=True, slots=True)
+class _Output:
+    """One declared output as :meth:`ZmqIO.publish` needs it, prepared at its first message:
+    its topic, declared type, whether a lockstep source must tell its counts before each
+    message on it (``ZmqIO._count_ahead``), and the finite check of its type."""
+
+    topic: str
+    kind: type[Message] | None
+    barrier: bool
+    finite_check: Callable[[Message], bool] | None
+
+
 @dataclass(eq=False)  # by identity: the runner asks whether a timer is still there
 class Timer:
     period_nanos: int
@@ -142,7 +154,8 @@ class ZmqIO:
         self.control.connect(spec["control"])
         self.inputs: list[Input] = []
         self.published: dict[str, int] = defaultdict(int)
-        self.nonfinite: dict[str, int] = defaultdict(int)  # per topic, see _check_finite
+        self.nonfinite: dict[str, int] = defaultdict(int)  # per topic, see _count_nonfinite
+        self._outputs: dict[str, _Output] = {}
         self.timers: list[Timer] = []
         self.stop_requested = False
         self.waiting = False  # in wait_idle
@@ -161,35 +174,56 @@ class ZmqIO:
 
     # -- the IO protocol -------------------------------------------------------
     def publish(self, output: str, msg: Message) -> None:
+        # Every lookup that does not depend on the message is made once per output (see
+        # _Output): this runs for every message a node sends (docs/transport.md).
+        out = self._outputs.get(output) or self._output(output)
+        kind = out.kind
+        if kind is not None and type(msg) is not kind and not isinstance(msg, kind):
+            raise TypeError(
+                f"{self.name}.{output}: expected {kind.__name__}, got {type(msg).__name__}"
+            )
+        topic = out.topic
+        published = self.published
+        header = getattr(msg, "header", None)
+        if header is not None:
+            header.seq = published[topic]
+        frames = encode(topic, msg)
+        published[topic] += 1
+        if out.barrier:
+            self.send_counts()  # see _count_ahead
+        send_parts(self.pub, frames)
+        # After the send: not on the frame's way out. The check of the output's own class
+        # is prepared; a subclass's is looked up (it may declare other finite fields).
+        check = out.finite_check if type(msg) is kind else type(msg).finite_check()
+        if check is not None and not check(msg):
+            self._count_nonfinite(topic, msg)
+
+    def _output(self, output: str) -> _Output:
+        """Prepare ``output`` at its first message (raises ``KeyError`` if undeclared)."""
         topic = self.topics.get(output)
         if topic is None:
             raise KeyError(
                 f"{self.name}: {output!r} is not a declared output: {sorted(self.topics)}"
             )
         kind = self.output_types.get(output)
-        if kind is not None and not isinstance(msg, kind):
-            raise TypeError(
-                f"{self.name}.{output}: expected {kind.__name__}, got {type(msg).__name__}"
-            )
-        header = getattr(msg, "header", None)
-        if header is not None:
-            header.seq = self.published[topic]
-        frames = encode(topic, msg)
-        self._count_ahead(topic)
-        send_parts(self.pub, frames)
-        if msg.finite_fields:  # after the send: not on the frame's way out
-            self._check_finite(topic, msg)
+        barrier = self.source_in_lockstep and topic in self.barrier_topics
+        check = kind.finite_check() if kind is not None else None
+        prepared = self._outputs[output] = _Output(topic, kind, barrier, check)
+        return prepared
 
     def publish_raw(self, topic: str, frames: list[Any], decoded: Message | None = None) -> None:
         if topic not in self.topics.values():
             raise KeyError(f"{self.name}: {topic!r} is not one of its output topics")
         self._count_ahead(topic)
         send_parts(self.pub, [topic.encode(), *frames[1:]])
-        if decoded is not None:
-            self._check_finite(topic, decoded)
+        if decoded is not None and (check := type(decoded).finite_check()) is not None:
+            if not check(decoded):
+                self._count_nonfinite(topic, decoded)
 
-    def _check_finite(self, topic: str, msg: Message) -> None:
-        """Count (per topic) and warn once about a message whose ``finite_fields`` are not.
+    def _count_nonfinite(self, topic: str, msg: Message) -> None:
+        """Count (per topic) and warn once about a message whose ``finite_fields`` are not
+        (its class's finite check said no; the fields are named here, and a message whose
+        numbers only overflowed their sum has none to name and is not counted).
 
         Checked once, where the message is published, while its arrays are in this
         process's caches: not again by each subscriber, which would read every pixel of

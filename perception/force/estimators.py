@@ -40,6 +40,7 @@ from perception.force.features import ContactFeatures, shift_per_pressure
 
 METHODS = ("physics", "ridge")
 SIDES = ("left", "right")
+MIN_SPREAD_ONSETS = 3  # fewer edge onsets than this say nothing of their spread
 
 
 @dataclass(frozen=True)
@@ -88,7 +89,11 @@ class Calibration:
     tangential shift per pascal of gauge pressure at which the patch's edge
     (``slip_edge_m_per_pa``), then the whole patch (``slip_patch_m_per_pa``), began to
     slip (medians over ``slip_onsets`` onsets of each; the defaults, ``world.sim``'s,
-    where there were none)."""
+    where there were none), and how far the edge's onsets spread about their median
+    (``slip_edge_spread``: standard deviation over median; 0 where fewer than
+    ``MIN_SPREAD_ONSETS`` onsets measured it), which says how well the edge's limit is
+    known: the slip detector uses it as a cue only where it is known well
+    (``perception.force.slip``)."""
 
     rig: str = "uncalibrated"
     source: str = ""
@@ -98,6 +103,7 @@ class Calibration:
     slip_edge_m_per_pa: float = 0.7e-6
     slip_patch_m_per_pa: float = 0.95e-6
     slip_onsets: tuple[int, int] = (0, 0)
+    slip_edge_spread: float = 0.0
     samples: int = 0
 
     def __post_init__(self) -> None:
@@ -106,6 +112,8 @@ class Calibration:
                 "`slip_edge_m_per_pa` and `slip_patch_m_per_pa` must be > 0, got"
                 f" {self.slip_edge_m_per_pa!r}, {self.slip_patch_m_per_pa!r}"
             )
+        if not 0.0 <= self.slip_edge_spread < float("inf"):
+            raise ValueError(f"`slip_edge_spread` must be >= 0, got {self.slip_edge_spread!r}")
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=1, sort_keys=True)
@@ -321,9 +329,10 @@ def calibrate_friction(samples: list[Sample], default: float = 0.8) -> float:
 def calibrate_slip(samples: list[Sample]) -> dict[str, Any]:
     """The slip detector's limits: the median core shift per pascal at the frames the
     truth's slip began, at the edge (some of the patch slips after none did) and over
-    the whole patch (all of it after not all); ``samples`` in time order per side (as
-    :func:`bench.force_data.samples` lists a grasp's frames). Calibration's defaults
-    for a limit no onset measured."""
+    the whole patch (all of it after not all), and the edge's onsets' spread (standard
+    deviation over median, from ``MIN_SPREAD_ONSETS`` onsets); ``samples`` in time
+    order per side (as :func:`bench.force_data.samples` lists a grasp's frames).
+    Calibration's defaults for a limit no onset measured."""
     last: dict[str, float] = {}
     onsets: dict[str, list[float]] = {"edge": [], "patch": []}
     for s in samples:
@@ -339,6 +348,8 @@ def calibrate_slip(samples: list[Sample]) -> dict[str, Any]:
     out: dict[str, Any] = {"slip_onsets": (len(onsets["edge"]), len(onsets["patch"]))}
     if onsets["edge"]:
         out["slip_edge_m_per_pa"] = float(np.median(onsets["edge"]))
+    if len(onsets["edge"]) >= MIN_SPREAD_ONSETS:
+        out["slip_edge_spread"] = float(np.std(onsets["edge"]) / np.median(onsets["edge"]))
     if onsets["patch"]:
         out["slip_patch_m_per_pa"] = float(np.median(onsets["patch"]))
     return out

@@ -358,7 +358,11 @@ class BubbleFeatures:
         t0, pixels0, _, disp0 = self._dots[0]
         if stamp_secs <= t0:
             return 0.0
-        _, now, then = np.intersect1d(pixels, pixels0, return_indices=True)
+        # The dots of both frames: the reference's pixels, ascending in each.
+        found = np.searchsorted(pixels0, pixels)
+        found[found == len(pixels0)] = 0
+        hit = pixels0[found] == pixels
+        now, then = np.flatnonzero(hit), found[hit]
         p = self.params
         return departing_share(
             at[now],

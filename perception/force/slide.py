@@ -61,19 +61,20 @@ def departing_share(
         return 0.0
     grid = np.floor(positions_m / cell_m).astype(np.int64)
     grid -= grid.min(axis=0)
-    _, cell, count = np.unique(
-        grid[:, 0] * (int(grid[:, 1].max()) + 1) + grid[:, 1],
-        return_inverse=True,
-        return_counts=True,
-    )
-    if len(count) < MIN_CELLS:
+    key = grid[:, 0] * (int(grid[:, 1].max()) + 1) + grid[:, 1]
+    # The cells a dot falls in, numbered densely (a count and a lookup, not a sort).
+    count = np.bincount(key)
+    used = np.flatnonzero(count)
+    if len(used) < MIN_CELLS:
         return 0.0
-    dots = count.astype(np.float64)
+    number = np.zeros(len(count), np.int64)
+    number[used] = np.arange(len(used))
+    cell = number[key]
+    dots = count[used].astype(np.float64)
 
     def mean(values: np.ndarray) -> np.ndarray:
-        return np.stack(
-            [np.bincount(cell, values[:, i], len(count)) / dots for i in range(2)], axis=1
-        )
+        sums = [np.bincount(cell, values[:, i], len(used)) for i in range(2)]
+        return np.stack(sums, axis=1) / dots[:, None]
 
     velocity, where = mean(velocity_m_per_s), mean(positions_m)
     weight = dots.copy()

@@ -34,6 +34,13 @@ Two observations, both from what the bubble measures (docs/force.md):
   slides, with no stick limit: on a shell whose limit spreads with the object and the
   load's direction (world.mujoco), the edge slips from ``dots_share`` of it.
 
+* **Both** (the default, ``edge_cue: both``): the earlier of the two edge cues, the
+  limit's only where the rig's calibration knows it (its edge onsets' spread,
+  ``Calibration.slip_edge_spread``, at most ``limit_max_spread``): a limit dates an
+  onset as well as it is known. Where it is known, the dots count from
+  ``edge_min_strain`` of it (dots departing far below a known limit are the flow's
+  error).
+
 ``state`` is ``stick``, ``edge`` (incipient: the edge slips, the core holds) or
 ``patch`` (the whole patch slides). Onsets are reported once per episode; an episode
 ends when ``strain`` falls back under ``release_strain`` for ``settle_frames`` (a firmer
@@ -82,16 +89,32 @@ class SlipParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     """
 
     edge_cue: Annotated[
-        Literal["limit", "dots"],
+        Literal["both", "limit", "dots"],
         Meta(
             description=(
                 "what tells the edge's slip: ``limit``, the core's shift near the rig's"
                 " stick limit (``edge_strain``, ``edge_follow``); ``dots``, the share of"
                 " the patch's dots leaving its rigid motion (``dots_share``), which needs"
-                " no limit (a shell whose limit spreads with the object: world.mujoco)."
+                " no limit; ``both``, the earlier of the two, the limit's only where the"
+                " rig's calibration knows it (its onsets' spread at most"
+                " ``limit_max_spread``: world.sim's 3-5%, not world.mujoco's shell's"
+                " 16-22%)."
             )
         ),
-    ] = "limit"
+    ] = "both"
+    limit_max_spread: Annotated[
+        float,
+        Meta(
+            ge=0,
+            description=(
+                "with ``edge_cue: both``, the stick limit is a cue only where the"
+                " calibration's edge onsets spread by at most this (standard deviation"
+                " over median, ``Calibration.slip_edge_spread``): the core's shift rises"
+                " 1.5-3% of the limit a frame under the benches' loads, so a limit known"
+                " to 10% dates an onset within 3-7 frames, one known to 20% within 7-13."
+            ),
+        ),
+    ] = 0.1
     dots_share: Annotated[
         float,
         Meta(
@@ -228,6 +251,7 @@ class SlipDetector:
         friction: float = 0.8,
         edge_m_per_pa: float = 0.7e-6,
         patch_m_per_pa: float = 0.95e-6,
+        edge_spread: float = 0.0,
     ) -> None:
         if not (edge_m_per_pa > 0 and patch_m_per_pa > 0):
             raise ValueError(
@@ -237,6 +261,12 @@ class SlipDetector:
         self.friction = friction
         self.edge_m_per_pa = edge_m_per_pa
         self.patch_m_per_pa = patch_m_per_pa
+        p = self.params
+        # Which cues tell the edge's slip (``SlipParams.edge_cue``).
+        self.limit_cue = p.edge_cue == "limit" or (
+            p.edge_cue == "both" and edge_spread <= p.limit_max_spread
+        )
+        self.dots_cue = p.edge_cue in ("dots", "both")
         self.phase: SlipPhase = "stick"
         self._history: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray, float]] = deque(
             maxlen=self.params.window + self.params.imprint_frames
@@ -247,7 +277,13 @@ class SlipDetector:
     @classmethod
     def for_rig(cls, cal: Calibration, params: SlipParams | None = None) -> SlipDetector:
         """A detector with the rig's friction and slip limits (its calibration)."""
-        return cls(params, cal.friction, cal.slip_edge_m_per_pa, cal.slip_patch_m_per_pa)
+        return cls(
+            params,
+            cal.friction,
+            cal.slip_edge_m_per_pa,
+            cal.slip_patch_m_per_pa,
+            cal.slip_edge_spread,
+        )
 
     def reference(self) -> None:
         """A stable grasp began: what moved before it is not slip."""
@@ -290,14 +326,18 @@ class SlipDetector:
         shift_per_pa = shift_per_pressure(features, p.min_pressure_pa)
         strain = shift_per_pa / self.edge_m_per_pa
         lead = self._imprint_lead()
-        if p.edge_cue == "dots":
-            edge = features.departing_share >= p.dots_share
-            calm = features.departing_share < 0.5 * p.dots_share
-        else:
-            edge = strain >= p.edge_strain or (
-                follow < p.edge_follow and strain >= p.edge_min_strain
-            )
-            calm = strain < p.release_strain
+        limit_edge = strain >= p.edge_strain or (
+            follow < p.edge_follow and strain >= p.edge_min_strain
+        )
+        dots_edge = features.departing_share >= p.dots_share
+        if self.limit_cue:
+            # Where the limit is known no point of the latex slides far below it: the
+            # dots departing there are the flow's error (a face seen at grazing angles).
+            dots_edge = dots_edge and strain >= p.edge_min_strain
+        edge = (self.limit_cue and limit_edge) or (self.dots_cue and dots_edge)
+        calm = (not self.limit_cue or strain < p.release_strain) and (
+            not self.dots_cue or features.departing_share < 0.5 * p.dots_share
+        )
         phase: SlipPhase = "stick"
         if lead >= p.patch_lead_m or shift_per_pa >= p.patch_strain * self.patch_m_per_pa:
             phase = "patch"

@@ -49,7 +49,8 @@ def test_quick_json_has_every_sweep() -> None:
     assert {(r["world"], r["method"]) for r in slip} == {
         (w, m)
         for w in ("sim", "mujoco")
-        for m in ("onset_edge", "onset_patch", "onset_edge_dots", "onset_patch_dots")
+        for m in ("onset_edge", "onset_patch", "onset_edge_limit", "onset_patch_limit")
+        + ("onset_edge_dots", "onset_patch_dots")
     }
     assert all(r["still_secs"] > 0 for r in slip)
 
@@ -67,6 +68,14 @@ def test_mujoco_slip_truth_and_its_calibration_file() -> None:
     cal = Calibration.load(CALIBRATION)
     assert cal.rig == "mujoco" and min(cal.slip_onsets) > 0
     assert 0 < cal.slip_edge_m_per_pa < cal.slip_patch_m_per_pa
+    # Its shell's edge onsets spread too far for the stick limit to date one (the
+    # dots' cue alone decides there, by default); world.sim's file knows its limit.
+    from bench.force_data import CALIBRATION as SIM_CALIBRATION
+    from perception.force.slip import SlipDetector
+
+    assert SlipDetector.for_rig(cal).limit_cue is False
+    assert SlipDetector.for_rig(Calibration.load(SIM_CALIBRATION)).limit_cue is True
+    assert 0 < Calibration.load(SIM_CALIBRATION).slip_edge_spread < cal.slip_edge_spread
 
 
 def test_mujoco_slip_truth_is_the_latex_sliding_over_the_object() -> None:

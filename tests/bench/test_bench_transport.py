@@ -1,5 +1,5 @@
-"""Smoke tests of ``python -m bench.transport`` and ``bench.transport_steps``: they run, and
-their JSON has the promised shape.
+"""Smoke tests of ``python -m bench.transport``, ``bench.transport_steps`` and
+``bench.transport_source``: they run, and their JSON has the promised shape.
 
 No timing is asserted: the figures only have to exist, be finite and be positive.
 """
@@ -83,3 +83,18 @@ def test_steps_quick_json_has_every_step_of_both_sides() -> None:
             assert math.isfinite(row["raw_us"]) and row["raw_us"] > 0, row
             assert row["extra_us"] == pytest.approx(mine - row["raw_us"])
             assert row["vs_raw"] == pytest.approx(mine / row["raw_us"])
+
+
+@pytest.mark.timeout(120)
+def test_source_quick_json_has_every_variant_paired_with_publish() -> None:
+    from bench.transport_source import VARIANTS
+
+    report, _ = run_quick("transport_source", timeout=100)
+    rows = report["rows"]
+    assert [row["variant"] for row in rows] == list(VARIANTS)
+    for row in rows:
+        for name in ("main_us_per_frame", "process_us_per_frame"):
+            assert math.isfinite(row[name]) and row[name] > 0, row
+        assert row["main_extra_us_q1"] <= row["main_extra_us"] <= row["main_extra_us_q3"], row
+        assert row["sink_dropped"] == 0
+    assert rows[0]["main_extra_us"] == rows[0]["process_extra_us"] == 0  # publish itself

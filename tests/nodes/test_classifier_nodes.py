@@ -572,7 +572,7 @@ def test_writer_says_what_it_lost(tmp_path: Path, caplog: pytest.LogCaptureFixtu
         feed(node, "right", _image("right", t))
     for t in (42, 46):
         feed(node, "left", _image("left", t))
-    assert node.unpaired == 1
+    assert node.halves.lost == 1
     assert [len(g.buffer) for g in node.grasps] == [2]
     feed(node, "event", _event("grasp_start", {"grasp_id": 1, "class_label": "mug"}, 61))
     feed(node, "event", _event("grasp_end", {"grasp_id": 1}, 62))

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 import pytest
 
 from geometry.camera import PinholeCamera
 from geometry.gripper import tool_from_sensor
-from perception.contact import ContactParams, ContactPatcher, contact_mask
+from perception.contact import ContactParams, ContactPatcher, InstantPairs, contact_mask
 from runtime.params import build_params
 
 CAM = PinholeCamera.from_fov(64, 48)
@@ -100,3 +102,21 @@ def test_params_checked() -> None:
         build_params(ContactParams, {"threshold_m": 0.0})
     with pytest.raises(ValueError, match="shape"):
         contact_mask(np.zeros((2, 2)), np.zeros((3, 3)), ContactParams())
+
+
+def test_instant_pairs_wait_for_a_late_partner_and_count_the_ones_whose_partner_was_lost() -> None:
+    pairs: InstantPairs[str] = InstantPairs(history=3)
+    assert pairs.match("right", 0, "r0", 5) is None
+    assert pairs.match("right", 33, "r33", 5) is None  # the left camera lags two frames
+    assert pairs.match("left", 0, "l0", 5) == "r0"
+    # Left's frame 33 was dropped upstream: left 66 moves past right 33, which can never
+    # pair, and waits for right 66.
+    assert pairs.match("left", 66, "l66", 5) is None
+    assert pairs.lost == 1
+    assert pairs.match("right", 66, "r66", 5) == "l66"
+    assert pairs.waiting == {"left": deque(), "right": deque()}
+    pairs.wait("left", 100, "l100")  # kept without looking (a node not ready to pair)
+    assert pairs.match("right", 101, "r101", 5) == "l100"
+    for k in range(5):  # the right camera sends nothing: the oldest waiting go
+        assert pairs.match("left", 133 + 33 * k, f"l{k}", 5) is None
+    assert pairs.lost == 3 and len(pairs.waiting["left"]) == 3
