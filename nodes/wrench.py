@@ -14,10 +14,10 @@ Ports:
         ``slip`` node), one per frame.
 
 What each frame is judged by is the gripper's state and the bubble's pressure at the
-frame's stamp (``perception.contact.StampedHistory``), so the order in which the four
-inputs of an instant arrive does not change the estimate: frames taken with the gripper open and still
-(``reference_min_width_m``, ``reference_max_speed_m_per_s``) build the free bubble's
-reference; the first frame taken with the gripper ``holding`` tares the dots (the jaws
+frame's stamp (``perception.contact.StampedHistory``), so the order in which the inputs
+of an instant arrive does not change the estimate. Frames taken with the gripper open
+and still (``reference_min_width_m``, ``reference_max_speed_m_per_s``) build the free
+bubble's reference; the first frame taken with the gripper ``holding`` tares the dots (the jaws
 just closed: zero tangential load); opening the gripper drops the tare. The estimator
 (``method``: ``physics`` or ``ridge``) and its constants come from the ``calibration``
 file (``python -m bench.force_data`` writes the simulated rig's; docs/force.md).
