@@ -69,8 +69,9 @@ POLL_MS = 20
 # A hello refused for this long: the connection may be stuck (``HostLink._tend``), and is
 # made again (the wait doubles each time, while the peer is down).
 STUCK_SECS = 0.5
-# How long a stopping link still tries to send a hello that is due (within close()'s 2 s).
+# How long a stopping link still tries to send a hello that is due (within close()'s wait).
 FLUSH_HELLO_SECS = 1.5
+CLOSE_WAIT_SECS = 2.0
 
 
 @dataclass
@@ -126,6 +127,7 @@ class HostLink:
         self._events: deque[tuple[Any, ...]] = deque()
         self._outbox: deque[list[bytes]] = deque()
         self._stopping = threading.Event()
+        self._closed = False  # its pipes closed: their numbers may be another file's now
         self._ready = False
         self._beat_now = threading.Event()
         own = hosts.table[me]
@@ -176,7 +178,8 @@ class HostLink:
         return self._note_r
 
     def events(self) -> list[tuple[Any, ...]]:
-        _drain_pipe(self._note_r)
+        if not self._closed:
+            _drain_pipe(self._note_r)
         out = []
         while self._events:
             out.append(self._events.popleft())
@@ -187,7 +190,7 @@ class HostLink:
         if not self._ready:
             self._ready = True
             self._beat_now.set()
-            _poke(self._wake_w)
+            self._wake()
 
     def waiting_for(self) -> list[str]:
         """The other hosts not yet ready: a host starts its nodes when this is empty, so
@@ -253,17 +256,31 @@ class HostLink:
 
     def _queue(self, frames: list[bytes]) -> None:
         self._outbox.append(frames)
-        _poke(self._wake_w)
+        self._wake()
+
+    def _wake(self) -> None:
+        """Wake the link's thread (not once closed: the pipe's number may be reused)."""
+        if not self._closed:
+            _poke(self._wake_w)
 
     def _event(self, event: tuple[Any, ...]) -> None:
         self._events.append(event)
         _poke(self._note_w)
 
     def close(self) -> None:
+        """Stop the thread, then close the sockets and pipes. After this the link touches
+        no descriptor: its pipes' numbers go to the next file opened (libzmq's mailboxes
+        among them), and a read or write on one there loses another object's wake-up."""
+        if self._closed:
+            return
         self._stopping.set()
-        _poke(self._wake_w)
+        self._wake()
         if self._thread.is_alive():
-            self._thread.join(timeout=2)
+            self._thread.join(timeout=CLOSE_WAIT_SECS)
+        if self._thread.is_alive():  # its sockets and pipes cannot be closed under it
+            self.log(f"link: its thread did not stop within {CLOSE_WAIT_SECS} s: left open")
+            return
+        self._closed = True
         for fd in (self._wake_r, self._wake_w, self._note_r, self._note_w):
             os.close(fd)
         if self.guard is not None:
@@ -480,16 +497,16 @@ class HostLink:
 def _poke(fd: int) -> None:
     try:
         os.write(fd, b"\0")
-    except (BlockingIOError, OSError):
-        pass  # full: a wake-up is pending anyway (or closed: the link is closing)
+    except BlockingIOError:
+        pass  # full: a wake-up is pending anyway
 
 
 def _drain_pipe(fd: int) -> None:
     try:
         while os.read(fd, 4096):
             pass
-    except (BlockingIOError, OSError):
-        pass
+    except BlockingIOError:
+        pass  # empty
 
 
 def wait_for_finals(

@@ -5,19 +5,22 @@ refused, stops passed on, a silent host reported lost."""
 from __future__ import annotations
 
 import json
+import socket
 import subprocess
 import sys
 from pathlib import Path
 
 import msgpack
 import pytest
+import zmq
 
 from messages.control import LinkCounts
 from runtime import protocol
+from runtime.hostlink import HostLink
 from runtime.hostpolicy import Act, judge
-from runtime.hosts import Hosts
+from runtime.hosts import Hosts, check_hosts
 from runtime.protocol import ControlError
-from tests.hosts.conftest import ROOT, host_table, write_graph
+from tests.hosts.conftest import ROOT, free_port_range, host_table, write_graph
 
 HOSTS = Hosts({}, on_host_lost="stop", host_timeout_secs=1.0, max_clock_offset_secs=0.005)
 
@@ -50,6 +53,43 @@ def test_judge_applies_the_policies() -> None:
     )
     same = judge(("graph_differs", "robot", "ab" * 32, "cd" * 32, ours, ours), HOSTS)
     assert len(same.lines) == 1  # the same options: another graph file
+
+
+def test_a_closed_link_leaves_alone_the_descriptors_it_had() -> None:
+    """Once closed, a link's pipes are closed and their numbers belong to whatever opens a
+    file next (libzmq's mailboxes are eventfds): asking the closed link for events, or
+    queueing a message on it, must neither read nor write them. Reading one stole a
+    wake-up from libzmq, so that a connection made later never attached and a closed
+    socket's port stayed bound."""
+    errors: list[str] = []
+    table = {h: {"address": "127.0.0.1", "ports": list(free_port_range(40))} for h in ("a", "b")}
+    hosts = check_hosts({"hosts": table}, "g.yaml", errors)
+    assert not errors
+    ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context()
+    link = HostLink(ctx, hosts, "a", None, lambda _: None, {"g": 1})
+    had = {link._wake_r, link._wake_w, link._note_r, link._note_w}
+    link.start()
+    link.close()
+    # Socket pairs, whose ends both read and write, taking the lowest free numbers first:
+    # every number the link had is one of their ends, whatever order they come in.
+    pairs: list[tuple[socket.socket, socket.socket]] = []
+    try:
+        while not had <= {end.fileno() for pair in pairs for end in pair} and len(pairs) < 64:
+            pairs.append(socket.socketpair())
+        ends = [end for pair in pairs for end in pair]
+        assert had <= {end.fileno() for end in ends}
+        for end in ends:
+            end.setblocking(False)
+            end.send(b"x")  # for its peer to read
+        assert link.events() == []
+        link.send_stop("late", 0)
+        link.set_ready()
+        assert [end.recv(16) for end in ends] == [b"x"] * len(ends)  # none read, none written
+    finally:
+        for pair in pairs:
+            for end in pair:
+                end.close()
+        ctx.term()
 
 
 # Two links (hosts a and b on the namespace's own address), and a forger: a DEALER with
