@@ -66,9 +66,6 @@ CLOCK_SAMPLES = 8
 PING_TIMEOUT_SECS = 1.0
 WHO_EVERY_SECS = 0.5
 POLL_MS = 20
-# A hello refused for this long: the connection may be stuck (``HostLink._tend``), and is
-# made again (the wait doubles each time, while the peer is down).
-STUCK_SECS = 0.5
 # How long a stopping link still tries to send a hello that is due (within close()'s wait).
 FLUSH_HELLO_SECS = 1.5
 CLOSE_WAIT_SECS = 2.0
@@ -89,8 +86,6 @@ class _Peer:
     # it goes out. A hello lost to a connection still being made would leave a peer not
     # knowing of us (or of our graph) until the next turn of asking.
     hello_due: int | None = None
-    due_since: float = 0.0  # when the hello due was first refused (0: none refused)
-    remade: int = 0  # connections made again since a hello last went out
     ping_t1: int | None = None
     ping_sent_at: float = 0.0
     samples: list[tuple[float, float]] = field(default_factory=list)
@@ -283,9 +278,9 @@ class HostLink:
         self._closed = True
         for fd in (self._wake_r, self._wake_w, self._note_r, self._note_w):
             os.close(fd)
-        if self.guard is not None:
-            self.guard.close()
         self.router.close(linger=0)
+        if self.guard is not None:  # after the router: see Guard.close
+            self.guard.close()
         for peer in self.peers.values():
             peer.dealer.close()
 
@@ -313,12 +308,8 @@ class HostLink:
     def _say_hello(self, peer: _Peer, reply: int) -> None:
         """Send a hello now, or as soon as the connection to ``peer`` takes it."""
         peer.hello_due = max(reply, peer.hello_due or 0)
-        if not self._send(peer, self._hello(reply=peer.hello_due)):
-            peer.due_since = peer.due_since or time.monotonic()
-        else:
+        if self._send(peer, self._hello(reply=peer.hello_due)):
             peer.hello_due = None
-            peer.due_since = 0.0
-            peer.remade = 0
             if reply:
                 peer.asked_at = time.monotonic()
             # A beat right after it: the peer could not check the last one (or, asked,
@@ -371,19 +362,6 @@ class HostLink:
         """A hello still due, pings for the clock, and the heartbeat timeout."""
         if peer.hello_due is not None:
             self._say_hello(peer, peer.hello_due)
-        if peer.due_since and now - peer.due_since > STUCK_SECS * 2 ** min(peer.remade, 4):
-            # Our connection to the peer has taken nothing for that long: libzmq 4.3.5 can
-            # leave a new CURVE connection whose handshake succeeded on both ends never
-            # attached to its DEALER (every send EAGAIN, for good; 2 to 4 in 20 restarts
-            # of a host in tests/hosts/test_link.py). The cause is below this module and
-            # was not found: a new connection is made, and the hello goes out on it
-            # (waiting longer each time, up to 8 s, while the peer is down).
-            if peer.last_seen > peer.due_since:  # we hear it: it is up, the link stuck
-                self.log(f"link: the connection to host {peer.spec.name!r} took nothing: remade")
-            peer.dealer.close(linger=0)
-            peer.dealer = self._dealer(peer.spec)
-            peer.remade += 1
-            peer.due_since = time.monotonic()
         if peer.secret is not None and len(peer.samples) < CLOCK_SAMPLES:
             if peer.ping_t1 is None or now - peer.ping_sent_at > PING_TIMEOUT_SECS:
                 peer.ping_t1 = time.time_ns()

@@ -170,6 +170,7 @@ class Guard:
         self.zap.setsockopt(zmq.LINGER, 0)
         self.zap.bind(ZAP_ENDPOINT)
         self.monitors: list[zmq.Socket[Any]] = []
+        self.guarded: list[zmq.Socket[Any]] = []
         self.stopping = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
 
@@ -181,11 +182,17 @@ class Guard:
         mon.setsockopt(zmq.LINGER, 0)
         mon.connect(address)
         self.monitors.append(mon)
+        self.guarded.append(sock)
 
     def start(self) -> None:
         self.thread.start()
 
     def close(self) -> None:
+        """Stop answering: only once the sockets given to :meth:`watch` are closed. A
+        connection whose CURVE handshake reaches ZAP after this never ends, and libzmq
+        (4.3.5) then never finishes closing its socket, whose port stays bound."""
+        if any(not sock.closed for sock in self.guarded):
+            raise RuntimeError("Guard.close: close the sockets it guards first")
         self.stopping.set()
         if self.thread.is_alive():
             self.thread.join(timeout=2)

@@ -20,6 +20,7 @@ from runtime.hostlink import HostLink
 from runtime.hostpolicy import Act, judge
 from runtime.hosts import Hosts, check_hosts
 from runtime.protocol import ControlError
+from runtime.security import Guard
 from tests.hosts.conftest import ROOT, free_port_range, host_table, write_graph
 
 HOSTS = Hosts({}, on_host_lost="stop", host_timeout_secs=1.0, max_clock_offset_secs=0.005)
@@ -90,6 +91,23 @@ def test_a_closed_link_leaves_alone_the_descriptors_it_had() -> None:
             for end in pair:
                 end.close()
         ctx.term()
+
+
+def test_the_guard_stops_answering_only_once_the_sockets_it_guards_are_closed() -> None:
+    """A CURVE handshake that asks ZAP after the guard has stopped never ends, and libzmq
+    then never finishes closing the socket: its port stays bound. A link closed while the
+    other host's connection handshook left its host's port bound for good (1 in 30 to 200
+    closes), so a launcher started again there could not bind it."""
+    ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context()
+    guard = Guard(ctx, {}, lambda _: None)
+    router = ctx.socket(zmq.ROUTER)
+    guard.watch(router)
+    guard.start()
+    with pytest.raises(RuntimeError, match="close the sockets it guards first"):
+        guard.close()
+    router.close(linger=0)
+    guard.close()
+    ctx.term()
 
 
 # Two links (hosts a and b on the namespace's own address), and a forger: a DEALER with
