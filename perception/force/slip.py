@@ -341,7 +341,9 @@ class SlipDetector:
             not self.dots_cue or features.departing_share < 0.5 * p.dots_share
         )
         phase: SlipPhase = "stick"
-        if lead >= p.patch_lead_m or shift_per_pa >= p.patch_strain * self.patch_m_per_pa:
+        if lead >= p.patch_lead_m or (
+            self.limit_cue and shift_per_pa >= p.patch_strain * self.patch_m_per_pa
+        ):
             phase = "patch"
         elif edge:
             phase = "edge"
@@ -394,7 +396,11 @@ class SlipDetector:
         c1 = np.mean([h[3] for h in history[-k:]], axis=0)
         moved = c1 - c0
         norm = float(np.hypot(*moved))
-        if norm < self.params.patch_lead_m:
+        # A whole patch slides the way the load stretched the latex (the core's shift):
+        # an imprint moving against it is the patch changing shape, not a slide (a mug
+        # pulled on world.mujoco's shell: the imprint drifted 0.4-0.5 mm against the
+        # dots, which moved on with the object, 20 frames before its latex slid).
+        if norm < self.params.patch_lead_m or float(moved @ core1) <= 0.0:
             return 0.0
         return norm - float((core1 - core0) @ moved) / norm
 

@@ -220,6 +220,39 @@ def test_slip_detector_reads_no_slide_from_an_imprint_that_cannot_move() -> None
     assert not any(run_detector(shifts, [0.5] * n, imprint=imprint))
 
 
+def test_slip_detector_reads_no_slide_from_an_imprint_moving_against_the_latex() -> None:
+    """A mug pulled on world.mujoco's shell (loaded grasp 4): the object and its latex
+    move on together, 0.1 mm a frame (the shell gives), while the patch changes shape
+    and its imprint drifts the other way, 0.15 mm a frame. Measured along the imprint's
+    motion the dots ran 0.4 mm behind it, which read as the whole patch sliding 20
+    frames before the latex slid. A whole patch slides the way the load stretched the
+    latex: an imprint moving against the dots' shift is no slide."""
+    n = 12
+    shifts = [(0.0002 + 0.0001 * i, 0.0002 + 0.0001 * i) for i in range(n)]
+    imprint = [(-0.00015 * i, 0.01) for i in range(n)]
+    assert not any(run_detector(shifts, [0.5] * n, imprint=imprint))
+
+
+def test_slip_detector_takes_the_whole_patchs_limit_only_where_the_calibration_knows_it() -> None:
+    """The whole patch's backstop (the core's shift past 1.1 of its limit) is a stick
+    limit too: on world.mujoco's shell, whose limits spread 16-22% with the object and
+    the load's direction, it fired on a mug pulled 18 frames before its latex slid. As
+    the edge's limit, it decides only where the calibration's edge onsets spread at
+    most ``limit_max_spread``; elsewhere the imprint and the dots do."""
+    for spread, fires in ((0.05, True), (0.2, False)):
+        cal = Calibration(
+            slip_edge_m_per_pa=1.5e-6, slip_patch_m_per_pa=1.9e-6, friction=0.8,
+            slip_edge_spread=spread,
+        )  # fmt: skip
+        detector = SlipDetector.for_rig(cal)
+        detector.reference()
+        onsets = []
+        for i in range(30):  # the core's shift to 1.3 of the whole patch's limit at 2 kPa
+            f = features(core=(0.00005 + 0.00017 * i, 0.0))
+            onsets.append(detector.update(f, np.array([4.0, 0.5, 0.0]), i / 30).onset)
+        assert ("patch" in onsets) == fires, (spread, onsets)
+
+
 def test_slip_detector_stays_quiet_while_held_still_with_noise() -> None:
     rng = np.random.default_rng(2)
     noise = rng.normal(0, 0.00003, (300, 2))
