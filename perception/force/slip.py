@@ -18,9 +18,11 @@ Two observations, both from what the bubble measures (docs/force.md):
   the depth image), along the directions in which its shape changes the depth; once the
   whole patch slides the dots stop at their limit and the imprint runs on. Over the
   last ``window`` frames (each end a mean over ``imprint_frames`` frames, against the
-  imprint's jitter): the imprint moved at least ``patch_lead_m`` and that much
-  further along its own motion than the core's dots (``imprint_lead_m``). The core's
-  shift past ``patch_strain`` of the whole patch's limit is a backstop for a slide the
+  imprint's jitter): the imprint moved at least ``patch_lead_m``, the way the load
+  stretched the latex (the core's shift; an imprint moving against it is the patch
+  changing shape), and that much further along its own motion than the core's dots
+  (``imprint_lead_m``). Where the rig's limits are known (below), the core's shift
+  past ``patch_strain`` of the whole patch's limit is a backstop for a slide the
   imprint cannot see (a cylinder along its axis, a slide slower than the cue needs).
 * **The edge lags the core.** Once the edge slips its dots stop following while the
   core's go on: over the last ``window`` frames, the edge's displacement along the
@@ -39,7 +41,7 @@ Two observations, both from what the bubble measures (docs/force.md):
   ``Calibration.slip_edge_spread``, at most ``limit_max_spread``): a limit dates an
   onset as well as it is known. Where it is known, the dots count from
   ``edge_min_strain`` of it (dots departing far below a known limit are the flow's
-  error).
+  error); where it is not, the whole patch's limit is no backstop either.
 
 ``state`` is ``stick``, ``edge`` (incipient: the edge slips, the core holds) or
 ``patch`` (the whole patch slides). Onsets are reported once per episode; an episode
@@ -138,8 +140,9 @@ class SlipParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
             gt=0,
             description=(
                 "the whole patch slides when, over ``window`` frames, the object's imprint"
-                " (the patch's centroid) moved at least this much (m) and ran this much"
-                " further along its own motion than the core's dots."
+                " (the patch's centroid) moved at least this much (m), not against the"
+                " core's shift, and ran this much further along its own motion than the"
+                " core's dots."
             ),
         ),
     ] = 0.0005
@@ -150,7 +153,8 @@ class SlipParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
             description=(
                 "the core's shift over the whole patch's limit (``patch_m_per_pa * p``)"
                 " from which the whole patch counts as slipping, whatever the imprint"
-                " says (a backstop for a slide the imprint cannot see)."
+                " says (a backstop for a slide the imprint cannot see), where the stick"
+                " limit is a cue (``edge_cue``, ``limit_max_spread``)."
             ),
         ),
     ] = 1.1
@@ -264,7 +268,8 @@ class SlipDetector:
         self.edge_m_per_pa = edge_m_per_pa
         self.patch_m_per_pa = patch_m_per_pa
         p = self.params
-        # Which cues tell the edge's slip (``SlipParams.edge_cue``).
+        # Which cues tell the edge's slip (``SlipParams.edge_cue``); the stick limits
+        # (the edge's, the whole patch's backstop) only where ``limit_cue``.
         self.limit_cue = p.edge_cue == "limit" or (
             p.edge_cue == "both" and edge_spread <= p.limit_max_spread
         )
@@ -376,7 +381,8 @@ class SlipDetector:
 
     def _imprint_lead(self) -> float:
         """How much further the imprint moved than the core's dots over the window,
-        along the imprint's own motion (0 while it moved less than ``patch_lead_m``).
+        along the imprint's own motion (0 while it moved less than ``patch_lead_m`` or
+        against the core's shift).
 
         While the patch sticks the dots move with the object; the imprint moves with
         it too, but only along the directions its shape changes the depth (a cylinder's

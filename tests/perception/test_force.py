@@ -528,7 +528,9 @@ def test_core_reads_the_objects_slide_where_one_end_of_the_patch_misreads() -> N
                 tare[side] = snap.slide_m.copy()
             slide = snap.slide_m - tare.get(side, snap.slide_m)
             if f.tracked and snap.wrench[side].slipping_fraction == 0.0 and np.hypot(*slide) > 1e-3:
-                errors[side].append(float(np.linalg.norm(f.core_shift_m - slide) / np.hypot(*slide)))
+                errors[side].append(
+                    float(np.linalg.norm(f.core_shift_m - slide) / np.hypot(*slide))
+                )
     for side, errs in errors.items():
         assert len(errs) >= 15, side  # 1 mm and more of stuck slide, frame after frame
         assert max(errs) < 0.05, (side, np.round(errs, 3))
