@@ -18,10 +18,10 @@ Two observations, both from what the bubble measures (docs/force.md):
   the depth image), along the directions in which its shape changes the depth; once the
   whole patch slides the dots stop at their limit and the imprint runs on. Over the
   last ``window`` frames (each end a mean over ``imprint_frames`` frames, against the
-  imprint's jitter): the imprint moved at least ``patch_lead_m``, the way the load
-  stretched the latex (the core's shift; an imprint moving against it is the patch
-  changing shape), and that much further along its own motion than the core's dots
-  (``imprint_lead_m``). Where the rig's limits are known (below), the core's shift
+  imprint's jitter): the imprint moved at least ``patch_lead_m`` and that much
+  further along its own motion than the core's dots (``imprint_lead_m``), unless it
+  moved against the latex's stretch (the core's shift) while the dots carried the
+  stretch on: the patch changing shape under a stuck latex. Where the rig's limits are known (below), the core's shift
   past ``patch_strain`` of the whole patch's limit is a backstop for a slide the
   imprint cannot see (a cylinder along its axis, a slide slower than the cue needs).
 * **The edge lags the core.** Once the edge slips its dots stop following while the
@@ -140,9 +140,9 @@ class SlipParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
             gt=0,
             description=(
                 "the whole patch slides when, over ``window`` frames, the object's imprint"
-                " (the patch's centroid) moved at least this much (m), not against the"
-                " core's shift, and ran this much further along its own motion than the"
-                " core's dots."
+                " (the patch's centroid) moved at least this much (m) and ran this much"
+                " further along its own motion than the core's dots (not against the"
+                " core's shift while the dots carry it on by half this)."
             ),
         ),
     ] = 0.0005
@@ -381,8 +381,8 @@ class SlipDetector:
 
     def _imprint_lead(self) -> float:
         """How much further the imprint moved than the core's dots over the window,
-        along the imprint's own motion (0 while it moved less than ``patch_lead_m`` or
-        against the core's shift).
+        along the imprint's own motion (0 while it moved less than ``patch_lead_m``, or
+        against the core's shift while the dots carried it on by half that).
 
         While the patch sticks the dots move with the object; the imprint moves with
         it too, but only along the directions its shape changes the depth (a cylinder's
@@ -402,11 +402,19 @@ class SlipDetector:
         c1 = np.mean([h[3] for h in history[-k:]], axis=0)
         moved = c1 - c0
         norm = float(np.hypot(*moved))
-        # A whole patch slides the way the load stretched the latex (the core's shift):
-        # an imprint moving against it is the patch changing shape, not a slide (a mug
-        # pulled on world.mujoco's shell: the imprint drifted 0.4-0.5 mm against the
-        # dots, which moved on with the object, 20 frames before its latex slid).
-        if norm < self.params.patch_lead_m or float(moved @ core1) <= 0.0:
+        if norm < self.params.patch_lead_m:
+            return 0.0
+        # An imprint moving against the latex's stretch (the core's shift) while the
+        # dots carry the stretch on (by half the cue's lead or more) is the patch
+        # changing shape under a stuck latex, not a slide: a mug pulled on
+        # world.mujoco's shell, its dots moving on with the object, its imprint
+        # drifting 0.5 mm the other way, 20 frames before its latex slid (the dots'
+        # motion against the imprint's added to the lead). Once the whole patch slides
+        # the dots stop or fall back, and the imprint may run either way (a bottle's
+        # taper on the curved membrane: against the stretch).
+        stretch = float(np.hypot(*core1))
+        carried = float((core1 - core0) @ core1) / stretch if stretch > 0.0 else 0.0
+        if float(moved @ core1) < 0.0 and carried >= 0.5 * self.params.patch_lead_m:
             return 0.0
         return norm - float((core1 - core0) @ moved) / norm
 
