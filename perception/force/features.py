@@ -343,7 +343,7 @@ class BubbleFeatures:
         # The core's median, not its mean: while the patch sticks its dots move as one
         # with the object, but the end of the patch the object slides towards reads a
         # fraction of the slide, and its dots (a sixth of the core) dragged the mean
-        # 5-19% short (docs/force.md, "What the bubble measures").
+        # 8-19% short (docs/force.md, "What the bubble measures").
         core = np.median(disp[~edge], axis=0) if (~edge).sum() >= 3 else mean
         rim = disp[edge].mean(axis=0) if edge.sum() >= 3 else mean
         torsion, _ = rotation_about_centroid(s1, s2, d1, d2)

@@ -21,9 +21,10 @@ Two observations, both from what the bubble measures (docs/force.md):
   imprint's jitter): the imprint moved at least ``patch_lead_m`` and that much
   further along its own motion than the core's dots (``imprint_lead_m``), unless it
   moved against the latex's stretch (the core's shift) while the dots carried the
-  stretch on: the patch changing shape under a stuck latex. Where the rig's limits are known (below), the core's shift
-  past ``patch_strain`` of the whole patch's limit is a backstop for a slide the
-  imprint cannot see (a cylinder along its axis, a slide slower than the cue needs).
+  stretch on: the patch changing shape under a stuck latex. Where the rig's limits
+  are known (below), the core's shift past ``patch_strain`` of the whole patch's
+  limit is a backstop for a slide the imprint cannot see (a cylinder along its axis,
+  a slide slower than the cue needs).
 * **The edge lags the core.** Once the edge slips its dots stop following while the
   core's go on: over the last ``window`` frames, the edge's displacement along the
   core's, divided by the core's (``edge_follow``), drops. A confirmation near the edge's
@@ -84,7 +85,7 @@ class SlipParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     ``use`` the estimated tangential force over ``friction`` times the normal force.
 
     The limits are medians over the calibration's onsets, which spread by about 1.3%
-    on ``world.sim`` (0.88-0.91 um/Pa for the edge over seeds 0-11: its stick model
+    on ``world.sim`` (0.88-0.91 um/Pa for the edge over seeds 0-15: its stick model
     dates the edge at one fixed shift per pascal, and the core's dots read it): the
     edge's threshold sits at 0.98 of its limit (an onset's frame is the first past the
     limit, about half a frame's rise, 1%, above it), confirmed from 0.95 by the edge's
