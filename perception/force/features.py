@@ -13,8 +13,10 @@ Per frame of one bubble, from its depth and IR images and its pressure:
   object, before it loads them tangentially: the bubble's zero, as a force-torque
   sensor is tared), warm-started frame to frame, each dot back-projected before and
   after (``perception.shear.ShearTracker`` does the flow and the geometry). The mean
-  over the patch, over its core and over its edge (pixels within ``edge_px`` of the
-  patch's border), and the rotation of the patch's dots about the plate's normal.
+  over the patch and over its edge (pixels within ``edge_px`` of the patch's border),
+  the median over its core (the rest: the object's slide in the hand while the patch
+  sticks, robust to the part of the patch the flow misreads), and the rotation of the
+  patch's dots about the plate's normal.
   (Against the free bubble instead, the flow must follow the whole indentation, and
   its error, a millimetre and more of apparent shift that depends on the object,
   swamps the shear.)
@@ -316,8 +318,8 @@ class BubbleFeatures:
     def _shifts(
         self, ir: np.ndarray, depth_m: np.ndarray, mask: np.ndarray, stamp_secs: float | None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, int, float] | None:
-        """Mean, core and edge tangential shift of the patch's dots, their torsion, and
-        the share of them leaving the patch's rigid motion."""
+        """Mean, core (median) and edge tangential shift of the patch's dots, their
+        torsion, and the share of them leaving the patch's rigid motion."""
         geometry = self._tracker.reference_geometry
         if geometry is None:
             return None
@@ -338,7 +340,11 @@ class BubbleFeatures:
         edge = dist.reshape(-1)[kept] <= self.params.edge_px
         disp = np.stack([d1, d2], axis=1)
         mean = disp.mean(axis=0)
-        core = disp[~edge].mean(axis=0) if (~edge).sum() >= 3 else mean
+        # The core's median, not its mean: while the patch sticks its dots move as one
+        # with the object, but the end of the patch the object slides towards reads a
+        # fraction of the slide, and its dots (a sixth of the core) dragged the mean
+        # 8-19% short (docs/force.md, "What the bubble measures").
+        core = np.median(disp[~edge], axis=0) if (~edge).sum() >= 3 else mean
         rim = disp[edge].mean(axis=0) if edge.sum() >= 3 else mean
         torsion, _ = rotation_about_centroid(s1, s2, d1, d2)
         departing = self._departing(stamp_secs, kept, np.stack([s1, s2], axis=1), disp)

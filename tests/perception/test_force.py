@@ -150,7 +150,7 @@ def run_detector(
     imprint: list[tuple[float, float]] | None = None,
 ) -> list[str]:
     """Onsets of a detector whose rig's edge slips at 0.7 um/Pa of the core's shift and
-    its whole patch at 0.95 um/Pa (at 2 kPa: 1.4 mm and 1.9 mm; it fires at 0.92 of the
+    its whole patch at 0.95 um/Pa (at 2 kPa: 1.4 mm and 1.9 mm; it fires at 0.98 of the
     edge's and 1.1 of the patch's); ``imprint``: the patch's centroid (tool y, z) per
     frame (still by default)."""
     cal = Calibration(slip_edge_m_per_pa=0.7e-6, slip_patch_m_per_pa=0.95e-6, friction=0.8)
@@ -169,24 +169,24 @@ def run_detector(
 
 
 def test_slip_detector_fires_at_the_pressures_limit_edge_then_patch() -> None:
-    # The core's shift grows 0.1 mm a frame: 1.29 mm (0.92 x 0.7 um/Pa x 2 kPa) at frame
-    # 13, 2.09 mm (1.1 x 0.95 um/Pa x 2 kPa) at frame 21; the force estimate says
+    # The core's shift grows 0.1 mm a frame: 1.372 mm (0.98 x 0.7 um/Pa x 2 kPa) at frame
+    # 14, 2.09 mm (1.1 x 0.95 um/Pa x 2 kPa) at frame 21; the force estimate says
     # nothing of it (a light, constant load), the imprint does not move (a slide it
     # cannot see: the shift's backstop decides).
     shifts = [(0.0001 * i, 0.0001 * i) for i in range(25)]
     onsets = run_detector(shifts, [0.5] * 25)
-    assert onsets.index("edge") == 13 and onsets.index("patch") == 21
+    assert onsets.index("edge") == 14 and onsets.index("patch") == 21
     assert onsets.count("edge") == 1 and onsets.count("patch") == 1
     # A firmer grip (twice the pressure) doubles the limits: the same shifts stick.
     assert not any(run_detector(shifts, [0.5] * 25, pressure_pa=4000.0))
 
 
 def test_slip_detector_sees_the_edge_lag_near_the_limit() -> None:
-    # The edge stalls while the core goes on; at 0.88 of the edge's limit (1.23 mm, past
-    # the 0.85 that confirms) the lag calls an edge slip the strain alone (0.92) has not
+    # The edge stalls while the core goes on; at 0.96 of the edge's limit (1.344 mm, past
+    # the 0.95 that confirms) the lag calls an edge slip the strain alone (0.98) has not
     # reached.
     shifts = [(0.0001 * i, 0.0001 * i) for i in range(10)]
-    shifts += [(0.00114 + 0.00003 * i, 0.00100) for i in range(5)]
+    shifts += [(0.00125 + 0.00003 * i, 0.00100) for i in range(5)]
     onsets = run_detector(shifts, [0.5] * 15)
     assert onsets.count("edge") == 1 and onsets.index("edge") == 13, onsets
     assert "patch" not in onsets
@@ -218,6 +218,46 @@ def test_slip_detector_reads_no_slide_from_an_imprint_that_cannot_move() -> None
     shifts = [(0.00004 * i, 0.00004 * i) for i in range(n)]
     imprint = [(float(a), 0.01 + float(b)) for a, b in rng.normal(0, 0.00005, (n, 2))]
     assert not any(run_detector(shifts, [0.5] * n, imprint=imprint))
+
+
+def test_slip_detector_reads_no_slide_from_an_imprint_moving_against_the_latex() -> None:
+    """A mug pulled on world.mujoco's shell (loaded grasp 4): the object and its latex
+    move on together, 0.1 mm a frame (the shell gives), while the patch changes shape
+    and its imprint drifts the other way, 0.15 mm a frame. Measured along the imprint's
+    motion the dots ran 0.4 mm behind it, which read as the whole patch sliding 20
+    frames before the latex slid. An imprint moving against the latex's stretch while
+    the dots carry the stretch on is the patch changing shape under a stuck latex."""
+    n = 12
+    shifts = [(0.0002 + 0.0001 * i, 0.0002 + 0.0001 * i) for i in range(n)]
+    imprint = [(-0.00015 * i, 0.01) for i in range(n)]
+    assert not any(run_detector(shifts, [0.5] * n, imprint=imprint))
+    # Once the whole patch slides the dots stop, and the imprint may run against the
+    # stretch (world.sim's PET bottle being filled, seed 3: its taper on the curved
+    # membrane): that is a slide, 3 frames after the dots stopped.
+    stopped = [(min(0.0002 + 0.0001 * i, 0.0008), 0.0008) for i in range(n)]
+    imprint = [(-0.0002 * max(0, i - 6), 0.01) for i in range(n)]
+    onsets = run_detector(stopped, [0.5] * n, imprint=imprint)
+    assert onsets.count("patch") == 1 and onsets.index("patch") == 9, onsets
+
+
+def test_slip_detector_takes_the_whole_patchs_limit_only_where_the_calibration_knows_it() -> None:
+    """The whole patch's backstop (the core's shift past 1.1 of its limit) is a stick
+    limit too: on world.mujoco's shell, whose limits spread 16-22% with the object and
+    the load's direction, it fired on a mug pulled 18 frames before its latex slid. As
+    the edge's limit, it decides only where the calibration's edge onsets spread at
+    most ``limit_max_spread``; elsewhere the imprint and the dots do."""
+    for spread, fires in ((0.05, True), (0.2, False)):
+        cal = Calibration(
+            slip_edge_m_per_pa=1.5e-6, slip_patch_m_per_pa=1.9e-6, friction=0.8,
+            slip_edge_spread=spread,
+        )  # fmt: skip
+        detector = SlipDetector.for_rig(cal)
+        detector.reference()
+        onsets = []
+        for i in range(30):  # the core's shift to 1.3 of the whole patch's limit at 2 kPa
+            f = features(core=(0.00005 + 0.00017 * i, 0.0))
+            onsets.append(detector.update(f, np.array([4.0, 0.5, 0.0]), i / 30).onset)
+        assert ("patch" in onsets) == fires, (spread, onsets)
 
 
 def test_slip_detector_stays_quiet_while_held_still_with_noise() -> None:
@@ -439,12 +479,12 @@ def test_slip_detector_by_default_takes_the_limit_only_where_the_calibration_kno
         )  # fmt: skip
         onsets, _ = dots_run(cal, 0.0039)
         assert onsets.index("edge") == first and onsets.count("edge") == 1, (spread, onsets)
-    # Where the limit is known, the dots confirm it from 0.85 of it, as the edge's lag
-    # does (at 0.88 here: 2.64 mm); far below it (0.5) no point of the latex slides, and
+    # Where the limit is known, the dots confirm it from 0.95 of it, as the edge's lag
+    # does (at 0.96 here: 2.88 mm); far below it (0.5) no point of the latex slides, and
     # dots departing there are the flow's error (the square bottle's face seen at
     # grazing angles read a quarter of its dots departing 7 frames before its edge slid).
     cal = Calibration(slip_edge_m_per_pa=1.5e-6, slip_patch_m_per_pa=1.9e-6, slip_edge_spread=0.05)
-    cores: tuple[tuple[float, int | None], ...] = ((0.00264, 12), (0.0015, None))
+    cores: tuple[tuple[float, int | None], ...] = ((0.00288, 12), (0.0015, None))
     for core, found in cores:
         onsets, _ = dots_run(cal, core)
         assert (onsets.index("edge") if "edge" in onsets else None) == found, (core, onsets)
@@ -467,3 +507,78 @@ def test_calibration_measures_the_edge_limits_spread() -> None:
     assert "slip_edge_spread" not in calibrate_slip(data[:62])  # two onsets: not measured
     with pytest.raises(ValueError, match="slip_edge_spread"):
         Calibration(slip_edge_spread=-0.1)
+
+
+@pytest.mark.slow
+def test_core_reads_the_objects_slide_where_one_end_of_the_patch_misreads() -> None:
+    """The wine glass being filled (world.sim, seed 9): its load moves it along tool y
+    and z. While the patch sticks, the core's dots read the object's slide in the hand,
+    but the end of the patch the object slides towards reads a fraction of the slide
+    along z (0.4 of 1.4 mm at frame 60, the left bubble); the core's mean dragged with
+    it read 19% short (1.14 mm), which dated the edge's slip early or late by how much
+    of the core that end was. The core's median reads the object's slide."""
+    from bench.force_data import Bubbles, draw
+    from perception.force.features import FeatureParams
+    from sim import Simulator
+
+    spec = draw(9, duration_secs=2.1)
+    assert spec.object == "wine_glass" and spec.load == "fill"
+    simulator = Simulator(spec.scene)
+    bubbles = Bubbles(FeatureParams().flow)
+    tare: dict[str, np.ndarray] = {}
+    errors: dict[str, list[float]] = {"left": [], "right": []}
+    while not simulator.world.done:
+        inst = simulator.step()
+        snap = inst.snapshot
+        for side, f in bubbles.frame(inst, spec.scene).items():
+            if f.tracked and side not in tare:
+                tare[side] = snap.slide_m.copy()
+            slide = snap.slide_m - tare.get(side, snap.slide_m)
+            if f.tracked and snap.wrench[side].slipping_fraction == 0.0 and np.hypot(*slide) > 1e-3:
+                errors[side].append(
+                    float(np.linalg.norm(f.core_shift_m - slide) / np.hypot(*slide))
+                )
+    for side, errs in errors.items():
+        assert len(errs) >= 15, side  # 1 mm and more of stuck slide, frame after frame
+        assert max(errs) < 0.05, (side, np.round(errs, 3))
+
+
+@pytest.mark.slow
+def test_edge_onset_on_world_sim_is_dated_within_a_frame() -> None:
+    """world.sim's truth dates the edge's slip where its stick model says: the first
+    sample past ``friction p / (k g)``, the rim's (``g`` = 2), at 0.89-0.91 um/Pa of
+    the object's slide on every slipping bubble of seeds 0-15. With the core's dots
+    reading that slide, the rig's limit is known to about 1%, and the detector dates
+    the onset within a frame; at 0.92 of a limit taken from the core's mean it fired
+    3-4 frames early on this PET bottle being filled (seed 15)."""
+    from bench.force_data import CALIBRATION, Bubbles, draw
+    from perception.force.features import FeatureParams
+    from sim import Simulator
+
+    spec = draw(15, duration_secs=2.3)
+    assert spec.object == "pet_bottle" and spec.load == "fill"
+    cal = Calibration.load(CALIBRATION)
+    simulator = Simulator(spec.scene)
+    bubbles = Bubbles(FeatureParams().flow)
+    detectors = {s: SlipDetector.for_rig(cal) for s in ("left", "right")}
+    referenced: set[str] = set()
+    onset: dict[str, int] = {}
+    truth_onset: dict[str, int] = {}
+    frame = 0
+    while not simulator.world.done:
+        inst = simulator.step()
+        snap = inst.snapshot
+        for side, f in bubbles.frame(inst, spec.scene).items():
+            if f.tracked and side not in referenced:
+                referenced.add(side)
+                detectors[side].reference()
+            force = estimate(f, side, cal, "physics").force_n
+            report = detectors[side].update(f, force, snap.time_secs)
+            if report.onset:
+                onset.setdefault(side, frame)
+            if snap.wrench[side].slipping_fraction > 0.0:
+                truth_onset.setdefault(side, frame)
+        frame += 1
+    for side in ("left", "right"):
+        assert frame - truth_onset[side] >= 5, truth_onset  # the edge slips in the recording
+        assert abs(onset.get(side, frame) - truth_onset[side]) <= 1, (side, onset, truth_onset)
