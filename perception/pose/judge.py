@@ -338,16 +338,14 @@ def _widely_observed(
     return np.hstack([basis, rest @ vecs[:, wide]])
 
 
-def _smooth(
-    fld: Field, q: np.ndarray, grad: np.ndarray, reaches: tuple[float, ...]
-) -> list[np.ndarray]:
-    """For each of ``reaches``: whether the field's gradient at each point ``q`` (object
-    frame; ``grad`` there) stays the same that far either way along it (every reach's
-    points in one evaluation of the field)."""
-    steps = [sign * reach for reach in reaches for sign in (-1.0, 1.0)]
-    _, moved = fld.value_and_grad(np.concatenate([q + step * grad for step in steps]))
-    same = np.split(np.sum(moved * np.tile(grad, (len(steps), 1)), axis=1) > 0.99, len(steps))
-    return [same[2 * k] & same[2 * k + 1] for k in range(len(reaches))]
+def _smooth(fld: Field, q: np.ndarray, grad: np.ndarray, reach: float) -> np.ndarray:
+    """Whether the field's gradient at each point ``q`` (object frame; ``grad`` there)
+    stays the same ``reach`` either way along it."""
+    smooth = np.ones(len(q), dtype=bool)
+    for sign in (-1.0, 1.0):
+        _, moved = fld.value_and_grad(q + sign * reach * grad)
+        smooth &= np.sum(moved * grad, axis=1) > 0.99
+    return smooth
 
 
 def uncertainty(
@@ -370,7 +368,7 @@ def uncertainty(
     # gradient turns within REACH residual RMS along itself) would make a slide "observed".
     q = points_in_tool @ object_from_tool[:3, :3].T + object_from_tool[:3, 3]
     rms = float(np.sqrt(r @ r / max(n, 1)))
-    smooth, clear = _smooth(fld, q, jac[:, :3], (REACH * rms, EDGE_REACH * rms))
+    smooth = _smooth(fld, q, jac[:, :3], REACH * rms)
     info = scaled_information(jac[smooth], length) * (int(smooth.sum()) / max(n, 1))
     _, basis, _ = observability(info, floor)
     # The floor is per point (a third of one point in 3000): a direction seen through
@@ -402,7 +400,8 @@ def uncertainty(
     # Past an edge or a corner the noise leaves a residual whose mean the rays' bias does
     # not fully predict: each point that is not smooth across the noise may carry a
     # coherent share of the residual RMS, all in one sense.
-    edge = onto @ h_inv @ a[~clear].sum(axis=0) * rms
+    crossed = ~_smooth(fld, q, jac[:, :3], EDGE_REACH * rms)
+    edge = onto @ h_inv @ a[crossed].sum(axis=0) * rms
     twist = basis * scale[:, None]  # basis coordinates -> twist
     if rays_in_tool is None:
         stand_in = (float(r @ r) / n / length) ** 2 * n * (onto @ h_inv @ onto.T)
