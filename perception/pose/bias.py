@@ -75,16 +75,13 @@ def ray_bias(
     weights = weights / weights.sum()
     # Only what the noise adds: where the model misses the points (an object of another
     # size) the point cannot be moved onto the surface, and its own residual is no bias.
-    # The surface points and every node's in one evaluation of the field.
-    value, rows = residuals_and_jacobian(
-        fld, IDENTITY, np.concatenate([surface] + [surface + e * d for e in sigma * nodes])
-    )
-    values, blocks = np.split(value, NODES + 1), np.split(rows, NODES + 1)
-    each = -(values[0][:, None] * blocks[0])
-    mean = -float(np.mean(values[0]))
-    for v, block, w in zip(values[1:], blocks[1:], weights, strict=True):
-        each += w * (v[:, None] * block)
-        mean += w * float(np.mean(v))
+    value, rows = residuals_and_jacobian(fld, IDENTITY, surface)
+    each = -(value[:, None] * rows)
+    mean = -float(np.mean(value))
+    for e, w in zip(sigma * nodes, weights, strict=True):
+        value, rows = residuals_and_jacobian(fld, IDENTITY, surface + e * d)
+        each += w * (value[:, None] * rows)
+        mean += w * float(np.mean(value))
     axis = np.argmax(np.abs(grad), axis=1)
     face = 2 * axis + (grad[np.arange(len(axis)), axis] > 0)
     parts = np.stack([each[face == f].sum(axis=0) for f in range(6)])

@@ -83,7 +83,7 @@ import numpy as np
 
 from geometry import se3
 from geometry.fields import Field
-from perception.pose.bias import BIAS_POINTS, IDENTITY, unbiased
+from perception.pose.bias import BIAS_POINTS, unbiased
 from perception.pose.problem import (
     DOF_NAMES,
     characteristic_length,
@@ -294,22 +294,14 @@ def curvature(
     vals, axes = np.linalg.eigh(0.5 * (gauss_newton + gauss_newton.T))
     along = directions @ axes
     sigma = np.sqrt(float(r @ r) / len(r) / np.maximum(vals, 1e-300))
-    m = along.shape[1]
-    # Every displaced pose's points in one evaluation of the field (a call per pose cost
-    # twice as much), each pose's gradient summed from its own block.
-    moved = [
-        se3.exp_se3(sign * CURVATURE_STEP * sigma[j] * along[:, j]) @ object_from_tool
-        for j in range(m)
-        for sign in (1.0, -1.0)
-    ]
-    value, rows = residuals_and_jacobian(
-        fld, IDENTITY, np.concatenate([pts @ pose[:3, :3].T + pose[:3, 3] for pose in moved])
-    )
-    blocks = zip(np.split(value, len(moved)), np.split(rows, len(moved)), strict=True)
-    grads = [weight * ((block @ along).T @ v) for v, block in blocks]
     measured = np.empty_like(gauss_newton)
-    for j in range(m):
-        measured[:, j] = (grads[2 * j] - grads[2 * j + 1]) / (2.0 * CURVATURE_STEP * sigma[j])
+    for j in range(along.shape[1]):
+        grads = []
+        for sign in (1.0, -1.0):
+            pose = se3.exp_se3(sign * CURVATURE_STEP * sigma[j] * along[:, j]) @ object_from_tool
+            value, rows = residuals_and_jacobian(fld, pose, pts)
+            grads.append(weight * ((rows @ along).T @ value))
+        measured[:, j] = (grads[0] - grads[1]) / (2.0 * CURVATURE_STEP * sigma[j])
     root = np.sqrt(vals)
     return Curvature(axes, root, 0.5 * (measured + measured.T) / np.outer(root, root))
 
