@@ -95,23 +95,26 @@ def unbiased(
     object_from_tool: np.ndarray,
     points_in_tool: np.ndarray,
     rays_in_tool: np.ndarray,
+    r: np.ndarray,
+    jac: np.ndarray,
     twist: np.ndarray,
     h_inv: np.ndarray,
     cov: np.ndarray,
 ) -> tuple[np.ndarray, float, np.ndarray, float]:
-    """The shift from the fit's minimum ``object_from_tool`` to the pose where the fit's
+    """The shift from the fit's minimum ``object_from_tool`` (its residuals ``r`` and
+    Jacobian ``jac`` there, as the caller has them) to the pose where the fit's
     gradient equals the bias the rays predict (:func:`ray_bias`): at the truth the
     gradient is that bias on average, so this is the estimate with the bias undone.
-    Returns the shift and each face's share of it (``(k,)`` and ``(6, k)``, in the
-    coordinates of ``twist``, (6, k): coordinates to left twist), the mean residual
-    the noise leaves at the truth, and the noise along the rays. Newton steps with
+    Returns the shift (``(k,)``, in the coordinates of ``twist``, (6, k): coordinates to
+    left twist), the mean residual the noise leaves at the truth, each face's part of
+    the predicted bias in those coordinates (``(6, k)``: the caller weighs it with the
+    curvature its spread takes), and the noise along the rays. Newton steps with
     ``h_inv`` (the inverse measured curvature along those coordinates) and the data's
     gradient at the pose reached, at most ``UNBIAS_STEPS`` and until a step is under
     ``UNBIAS_TOL`` standard deviations (``cov``, the statistical covariance in those
     coordinates): the one step from the minimum of the round before was off where the
     offset spans several standard deviations and the cost is not quadratic across it (a
     box's corner at 3 mm noise: 0.4 mm, five of them)."""
-    r, jac = residuals_and_jacobian(fld, object_from_tool, points_in_tool)
     bias, noise_mean, parts, sigma = ray_bias(
         fld, object_from_tool, points_in_tool, rays_in_tool, r, jac
     )
@@ -125,4 +128,4 @@ def unbiased(
     shift: np.ndarray = np.linalg.lstsq(
         twist, se3.log_se3(pose @ se3.invert(object_from_tool)), rcond=None
     )[0]
-    return shift, noise_mean, (h_inv @ (twist.T @ parts.T)).T, sigma
+    return shift, noise_mean, (twist.T @ parts.T).T, sigma

@@ -14,7 +14,13 @@ Uncertainty (:func:`uncertainty`), from the fit at the estimate whatever solver 
   it through at least ``SPREAD`` of its points (a box's corner at 3 mm noise, where the
   noise crosses an edge almost everywhere but each face holds a third of the points).
   The spread's curvature is measured (:func:`curvature`): where points cross an edge
-  or a corner the cost is flatter than ``J^T J`` says.
+  or a corner the cost is flatter than ``J^T J`` says. Its finite differences are
+  noisy along a weak direction, so each direction keeps a floor of ``J^T J``: for the
+  stated spreads (the sandwich, the edges' and the faces' allowances)
+  ``SPREAD_CURVATURE_FLOOR``, for the Newton steps that undo the rays' bias the higher
+  ``CURVATURE_FLOOR`` (0.5; below it some steps went tens of degrees astray). A spread
+  stated wider than the errors costs a ``suspect`` verdict; a correction too large, a
+  wrong answer.
 - Noise: the residuals themselves, point by point (the "sandwich" covariance
   ``H^-1 (sum r_i^2 a_i a_i^T) H^-1``, ``H`` the measured curvature, about
   ``sum a_i a_i^T``): noise along the
@@ -55,7 +61,9 @@ Uncertainty (:func:`uncertainty`), from the fit at the estimate whatever solver 
   coverage rows score on 200-399): every set of a grid scored by the fewest wrong
   answers within the tolerance, then the fewest shapes with 5% or more of their right
   answers ``suspect``, then the cells' squared binomial z from 95% (z^2 32.0 over 28
-  cells; the round before's 0.15, 0.25 and 0.4: 40.8; docs/pose.md).
+  cells; the round before's 0.15, 0.25 and 0.4: 40.8; with the spread's curvature floor
+  lowered to 0.3 afterwards, 34.1, not refitted: the grid's best there is one cloud's
+  worth better and narrows the box corners at 10k points; docs/pose.md).
 - Short of the minimum: ``step`` is the Gauss-Newton step from the estimate to the
   minimum of the fit, ``step_sigma`` its size in 95% regions; the estimator takes a
   solver that stopped short up to two such steps further before it judges.
@@ -113,9 +121,13 @@ EDGE_REACH = 3.0
 #: the point to count toward what the patch observes.
 REACH = 6.0
 #: The curvature is measured over this many standard deviations either way, and kept
-#: at least this share of Gauss-Newton's along every direction (``curvature``).
+#: at least this share of Gauss-Newton's along every direction (``Curvature.kept``) for
+#: the Newton steps that undo the rays' bias, and at least the second for the stated
+#: spread (module docstring; chosen on the fit set of ``bench.pose_calib`` and its box
+#: corners at 3 mm with 10k points, docs/pose.md).
 CURVATURE_STEP = 2.0
 CURVATURE_FLOOR = 0.5
+SPREAD_CURVATURE_FLOOR = 0.3
 #: The least share of the points through which a direction the smooth points do not
 #: observe must be observed to count (``_widely_observed``).
 SPREAD = 0.1
@@ -131,7 +143,8 @@ class Terms:
     statistical spread; ``edge`` (k,), the coherent residual past edges per unit of
     ``EDGE_ERROR``; ``stand_in`` (k, k), the bias without rays per unit of
     ``MODEL_ERROR`` squared (zeros with rays); ``shift`` (k,), the move that undoes the
-    rays' bias, and ``faces`` (6, k), each face's share of it, weighed at the ray noise
+    rays' bias, and ``faces`` (6, k), each face's share of it (with the spread's
+    curvature), weighed at the ray noise
     ``face_scale`` times ``FACE_NOISE_M``; ``step`` (k,), the Gauss-Newton step to the
     minimum of the fit."""
 
@@ -237,6 +250,27 @@ def from_covariance(covariance: np.ndarray, length_m: float) -> Uncertainty:
     )
 
 
+@dataclass(frozen=True)
+class Curvature:
+    """A measured curvature (:func:`curvature`) in Gauss-Newton's whitened coordinates:
+    ``axes`` (m, m) the eigenvectors of ``J^T J``, ``root`` the square roots of its
+    eigenvalues, ``white`` the measured curvature divided by them both ways."""
+
+    axes: np.ndarray
+    root: np.ndarray
+    white: np.ndarray
+
+    def kept(self, floor: float) -> np.ndarray:
+        """The curvature with each whitened direction kept between ``floor`` and all of
+        ``J^T J`` (a weak direction's difference rests on the few points that cross an
+        edge within the step, and is noisy), in the coordinates :func:`curvature` was
+        given."""
+        wvals, wvecs = np.linalg.eigh(self.white)
+        white = (wvecs * np.clip(wvals, floor, 1.0)) @ wvecs.T
+        kept: np.ndarray = self.axes @ (white * np.outer(self.root, self.root)) @ self.axes.T
+        return kept
+
+
 def curvature(
     fld: Field,
     object_from_tool: np.ndarray,
@@ -244,7 +278,7 @@ def curvature(
     directions: np.ndarray,
     gauss_newton: np.ndarray,
     r: np.ndarray,
-) -> np.ndarray:
+) -> Curvature:
     """The curvature of the half cost along ``directions`` (6, m: left twists), measured:
     the change of its gradient over ``CURVATURE_STEP`` standard deviations either way
     (central differences, at most ``BIAS_POINTS`` points scaled to all), along the
@@ -254,7 +288,8 @@ def curvature(
     freely where its singular values are equal, two LM stops 1e-3 degree apart at one
     minimum of a box's corner stated 0.71 and 1.15 degrees along its weak rotation).
     Where a point crosses an edge the cost is flatter than ``J^T J`` says (a box's corner
-    at 3 mm: by a third); each direction keeps between ``CURVATURE_FLOOR`` and all of it."""
+    at 3 mm: by a third, along its weak rotation by up to four fifths); the
+    :class:`Curvature` keeps each direction between a floor and all of it."""
     stride = -(-len(r) // BIAS_POINTS)
     pts = points_in_tool[::stride]
     weight = len(points_in_tool) / len(pts)
@@ -269,15 +304,8 @@ def curvature(
             value, rows = residuals_and_jacobian(fld, pose, pts)
             grads.append(weight * ((rows @ along).T @ value))
         measured[:, j] = (grads[0] - grads[1]) / (2.0 * CURVATURE_STEP * sigma[j])
-    # In Gauss-Newton's whitened coordinates, each direction's measured curvature is
-    # kept between CURVATURE_FLOOR and all of J^T J: a weak direction's difference rests
-    # on the few points that cross an edge within the step, and is noisy.
     root = np.sqrt(vals)
-    white = 0.5 * (measured + measured.T) / np.outer(root, root)
-    wvals, wvecs = np.linalg.eigh(white)
-    white = (wvecs * np.clip(wvals, CURVATURE_FLOOR, 1.0)) @ wvecs.T
-    kept: np.ndarray = axes @ (white * np.outer(root, root)) @ axes.T
-    return kept
+    return Curvature(axes, root, 0.5 * (measured + measured.T) / np.outer(root, root))
 
 
 def _spread(js: np.ndarray, directions: np.ndarray) -> np.ndarray:
@@ -356,8 +384,10 @@ def uncertainty(
     if n <= joint.shape[1]:
         return _nothing(length)
     a = js @ joint
-    h_joint = curvature(fld, object_from_tool, points_in_tool, joint * scale[:, None], a.T @ a, r)
-    h_inv = np.linalg.inv(h_joint)
+    measured = curvature(fld, object_from_tool, points_in_tool, joint * scale[:, None], a.T @ a, r)
+    h_steps = measured.kept(CURVATURE_FLOOR)
+    h_spread = measured.kept(SPREAD_CURVATURE_FLOOR)
+    h_inv = np.linalg.inv(h_spread)
     onto = basis.T @ joint  # joint coordinates -> observed coordinates
     meat = (a * (r * r)[:, None]).T @ a
     sandwich = onto @ (h_inv @ meat @ h_inv) @ onto.T * n / (n - joint.shape[1])
@@ -375,15 +405,18 @@ def uncertainty(
         # pose where it does is solved for along the observed directions, the others
         # held (``bias.unbiased``); what the prediction misses is taken as a share of it.
         stand_in = np.zeros((k, k))
-        shift, noise_mean, faces, ray_noise = unbiased(
+        shift, noise_mean, gradients, ray_noise = unbiased(
             fld,
             object_from_tool,
             points_in_tool,
             rays_in_tool,
+            r,
+            jac,
             twist,
-            np.linalg.inv(onto @ h_joint @ onto.T),
+            np.linalg.inv(onto @ h_steps @ onto.T),
             sandwich,
         )
+        faces = np.linalg.solve(onto @ h_spread @ onto.T, gradients.T).T
         face_scale = ray_noise / FACE_NOISE_M
     a = js @ basis
     terms = Terms(
