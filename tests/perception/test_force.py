@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Callable
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import pytest
@@ -351,19 +352,45 @@ def test_dots_follow_the_object_and_the_edge_slip_is_seen_on_the_square_bottle()
     patch slides from frame 73: the dots' shift, which the flow loses once the edge
     slips (it falls while the object slides on), saw it 9 frames late; the imprint
     running ahead of the dots sees it within 2."""
+    tare: dict[str, np.ndarray] = {}
+    read: dict[str, float] = {}
+    truth: dict[str, float] = {}
+
+    def watch(side: str, f: Any, snap: Any, slipping: bool) -> None:
+        tare.setdefault(side, snap.slide_m.copy())
+        if not slipping:  # all of the patch has stuck
+            read[side] = float(np.hypot(*f.core_shift_m))
+            truth[side] = float(np.hypot(*(snap.slide_m - tare[side])))
+
+    spec, onset, truth_onset, frame = fill_onsets(6, 2.6, watch)
+    assert spec.object == "square_bottle" and spec.load == "fill"
+    for side in ("left", "right"):
+        assert truth[side] > 0.003  # the load moved the object 3 mm on the latex
+        assert read[side] == pytest.approx(truth[side], rel=0.15), side
+        # Found, and not late (the limits spread: a low one fires a few frames early).
+        assert -6 <= onset.get(side, frame) - truth_onset[side] <= 2, (side, onset, truth_onset)
+        whole = f"{side} patch"
+        assert abs(onset.get(whole, frame) - truth_onset[whole]) <= 2, (onset, truth_onset)
+
+
+def fill_onsets(
+    seed: int, duration_secs: float, watch: Callable[[str, Any, Any, bool], None] | None = None
+) -> tuple[Any, dict[str, int], dict[str, int], int]:
+    """The auto-labeller's scene ``seed`` on world.sim through a slip detector per bubble
+    (the physics wrench): the scene, the frame of each onset (``side``, and ``"side
+    KIND"``) and of the truth's (``side``: the edge; ``"side patch"``: the whole patch),
+    and the frames run. ``watch(side, frame, snapshot, slipping)`` sees each tracked
+    bubble-frame, ``slipping`` whether its edge has slipped."""
     from bench.force_data import CALIBRATION, Bubbles, draw
     from perception.force.features import FeatureParams
     from sim import Simulator
 
-    spec = draw(6, duration_secs=2.6)  # the square bottle being filled
-    assert spec.object == "square_bottle" and spec.load == "fill"
+    spec = draw(seed, duration_secs=duration_secs)
     cal = Calibration.load(CALIBRATION)
     simulator = Simulator(spec.scene)
     bubbles = Bubbles(FeatureParams().flow)
     detectors = {s: SlipDetector.for_rig(cal) for s in ("left", "right")}
-    tare: dict[str, np.ndarray] = {}
-    read: dict[str, float] = {}
-    truth: dict[str, float] = {}
+    referenced: set[str] = set()
     onset: dict[str, int] = {}
     truth_onset: dict[str, int] = {}
     frame = 0
@@ -371,8 +398,8 @@ def test_dots_follow_the_object_and_the_edge_slip_is_seen_on_the_square_bottle()
         inst = simulator.step()
         snap = inst.snapshot
         for side, f in bubbles.frame(inst, spec.scene).items():
-            if f.tracked and side not in tare:
-                tare[side] = snap.slide_m.copy()
+            if f.tracked and side not in referenced:
+                referenced.add(side)
                 detectors[side].reference()
             force = estimate(f, side, cal, "physics").force_n
             report = detectors[side].update(f, force, snap.time_secs)
@@ -383,17 +410,10 @@ def test_dots_follow_the_object_and_the_edge_slip_is_seen_on_the_square_bottle()
                 truth_onset.setdefault(side, frame)
             if snap.wrench[side].slipping_fraction >= 1.0:
                 truth_onset.setdefault(f"{side} patch", frame)
-            elif f.tracked and side not in truth_onset:  # all of the patch has stuck
-                read[side] = float(np.hypot(*f.core_shift_m))
-                truth[side] = float(np.hypot(*(snap.slide_m - tare[side])))
+            if watch is not None and f.tracked:
+                watch(side, f, snap, side in truth_onset)
         frame += 1
-    for side in ("left", "right"):
-        assert truth[side] > 0.003  # the load moved the object 3 mm on the latex
-        assert read[side] == pytest.approx(truth[side], rel=0.15), side
-        # Found, and not late (the limits spread: a low one fires a few frames early).
-        assert -6 <= onset.get(side, frame) - truth_onset[side] <= 2, (side, onset, truth_onset)
-        whole = f"{side} patch"
-        assert abs(onset.get(whole, frame) - truth_onset[whole]) <= 2, (onset, truth_onset)
+    return spec, onset, truth_onset, frame
 
 
 def test_departing_share_is_the_share_of_the_patch_leaving_its_rigid_motion() -> None:
@@ -551,34 +571,8 @@ def test_edge_onset_on_world_sim_is_dated_within_a_frame() -> None:
     reading that slide, the rig's limit is known to about 1%, and the detector dates
     the onset within a frame; at 0.92 of a limit taken from the core's mean it fired
     3-4 frames early on this PET bottle being filled (seed 15)."""
-    from bench.force_data import CALIBRATION, Bubbles, draw
-    from perception.force.features import FeatureParams
-    from sim import Simulator
-
-    spec = draw(15, duration_secs=2.3)
+    spec, onset, truth_onset, frame = fill_onsets(15, 2.3)
     assert spec.object == "pet_bottle" and spec.load == "fill"
-    cal = Calibration.load(CALIBRATION)
-    simulator = Simulator(spec.scene)
-    bubbles = Bubbles(FeatureParams().flow)
-    detectors = {s: SlipDetector.for_rig(cal) for s in ("left", "right")}
-    referenced: set[str] = set()
-    onset: dict[str, int] = {}
-    truth_onset: dict[str, int] = {}
-    frame = 0
-    while not simulator.world.done:
-        inst = simulator.step()
-        snap = inst.snapshot
-        for side, f in bubbles.frame(inst, spec.scene).items():
-            if f.tracked and side not in referenced:
-                referenced.add(side)
-                detectors[side].reference()
-            force = estimate(f, side, cal, "physics").force_n
-            report = detectors[side].update(f, force, snap.time_secs)
-            if report.onset:
-                onset.setdefault(side, frame)
-            if snap.wrench[side].slipping_fraction > 0.0:
-                truth_onset.setdefault(side, frame)
-        frame += 1
     for side in ("left", "right"):
         assert frame - truth_onset[side] >= 5, truth_onset  # the edge slips in the recording
         assert abs(onset.get(side, frame) - truth_onset[side]) <= 1, (side, onset, truth_onset)
