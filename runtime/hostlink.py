@@ -66,9 +66,8 @@ CLOCK_SAMPLES = 8
 PING_TIMEOUT_SECS = 1.0
 WHO_EVERY_SECS = 0.5
 POLL_MS = 20
-# How long a stopping link still tries to send a hello that is due (within close()'s wait).
+# How long a stopping link still tries to send a hello that is due.
 FLUSH_HELLO_SECS = 1.5
-CLOSE_WAIT_SECS = 2.0
 
 
 @dataclass
@@ -265,16 +264,15 @@ class HostLink:
     def close(self) -> None:
         """Stop the thread, then close the sockets and pipes. After this the link touches
         no descriptor: its pipes' numbers go to the next file opened (libzmq's mailboxes
-        among them), and a read or write on one there loses another object's wake-up."""
+        among them), and a read or write on one there loses another object's wake-up. The
+        thread ends within ``FLUSH_HELLO_SECS`` and a turn (it never blocks), so it is
+        waited for: the sockets cannot be closed under it."""
         if self._closed:
             return
         self._stopping.set()
         self._wake()
         if self._thread.is_alive():
-            self._thread.join(timeout=CLOSE_WAIT_SECS)
-        if self._thread.is_alive():  # its sockets and pipes cannot be closed under it
-            self.log(f"link: its thread did not stop within {CLOSE_WAIT_SECS} s: left open")
-            return
+            self._thread.join()
         self._closed = True
         for fd in (self._wake_r, self._wake_w, self._note_r, self._note_w):
             os.close(fd)
