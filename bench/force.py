@@ -160,12 +160,12 @@ def wrench_rows(
     cals: dict[str, Calibration] = {}
     for setting in SETTINGS:
         data = []
-        for rec in cal_recs:
+        for k, rec in enumerate(cal_recs):
             frames = [
                 dataclasses.replace(f, features=feats)
                 for f, feats in zip(rec.frames, rec.by_setting[setting], strict=True)
             ]
-            data += samples(frames)
+            data += samples(frames, k)
         cal = calibrate(data, rig=world, source="bench.force")
         cals[setting] = cal
         # The dots against the object's slide: world.sim's truth (MuJoCo's has none).
@@ -350,7 +350,9 @@ def run(quick: bool, sizes: Sizes | None = None, sweeps: tuple[str, ...] = SWEEP
     rows: list[Row] = []
     if "wrench" in sweeps:
         placeholder = calibrate(
-            [s for rec in cal_recs for s in samples(rec.frames)], rig="sim", source="timing"
+            [s for k, rec in enumerate(cal_recs) for s in samples(rec.frames, k)],
+            rig="sim",
+            source="timing",
         )
         secs = {
             setting: time_setting(
@@ -362,7 +364,9 @@ def run(quick: bool, sizes: Sizes | None = None, sweeps: tuple[str, ...] = SWEEP
         cal = cals[DEFAULT_SETTING]
     else:
         cal = calibrate(
-            [s for rec in cal_recs for s in samples(rec.frames)], rig="sim", source="bench.force"
+            [s for k, rec in enumerate(cal_recs) for s in samples(rec.frames, k)],
+            rig="sim",
+            source="bench.force",
         )
     # The second world: the engine's contact forces, calibrated on its own grasps.
     # (--quick: one grasp, scored on itself: a smoke test, not held out.)

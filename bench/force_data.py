@@ -304,10 +304,11 @@ def shift_errors_m(frames: list[Frame], features: list[dict[str, ContactFeatures
     return errors
 
 
-def samples(frames: list[Frame]) -> list[Sample]:
-    """Every bubble of every frame while the object is held, as a calibration sample."""
+def samples(frames: list[Frame], grasp: int = 0) -> list[Sample]:
+    """Every bubble of every frame while the object is held, as a calibration sample of
+    the calibration's ``grasp``-th grasp."""
     return [
-        Sample(s, f.features[s], f.force_n[s], f.torque_nm[s], f.slipping[s])
+        Sample(s, f.features[s], f.force_n[s], f.torque_nm[s], f.slipping[s], grasp)
         for f in frames
         if held(f)
         for s in SIDES
@@ -317,8 +318,8 @@ def samples(frames: list[Frame]) -> list[Sample]:
 def calibrate_on(seeds: list[int], *, duration_secs: float = 3.0) -> Calibration:
     """Record the grasps of ``seeds`` and fit every method on them."""
     data: list[Sample] = []
-    for seed in seeds:
-        data += samples(record(draw(seed, duration_secs=duration_secs)))
+    for k, seed in enumerate(seeds):
+        data += samples(record(draw(seed, duration_secs=duration_secs)), k)
     return calibrate(
         data,
         rig="sim",

@@ -248,12 +248,12 @@ def calibrate_mujoco(
 ) -> Calibration:
     """Every estimator and the slip limits fitted on MuJoCo's grasps and loaded grasps."""
     data = []
-    for rec in grasp_recs + slide_recs:
+    for k, rec in enumerate(grasp_recs + slide_recs):
         frames = [
             dataclasses.replace(f, features=feats)
             for f, feats in zip(rec.frames, rec.by_setting[DEFAULT_SETTING], strict=True)
         ]
-        data += samples(frames)
+        data += samples(frames, k)
     return calibrate(data, rig="mujoco", source=source)
 
 

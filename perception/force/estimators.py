@@ -20,7 +20,8 @@ tool frame's origin, tool frame, N and N m, with a one-sigma uncertainty per com
 ``ridge``
     A linear map from a fixed set of nonlinear features (products of pressure, area,
     volume, shifts, torsion and the centroid, :func:`feature_vector`) to the six wrench
-    components, per bubble side, fitted by ridge regression on standardised features.
+    components, per bubble side, fitted by ridge regression on standardised features,
+    its strength the one that reads grasps left out of the fit best (:func:`ridge_strength`).
 
 Anything the features cannot see the estimators cannot either: a force along a
 direction the dots do not move in (a patch too small to track) reads as zero; the
@@ -41,6 +42,10 @@ from perception.force.features import ContactFeatures, shift_per_pressure
 METHODS = ("physics", "ridge")
 SIDES = ("left", "right")
 MIN_SPREAD_ONSETS = 3  # fewer edge onsets than this say nothing of their spread
+# The ridge's strengths tried (``lambda = strength n``, on standardised features), the
+# first where fewer than ``MIN_RIDGE_GRASPS`` grasps leave none out to score it.
+RIDGE_STRENGTHS = (1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3, 1.0)
+MIN_RIDGE_GRASPS = 3
 
 
 @dataclass(frozen=True)
@@ -239,6 +244,7 @@ class Sample:
     force_n: np.ndarray
     torque_nm: np.ndarray
     slipping: float = 0.0  # the share of the patch's area slipping (1: the whole patch)
+    grasp: int = 0  # which calibration grasp it was recorded in (the ridge's folds)
 
 
 def _lstsq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -293,8 +299,9 @@ def calibrate_physics(samples: list[Sample]) -> PhysicsCalibration:
     )
 
 
-def calibrate_ridge(samples: list[Sample], ridge: float = 1e-3) -> RidgeCalibration:
-    """Ridge fits per side of the wrench on :func:`feature_vector` (contact samples)."""
+def _fit_ridge(samples: list[Sample], ridge: float) -> RidgeCalibration:
+    """Ridge fits per side of the wrench on :func:`feature_vector` (contact samples),
+    ``lambda = ridge n`` on standardised features."""
     out: dict[str, Any] = {"mean": {}, "scale": {}, "weights": {}, "sigma": {}}
     for side in SIDES:
         used = [s for s in samples if s.side == side and s.features.in_contact]
@@ -312,6 +319,39 @@ def calibrate_ridge(samples: list[Sample], ridge: float = 1e-3) -> RidgeCalibrat
         out["mean"][side], out["scale"][side] = mean.tolist(), scale.tolist()
         out["weights"][side], out["sigma"][side] = w.tolist(), sigma.tolist()
     return RidgeCalibration(**out, ridge=ridge)
+
+
+def ridge_strength(samples: list[Sample]) -> float:
+    """The ridge's strength that reads the force best on grasps it was not fitted on:
+    of :data:`RIDGE_STRENGTHS`, the least median force error (N) over every grasp's
+    contact samples, each predicted by the fit on the other grasps (``Sample.grasp``);
+    the first with fewer than :data:`MIN_RIDGE_GRASPS` grasps.
+
+    Its 35 features are products of a few measurements, nearly collinear over a few
+    grasps: weakly shrunk, the fit follows what tells those grasps apart and reads
+    another grasp's force far off (docs/force.md, "Two estimators")."""
+    grasps = sorted({s.grasp for s in samples})
+    if len(grasps) < MIN_RIDGE_GRASPS:
+        return RIDGE_STRENGTHS[0]
+
+    def held_out_error(ridge: float) -> float:
+        errors = []
+        for g in grasps:
+            fit = _fit_ridge([s for s in samples if s.grasp != g], ridge)
+            errors += [
+                float(np.linalg.norm(ridge_wrench(s.features, s.side, fit).force_n - s.force_n))
+                for s in samples
+                if s.grasp == g and s.features.in_contact
+            ]
+        return float(np.median(errors)) if errors else float("inf")
+
+    return min(RIDGE_STRENGTHS, key=held_out_error)
+
+
+def calibrate_ridge(samples: list[Sample], ridge: float | None = None) -> RidgeCalibration:
+    """Ridge fits per side of the wrench on :func:`feature_vector` (contact samples), with
+    the strength ``ridge`` (default: :func:`ridge_strength`, chosen over the grasps)."""
+    return _fit_ridge(samples, ridge_strength(samples) if ridge is None else ridge)
 
 
 def calibrate_friction(samples: list[Sample], default: float = 0.8) -> float:
