@@ -1,4 +1,5 @@
-"""``python -m bench.worlds --quick``: one grasp on both worlds, every figure present."""
+"""``python -m bench.worlds --quick``: one grasp on both worlds, every figure present;
+with ``--variants held_out``, the classifier's drawn grasp alone."""
 
 from __future__ import annotations
 
@@ -47,6 +48,20 @@ def test_worlds_quick_scores_one_grasp_on_both_worlds() -> None:
     assert rows["mujoco"]["world_cpu_s_per_sim_s"] > rows["sim"]["world_cpu_s_per_sim_s"]
     # A mug grasped in the middle is seen as a contact patch on both worlds.
     assert rows["mujoco"]["contact_iou_median"] > 0.3
+
+
+def test_worlds_quick_held_out_variants_scores_the_drawn_grasps_alone() -> None:
+    report, _ = run_quick("worlds", "--no-plot", "--variants", "held_out", timeout=600)
+    rows = {r["world"]: r for r in report["rows"]}
+    # Only the classifier's drawn grasps: no bench grasps, no cost rows.
+    assert set(rows) == {"sim", "mujoco"}
+    for row in rows.values():
+        assert row["variants"] == "held_out" and row["drawn_grasps"] == 1
+        assert "grasps" not in row and "contact_iou_median" not in row
+        assert row["classifier_drawn_right_fraction"] in (0.0, 1.0)
+        right = row["classifier_drawn_right_fraction"] == 1.0
+        assert (row["classifier_drawn_wrong"] == "") == right, row["classifier_drawn_wrong"]
+    assert rows["sim"]["mesh_mm"] is None and rows["mujoco"]["mesh_mm"] == 12.0
 
 
 def test_drawn_grasps_are_the_auto_labellers_grasps() -> None:
