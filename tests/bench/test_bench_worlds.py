@@ -28,6 +28,8 @@ def test_worlds_quick_scores_one_grasp_on_both_worlds() -> None:
             "ipopt_offaxis_mm_median",
             "shear_dir_deg_median",
             "shear_err_mm_median",
+            "shear_warm_dir_deg_median",
+            "shear_warm_err_mm_median",
             "world_cpu_s_per_sim_s",
         ):
             assert math.isfinite(row[key]), (row["world"], key)
@@ -112,6 +114,8 @@ def _scores(
         "ipopt_silent_wrong": ipopt_wrong,
         "shear_dir_deg": 2.0,
         "shear_err_mm": 0.7,
+        "shear_warm_dir_deg": 1.0,
+        "shear_warm_err_mm": 0.3,
         "stable_detected": int(delay == delay),
         "stable_delay_s": delay,
         "classifier_said": said,
