@@ -26,9 +26,11 @@ on each, side by side:
   axis's sign), off-axis error (mm), and ``silent_wrong``: answers off by more than 2
   degrees or 2 mm along the directions observed whose status was ``ok`` or
   ``recovered`` (:func:`pose_scores`); ``shear_*``: the shear
-  tracker (``perception.shear``, default settings), referenced at the last held frame,
-  at the end of the slide, against the world's own shear truth (direction error in
-  degrees, magnitude error in mm, both bubbles); ``stable_*``: the grasp monitor
+  tracker (``perception.shear``, default settings: a cold flow), referenced at the last
+  held frame, at the end of the slide, against the world's own shear truth (direction
+  error in degrees, magnitude error in mm, both bubbles); ``shear_warm_*``: the same
+  tracker warm-started (``warm_start``) over every frame of the slide
+  (:func:`shear_scores`); ``stable_*``: the grasp monitor
   (``perception.grasp``) on the world's pressures and finger speed: detected, and its
   delay after the jaws hold; ``classifier_right``: the committed classifier
   (``models/tactile_resnet18.pt``, trained on ``world.sim`` only), majority of the held
@@ -82,7 +84,7 @@ from perception.pose import metrics
 from perception.pose.estimator import PoseEstimator
 from perception.pose.ipopt import IpoptParams, IpoptSolver
 from perception.pose.lm import LMSolver
-from perception.shear import ShearTracker, tool_basis
+from perception.shear import ShearParams, ShearTracker, tool_basis
 from sim import Instant, Simulator, load_scene
 from sim.world import World
 
@@ -306,7 +308,7 @@ def score(frames: list[Instant], classifier: Classifier) -> dict[str, Any]:
     """Every perception figure on one grasp's frames (see the module docstring)."""
     scene_period = frames[1].snapshot.time_secs - frames[0].snapshot.time_secs
     hold = min(int(round(HOLD_SECS / scene_period)), len(frames) - 1)
-    first, held, last = frames[0], frames[hold], frames[-1]
+    first, held = frames[0], frames[hold]
     truth = held.snapshot.tool_from_object
     assert held.ground_truth is not None
     name = held.ground_truth.object_class
@@ -326,23 +328,10 @@ def score(frames: list[Instant], classifier: Classifier) -> dict[str, Any]:
         patcher.update_reference(side, first.images[side].depth_m)
     cloud = patcher.extract({s: _frame(held, s) for s in SIDES})
     out |= pose_scores(name, cloud.points_in_tool.astype(np.float64), cloud.bubble, truth)
-    # Shear over the slide, against the world's own truth.
-    dirs, mags = [], []
-    for side in SIDES:
-        ref = held.images[side]
-        tracker = ShearTracker()
-        tracker.set_reference(
-            ref.ir, ref.depth_m, PinholeCamera.from_frame(ref), tool_basis(ref.tool_from_sensor)
-        )
-        result = tracker.update(last.images[side].ir, last.images[side].depth_m)
-        true_m = last.snapshot.shear_in_tool_m[side] - held.snapshot.shear_in_tool_m[side]
-        est_m = np.asarray(result.shear_m, np.float64)
-        ok = result.direction_defined and result.metric_defined
-        dirs.append(angle_error_deg(est_m, true_m) if ok else 180.0)
-        mags.append(float(np.hypot(*(est_m - true_m))) * 1000.0)
-        out[f"shear_true_mm_{side}"] = float(np.hypot(*true_m)) * 1000.0
-    out["shear_dir_deg"] = float(np.mean(dirs))
-    out["shear_err_mm"] = float(np.mean(mags))
+    # Shear over the slide, against the world's own truth: the default tracker on the
+    # slide's last frame alone, and warm-started over every frame of it.
+    out |= shear_scores(frames[hold:], "shear", ShearParams())
+    out |= shear_scores(frames[hold:], "shear_warm", ShearParams(warm_start=True))
     # Stable-grasp detection on the world's pressures and finger motion.
     monitor = GraspMonitor()
     stable_at = holding_at = None
@@ -368,6 +357,35 @@ def score(frames: list[Instant], classifier: Classifier) -> dict[str, Any]:
     said = max(set(votes), key=votes.count) if votes else ""
     out["classifier_said"] = said
     out["classifier_right"] = int(said == name)
+    return out
+
+
+def shear_scores(frames: list[Instant], name: str, params: ShearParams) -> dict[str, Any]:
+    """The shear tracker referenced at ``frames[0]`` (the last held frame) against the
+    world's shear truth at the last frame: ``<name>_dir_deg`` (direction error, 180 where
+    undefined) and ``<name>_err_mm`` (magnitude of the difference), both bubbles'
+    mean. A cold tracker sees the last frame alone; a warm-started one every frame of the
+    slide, each flow starting from the one before."""
+    held, last = frames[0], frames[-1]
+    between = frames[1:-1] if params.warm_start else []
+    dirs, mags = [], []
+    out: dict[str, Any] = {}
+    for side in SIDES:
+        ref = held.images[side]
+        tracker = ShearTracker(params)
+        tracker.set_reference(
+            ref.ir, ref.depth_m, PinholeCamera.from_frame(ref), tool_basis(ref.tool_from_sensor)
+        )
+        for inst in [*between, last]:
+            result = tracker.update(inst.images[side].ir, inst.images[side].depth_m)
+        true_m = last.snapshot.shear_in_tool_m[side] - held.snapshot.shear_in_tool_m[side]
+        est_m = np.asarray(result.shear_m, np.float64)
+        ok = result.direction_defined and result.metric_defined
+        dirs.append(angle_error_deg(est_m, true_m) if ok else 180.0)
+        mags.append(float(np.hypot(*(est_m - true_m))) * 1000.0)
+        out[f"shear_true_mm_{side}"] = float(np.hypot(*true_m)) * 1000.0
+    out[f"{name}_dir_deg"] = float(np.mean(dirs))
+    out[f"{name}_err_mm"] = float(np.mean(mags))
     return out
 
 
@@ -474,6 +492,8 @@ def _summary(
         "pose_silent_wrong": sum(s["lm_silent_wrong"] + s["ipopt_silent_wrong"] for s in scores),
         "shear_dir_deg_median": med("shear_dir_deg"),
         "shear_err_mm_median": med("shear_err_mm"),
+        "shear_warm_dir_deg_median": med("shear_warm_dir_deg"),
+        "shear_warm_err_mm_median": med("shear_warm_err_mm"),
         "stable_detected_fraction": sum(s["stable_detected"] for s in scores) / n,
         "stable_delay_s_median": med("stable_delay_s"),
         "classifier_right_fraction": sum(s["classifier_right"] for s in scores) / n,
