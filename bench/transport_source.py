@@ -16,6 +16,10 @@ hits each alike:
 ``no_finite``     the same path without the finite check (what the check costs here)
 ``finite_twice``  ``publish`` and one more finite check of the frame: what a second pass
                   over a depth image that the first has just read costs in this loop
+``encode_twice``  ``publish`` with the frame encoded once more first (the copy thrown
+                  away): what encode costs here
+``finite_first``  the same steps as ``publish`` with the finite check before the send
+                  rather than after it
 
 Rows: the CPU per frame of this process's main thread (``main_us_per_frame``, from
 ``time.thread_time_ns``) and of the whole process (``process_us_per_frame``: ZeroMQ's
@@ -46,7 +50,7 @@ from messages.codec import encode
 from runtime.runner import Runner
 from runtime.zmqio import send_parts
 
-VARIANTS = ("publish", "no_finite", "finite_twice")
+VARIANTS = ("publish", "no_finite", "finite_twice", "encode_twice", "finite_first")
 TOPIC = "source/image"
 
 
@@ -84,7 +88,26 @@ def _publishers(runner: Runner) -> dict[str, Callable[[str], None]]:
         io.publish("image", msg)
         msg.nonfinite_fields()
 
-    return {"publish": publish, "no_finite": no_finite, "finite_twice": finite_twice}
+    def encode_twice(frame_id: str) -> None:
+        msg = message(frame_id)
+        encode(TOPIC, msg)
+        io.publish("image", msg)
+
+    def finite_first(frame_id: str) -> None:
+        msg = message(frame_id)
+        msg.header.seq = io.published[TOPIC]
+        frames = encode(TOPIC, msg)
+        io.published[TOPIC] += 1
+        msg.nonfinite_fields()
+        send_parts(io.pub, frames)
+
+    return {
+        "publish": publish,
+        "no_finite": no_finite,
+        "finite_twice": finite_twice,
+        "encode_twice": encode_twice,
+        "finite_first": finite_first,
+    }
 
 
 def run(quick: bool, sizes: SourceSizes | None = None) -> list[Row]:
