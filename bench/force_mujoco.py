@@ -13,7 +13,7 @@ module turns its runs into the force estimators' data, as ``bench.force_data`` d
   it: the engine's gravity on its mass (growing as it is filled) and the pull against
   MuJoCo's friction, so it slips and falls out on physics no one here wrote. Recorded
   once per scene and mesh as the grasps are, with the per-frame truth the messages do
-  not carry beside each bag (``bench.worlds.recorded_frames``). Their loads point
+  not carry beside each bag (``bench.worlds_grasps.recorded_frames``). Their loads point
   along tool y and z, so they also determine the tangential stiffness along y.
 * **the truth of slip**: the object sliding over the latex. The membrane's mesh
   vertices are the latex's material points (the dots the cameras see are drawn on
@@ -152,14 +152,14 @@ def grasps(
     ``workdir``, shared with ``bench.worlds``), with the engine's wrench and the latex
     sliding over the object (:func:`latex_slip`) as the truth; the features of
     ``settings`` (default: every one)."""
-    from bench import worlds
+    from bench import worlds_grasps
     from runtime.bag import BagReader
 
-    rng = np.random.default_rng(worlds.SEED)
+    rng = np.random.default_rng(worlds_grasps.SEED)
     out = []
     for k in progress(range(count), "bench.force mujoco"):
-        scene_path, bag, _ = worlds.recorded_grasp(k, rng, spacing_m, workdir)
-        instants = worlds.replay_mujoco(scene_path, bag)
+        scene_path, bag, _ = worlds_grasps.recorded_grasp(k, rng, spacing_m, workdir)
+        instants = worlds_grasps.replay_mujoco(scene_path, bag)
         with BagReader(bag) as reader:
             truths = [m.decode() for m in reader.messages(["world/wrench"])]
         scene = sim.load_scene(scene_path)
@@ -203,21 +203,21 @@ def loaded(
     object (:func:`latex_slip`) and the object's slide in the hand. The features of
     ``settings`` (default: every one); with ``still``, the still holds instead (the
     default setting's only)."""
-    from bench import worlds
+    from bench import worlds_grasps
     from runtime.bag import BagReader
     from sim.mujoco.world import DROPPED_M
 
     out = []
     for k in progress(range(count), "bench.force mujoco loaded"):
         spec = loaded_spec(k, duration_secs, still=still)
-        scene_path, bag, _ = worlds.recorded_scene(
+        scene_path, bag, _ = worlds_grasps.recorded_scene(
             f"force_{spec.load}_{k}", spec.doc, spacing_m, workdir, frames=True
         )
-        instants = worlds.replay_mujoco(scene_path, bag)
+        instants = worlds_grasps.replay_mujoco(scene_path, bag)
         with BagReader(bag) as reader:
             truths = [m.decode() for m in reader.messages(["world/wrench"])]
         rec = features_of(instants, spec.scene, truths, (DEFAULT_SETTING,) if still else settings)
-        truth = worlds.recorded_frames(bag)
+        truth = worlds_grasps.recorded_frames(bag)
         rec.frames = [
             dataclasses.replace(
                 f, slipping=slipping, slide_m=np.asarray(t["slide_m"]), drop_m=DROPPED_M

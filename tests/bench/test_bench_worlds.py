@@ -68,7 +68,7 @@ def test_worlds_quick_held_out_variants_scores_the_drawn_grasps_alone() -> None:
 
 def test_drawn_grasps_are_the_auto_labellers_grasps() -> None:
     # The classifier's own grasps: the generator's pose, width and force, as a scene.
-    from bench.worlds import DRAWN_SEED, drawn_scene
+    from bench.worlds_grasps import DRAWN_SEED, drawn_scene
     from perception.classify.autolabel import GraspGenerator, GraspGeneratorParams
     from sim.scene import scene_from_dict
 
@@ -84,7 +84,7 @@ def test_drawn_grasps_are_the_auto_labellers_grasps() -> None:
 
 
 def test_drawn_grasps_hold_held_out_variants_when_asked() -> None:
-    from bench.worlds import DRAWN_SEED, drawn_scene
+    from bench.worlds_grasps import DRAWN_SEED, drawn_scene
     from geometry.variants import SPLITS, variant_dims
     from perception.classify.autolabel import GraspGenerator, GraspGeneratorParams
     from sim.scene import scene_from_dict
