@@ -45,7 +45,13 @@ from perception.classify.dataset import (
     read_manifest,
 )
 from perception.classify.distributed import join_from_env, leave
-from perception.classify.preprocess import MODALITIES, FreeBubble, InputSpec
+from perception.classify.preprocess import (
+    FREE_FIELDS,
+    MODALITIES,
+    FreeBubble,
+    InputSpec,
+    frame_input,
+)
 from perception.classify.train import (
     TrainConfig,
     append_log,
@@ -61,21 +67,30 @@ def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def _imprint(args: argparse.Namespace) -> dict[str, Any]:
-    """The imprint scale's fields of the input spec from ``--free-bubble`` and its two
-    sizes (all three or none).
+def _free_bubble(args: argparse.Namespace) -> FreeBubble | None:
+    """The free bubble's frames of ``--free-bubble``, None without it.
 
     Raises:
-        ValueError: some given without the others, or a free-bubble file without the
-            frames (naming the file).
+        ValueError: a file without the frames (naming the file).
     """
-    given = [args.free_bubble, args.imprint_depth_mm, args.imprint_ir]
-    if all(v is None for v in given):
-        return {}
-    if any(v is None for v in given):
-        raise ValueError("--free-bubble, --imprint-depth-mm and --imprint-ir go together")
+    if args.free_bubble is None:
+        return None
     with np.load(args.free_bubble, allow_pickle=False) as arrays:
-        free = FreeBubble.from_arrays(dict(arrays), args.free_bubble)
+        return FreeBubble.from_arrays(dict(arrays), args.free_bubble)
+
+
+def _imprint(args: argparse.Namespace, free: FreeBubble | None) -> dict[str, Any]:
+    """The imprint scale's fields of the input spec from ``--imprint-depth-mm`` and
+    ``--imprint-ir`` (both or neither) against ``free``.
+
+    Raises:
+        ValueError: one size without the other, or the sizes without the free bubble.
+    """
+    sizes = [args.imprint_depth_mm, args.imprint_ir]
+    if all(v is None for v in sizes):
+        return {}
+    if any(v is None for v in sizes) or free is None:
+        raise ValueError("--free-bubble, --imprint-depth-mm and --imprint-ir go together")
     return {
         "imprint_depth_m": args.imprint_depth_mm / 1000.0,
         "imprint_ir": float(args.imprint_ir),
@@ -101,8 +116,27 @@ def _cmd_train(args: argparse.Namespace) -> int:
         swap_sides=not args.no_swap_sides,
         max_frames_per_grasp=args.max_frames_per_grasp,
         subtract_mean=not args.no_mean,
+        dent_scale_min=args.dent_scale_min,
+        ir_change_scale_min=args.ir_change_scale_min,
+        ir_blur_px=args.ir_blur_px,
     )
-    spec = InputSpec(modality=config.modality, input_px=config.input_px, **_imprint(args))
+    free = _free_bubble(args)
+    spec = InputSpec(modality=config.modality, input_px=config.input_px, **_imprint(args, free))
+    if free is not None and not spec.imprint_depth_m and not config.scales_about_free:
+        raise ValueError(
+            "--free-bubble is for the imprint scale (--imprint-depth-mm, --imprint-ir) "
+            "or the membrane's variation (--dent-scale-min, --ir-change-scale-min)"
+        )
+    if config.scales_about_free and free is None:
+        raise ValueError(
+            "--dent-scale-min and --ir-change-scale-min scale about the free bubble: "
+            "give --free-bubble"
+        )
+    free_input = (
+        frame_input(spec, **{name: getattr(free, name) for name in FREE_FIELDS})
+        if free is not None
+        else None
+    )
     init = load_checkpoint(args.init) if args.init else None
     if init is not None:  # before the datasets load (minutes): its inputs must fit
         check_init(init[1], ModelMeta.for_spec(spec, init[1].classes, config.width))
@@ -172,6 +206,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
             init=init,
             group=group,
             spec=spec,
+            free_input=free_input,
         )
     finally:
         leave(group)
@@ -331,13 +366,35 @@ def parser() -> argparse.ArgumentParser:
         "--free-bubble",
         default=None,
         help="each bubble's no-contact frames (.npz of python -m sim.free_bubble): scale "
-        "each imprint against them (with --imprint-depth-mm and --imprint-ir)",
+        "each imprint against them (with --imprint-depth-mm and --imprint-ir), or vary "
+        "the dents about them (--dent-scale-min, --ir-change-scale-min)",
     )
     p.add_argument(
         "--imprint-depth-mm", type=float, default=None, help="the depth each dent is scaled to"
     )
     p.add_argument(
         "--imprint-ir", type=float, default=None, help="the IR change each imprint is scaled to"
+    )
+    p.add_argument(
+        "--dent-scale-min",
+        type=float,
+        default=1.0,
+        help="augmentation: each dent scaled about the free bubble (--free-bubble) by a "
+        "factor drawn from [this, 1]",
+    )
+    p.add_argument(
+        "--ir-change-scale-min",
+        type=float,
+        default=1.0,
+        help="augmentation: each IR change scaled about the free bubble by a factor drawn "
+        "from [this, 1]",
+    )
+    p.add_argument(
+        "--ir-blur-px",
+        type=float,
+        default=0.0,
+        help="augmentation: the IR blurred by a Gaussian of sigma drawn from [0, this] "
+        "input pixels",
     )
     p.set_defaults(func=_cmd_train)
     e = sub.add_parser("evaluate", help="score a model on a held-out dataset")

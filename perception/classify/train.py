@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+import cv2
 import numpy as np
 import torch
 from torch import nn
@@ -52,6 +53,14 @@ class TrainConfig:
     swap_sides: bool = True
     max_frames_per_grasp: int | None = None
     subtract_mean: bool = True  # the network subtracts the mean training image first
+    # Another membrane's imprint (augmentation; docs/classifier.md, "Membrane variation"):
+    # each input's dent, its depth channel against the free bubble's input (``train``'s
+    # ``free_input``), scaled by a factor drawn from [dent_scale_min, 1], its IR change
+    # likewise from [ir_change_scale_min, 1], and its IR blurred by a Gaussian of sigma
+    # drawn from [0, ir_blur_px] input pixels, each bubble's half on its own. 1, 1, 0: none.
+    dent_scale_min: float = 1.0
+    ir_change_scale_min: float = 1.0
+    ir_blur_px: float = 0.0
 
     def __post_init__(self) -> None:
         check_modality(self.modality)
@@ -74,6 +83,22 @@ class TrainConfig:
             raise ValueError(f"swap_sides needs an even input_px, got {self.input_px}")
         if self.max_frames_per_grasp is not None and self.max_frames_per_grasp < 1:
             raise ValueError(f"max_frames_per_grasp must be >= 1, got {self.max_frames_per_grasp}")
+        for name in ("dent_scale_min", "ir_change_scale_min"):
+            if not 0 < getattr(self, name) <= 1:
+                raise ValueError(f"{name} must be in (0, 1], got {getattr(self, name)}")
+        if not self.ir_blur_px >= 0:
+            raise ValueError(f"ir_blur_px must be >= 0, got {self.ir_blur_px}")
+        if self.dent_scale_min < 1 and self.modality == "ir":
+            raise ValueError("dent_scale_min varies the depth channel: modality 'ir' has none")
+        if (self.ir_change_scale_min < 1 or self.ir_blur_px > 0) and self.modality == "depth":
+            raise ValueError(
+                "ir_change_scale_min and ir_blur_px vary the IR channel: modality 'depth' has none"
+            )
+
+    @property
+    def scales_about_free(self) -> bool:
+        """Whether the augmentation scales changes against the free bubble's input."""
+        return self.dent_scale_min < 1 or self.ir_change_scale_min < 1
 
 
 def split_by_grasp(
@@ -168,6 +193,45 @@ def _sides_swapped(batch: torch.Tensor, rng: np.random.Generator) -> torch.Tenso
     return out
 
 
+def _membrane_varied(
+    batch: torch.Tensor, free: torch.Tensor | None, config: TrainConfig, rng: np.random.Generator
+) -> torch.Tensor:
+    """Each input as another membrane might have made it (augmentation, ``TrainConfig``):
+    its dent and IR change against ``free`` (the free bubble's input) scaled by a factor
+    drawn per input, and its IR blurred, each bubble's half apart so that neither bleeds
+    into the other. The depth channel is an affine map of depth and the resize is linear,
+    so a scaled change in the input is the input of the same change scaled in metres
+    (outside the clip at +-4 and holes, which a shallower dent fills: as on a membrane
+    that does not reach the minimum range); the IR channel is standardised per frame, so
+    there it is near, not exact."""
+    depth = 0 if config.modality != "ir" else None
+    ir = {"ir": 0, "both": 1}.get(config.modality)
+    n = len(batch)
+    out = batch
+    for channel, low in ((depth, config.dent_scale_min), (ir, config.ir_change_scale_min)):
+        if channel is None or low >= 1:
+            continue
+        assert free is not None  # train() checks it
+        if out is batch:
+            out = batch.clone()
+        scale = torch.from_numpy(rng.uniform(low, 1.0, n).astype(np.float32))[:, None, None]
+        base = free[channel]
+        out[:, channel] = base + scale * (batch[:, channel] - base)
+    if ir is not None and config.ir_blur_px > 0:
+        if out is batch:
+            out = batch.clone()
+        sigmas = rng.uniform(0.0, config.ir_blur_px, n)
+        half = out.shape[-1] // 2
+        planes = out[:, ir].numpy()  # shares out's memory
+        for i, sigma in enumerate(sigmas):
+            for cols in (slice(0, half), slice(half, None)):
+                side = np.ascontiguousarray(planes[i, :, cols])
+                planes[i, :, cols] = cv2.GaussianBlur(
+                    side, (0, 0), sigmaX=float(sigma), borderType=cv2.BORDER_REPLICATE
+                )
+    return out
+
+
 @torch.inference_mode()
 def predict(model: nn.Module, x: np.ndarray, batch_size: int = 64) -> tuple[np.ndarray, np.ndarray]:
     """Predicted labels and softmax probabilities of ``model`` (put in eval mode) on ``x``."""
@@ -202,6 +266,7 @@ def train(
     init: tuple[ResNet18, ModelMeta] | None = None,
     group: Group | None = None,
     spec: InputSpec | None = None,
+    free_input: np.ndarray | None = None,
 ) -> TrainResult:
     """Train a ResNet18 on ``samples`` (inputs already of ``config``'s modality and size).
 
@@ -221,10 +286,13 @@ def train(
             computes its share of every batch; default alone.
         spec: the input the samples were made with (saved with the model); default
             ``config``'s modality and size with the default normalisation.
+        free_input: the free bubble's frames as ``spec`` makes an input of them, which
+            ``config``'s dent and IR change scales vary about (needed then only).
 
     Raises:
-        ValueError: inputs whose channel count or size does not fit ``config``, or an
-            ``init`` model that does not fit ``config`` or the samples' classes.
+        ValueError: inputs whose channel count or size does not fit ``config``, an
+            ``init`` model that does not fit ``config`` or the samples' classes, or a
+            scale about the free bubble without ``free_input`` (or one of another shape).
     """
     spec = spec or InputSpec(modality=config.modality, input_px=config.input_px)
     if (spec.modality, spec.input_px) != (config.modality, config.input_px):
@@ -235,6 +303,15 @@ def train(
     expected = (spec.channels, spec.input_px, spec.input_px)
     if samples.x.shape[1:] != expected:
         raise ValueError(f"samples have shape {samples.x.shape[1:]}, config needs {expected}")
+    free = None
+    if config.scales_about_free:
+        if free_input is None or free_input.shape != expected:
+            got = "none" if free_input is None else f"shape {free_input.shape}"
+            raise ValueError(
+                f"dent_scale_min and ir_change_scale_min scale about the free bubble's "
+                f"input of shape {expected}: got {got}"
+            )
+        free = torch.from_numpy(np.asarray(free_input, dtype=np.float32))
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
     train_mask, val_mask = split_by_grasp(
@@ -295,7 +372,9 @@ def train(
                 continue
             xb = torch.from_numpy(x_train[idx].astype(np.float32))
             # The whole batch is augmented in every process, so that all draw the same
-            # numbers and stay in step; each then keeps its share.
+            # numbers and stay in step; each then keeps its share. The membrane's variation
+            # first: it scales about the free bubble, whose sides are not swapped.
+            xb = _membrane_varied(xb, free, config, rng)
             if config.swap_sides:
                 xb = _sides_swapped(xb, rng)
             xb = _shifted(xb, config.shift_px, rng)

@@ -317,3 +317,94 @@ def test_cli_trains_with_the_imprint_scale(toy: Path, tmp_path: Path, capsys) ->
     assert json.loads(capsys.readouterr().out)["frames"] == 4 * 8 * 4
     assert main([*args, *imprint]) == 2  # one of the three missing
     assert "go together" in capsys.readouterr().err
+
+
+def test_membrane_variation_scales_each_change_about_the_free_input() -> None:
+    # Each input's dent (depth channel) and IR change, against the free bubble's input,
+    # come out scaled by one factor per input and channel, drawn from the configured
+    # range; the batch given is left as it was.
+    from perception.classify.train import _membrane_varied
+
+    rng = np.random.default_rng(1)
+    batch = torch.from_numpy(rng.normal(size=(64, 2, 8, 10)).astype(np.float32))
+    before = batch.clone()
+    free = torch.from_numpy(rng.normal(size=(2, 8, 10)).astype(np.float32))
+    config = TrainConfig(epochs=1, modality="both", dent_scale_min=0.5, ir_change_scale_min=0.3)
+    out = _membrane_varied(batch, free, config, np.random.default_rng(2))
+    assert torch.equal(batch, before)
+    for channel, low in ((0, 0.5), (1, 0.3)):
+        change, was = out[:, channel] - free[channel], batch[:, channel] - free[channel]
+        scale = (change * was).sum(dim=(1, 2)) / (was * was).sum(dim=(1, 2))
+        assert torch.allclose(change, scale[:, None, None] * was, atol=1e-5)
+        assert low <= float(scale.min()) and float(scale.max()) <= 1
+        assert float(scale.max() - scale.min()) > 0.5 * (1 - low)  # drawn, not one value
+    # Off (the defaults): the same tensor back, and no number drawn.
+    quiet = np.random.default_rng(3)
+    assert _membrane_varied(batch, None, TrainConfig(epochs=1), quiet) is batch
+    assert quiet.random() == np.random.default_rng(3).random()
+
+
+def test_membrane_variation_blurs_each_bubble_on_its_own() -> None:
+    # The IR channel blurred, each bubble's half apart: a point beside the seam spreads
+    # within its half and not one value crosses into the other (blurred together, the
+    # columns beyond the seam would take some of it); the depth channel is untouched.
+    from perception.classify.train import _membrane_varied
+
+    batch = torch.zeros(32, 2, 16, 16)
+    batch[:, 1, :, :8], batch[:, 1, :, 8:] = 1.0, -1.0
+    batch[:, 1, 8, 7] = 9.0
+    batch[:, 0] = torch.from_numpy(np.random.default_rng(4).normal(size=(32, 16, 16)))
+    config = TrainConfig(epochs=1, modality="both", ir_blur_px=2.0)
+    out = _membrane_varied(batch, None, config, np.random.default_rng(5))
+    assert torch.equal(out[:, 0], batch[:, 0])
+    # A blurred constant is the constant to rounding; a share of the point would be > 1e-3.
+    assert torch.allclose(out[:, 1, :, 8:], batch[:, 1, :, 8:], rtol=0, atol=1e-5)
+    peaks, beside = out[:, 1, 8, 7], out[:, 1, 8, 6]
+    assert float(peaks.max()) <= 9.0 and int((peaks < 5.0).sum()) > 16  # sigma up to 2
+    assert int((beside > 1.5).sum()) > 16
+    assert float(out[:, 1, :, :8].min()) >= 1.0 - 1e-5  # nothing from the other side
+
+
+def test_membrane_variation_is_refused_where_it_cannot_act(toy: Path) -> None:
+    for bad, message in (
+        ({"dent_scale_min": 0.0}, "dent_scale_min must be in"),
+        ({"ir_change_scale_min": 1.5}, "ir_change_scale_min must be in"),
+        ({"ir_blur_px": -1.0}, "ir_blur_px must be >= 0"),
+        ({"modality": "ir", "dent_scale_min": 0.5}, "modality 'ir' has none"),
+        ({"modality": "depth", "ir_blur_px": 1.0}, "modality 'depth' has none"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            TrainConfig(epochs=1, **bad)
+    config = TrainConfig(epochs=1, modality="depth", dent_scale_min=0.5, **TINY)
+    samples = load_samples(toy, InputSpec(modality="depth", input_px=32))
+    with pytest.raises(ValueError, match=r"free bubble's input of shape \(1, 32, 32\): got none"):
+        train(samples, config, progress_stream=io.StringIO())
+    with pytest.raises(ValueError, match=r"got shape \(2, 32, 32\)"):
+        train(samples, config, progress_stream=io.StringIO(), free_input=np.zeros((2, 32, 32)))
+
+
+def test_cli_trains_with_the_membrane_varied(toy: Path, tmp_path: Path, capsys) -> None:
+    # --dent-scale-min, --ir-change-scale-min and --ir-blur-px train about --free-bubble's
+    # frames; the checkpoint records them; each needs the other as the errors say.
+    h, w = json.loads((toy / "manifest.json").read_text())["image_shape"]
+    free = np.full((h, w), 0.06, np.float32)
+    ir = np.full((h, w), 4000, np.float32)
+    free_path = tmp_path / "free.npz"
+    np.savez(free_path, depth_left_m=free, depth_right_m=free, ir_left=ir, ir_right=ir)
+    out = tmp_path / "varied.pt"
+    args = ["train", str(toy), "--epochs", "1", "--out", str(out), "--modality", "both"]
+    args += ["--input-px", "32", "--width", "0.125", "--batch-size", "16", "--threads", "1"]
+    varied = ["--dent-scale-min", "0.5", "--ir-change-scale-min", "0.4", "--ir-blur-px", "1"]
+    assert main([*args, *varied, "--free-bubble", str(free_path)]) == 0
+    config = load_checkpoint(out)[1].training["config"]
+    assert (config["dent_scale_min"], config["ir_change_scale_min"], config["ir_blur_px"]) == (
+        0.5,
+        0.4,
+        1.0,
+    )
+    capsys.readouterr()
+    assert main([*args, *varied]) == 2
+    assert "give --free-bubble" in capsys.readouterr().err
+    assert main([*args, "--free-bubble", str(free_path)]) == 2
+    assert "--free-bubble is for the imprint scale" in capsys.readouterr().err
+    assert main([*args, "--ir-blur-px", "1"]) == 0  # a blur alone needs no free bubble
